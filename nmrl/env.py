@@ -1,0 +1,295 @@
+"""The paper's Half-Cheetah (Sec. V-A, V-B) as a batched MJX environment.
+
+``env = HalfCheetah(); state = env.reset(key); state = env.step(state, action)``; both are pure
+functions of pytrees and work under ``jax.jit`` and ``jax.vmap`` (Brax-style).
+
+One ``step`` is one control step (0.02 s by default) made of ``control_dt / timestep`` MuJoCo
+substeps. Within it the network's action ``a`` (6,) gives the control stimuli a^0_i = 0.1 a_j
+(Sec. V-C) held constant, and in every substep the torque of Sec. V-A,
+
+    tau^0_i = 2/pi * arctan(-2 (omega_i - omega^0_i) - 0.05 d(omega_i)/dt),
+    tau_i   = T_i * min{max{-1, tau^0_i + a^0_i}, 1},
+
+is recomputed from the current joint state (the "spontaneous" PD torque is part of the plant).
+
+The observation is the 31 variables of Table I in the paper's order (``obs[k-1] = s_{t,k}``) and
+the reward is the sum of (8)-(14); every term is in ``state.metrics``. The choices the paper leaves
+open are listed in docs/model.md; in short:
+
+* s_{t,2} is ``dy_0/dt / 0.3`` (the dot was lost in the text: s_1 already is y_0, and s_8..s_10 of the
+  front paw read (y_9 - 0.1)/0.1, dy_9/dt / 0.3, [y_9 = 0]).
+* ``[y_i = 0]`` ("the paw stands on the ground") is ``y_i <= contact_tol`` (5 mm); y_i is the height of
+  the joint's centre, and the floor is placed one contact-sphere radius below y = 0.
+* (8), (11)-(14) are evaluated at the state s_{t+1} reached at the end of the control step
+  (r_t = r(a_t, s_{t+1}), Sec. II); (9) and (10) are averaged over the substeps of the step.
+* tau^w in (10) is the joint-limit constraint force MuJoCo's solver applies to the joint.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import pathlib
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from flax import struct
+from nmrl import _mjx as mjx  # quiet import (see nmrl/__init__.py)
+
+from nmrl import geometry as g
+
+MODEL_PATH = pathlib.Path(__file__).resolve().parents[1] / "models" / "half_cheetah.xml"
+OBS_DIM = 31
+ACT_DIM = 6
+#: Actuator order of the MJCF (= qpos order of the hinges) mapped to the action index j - 1.
+_ACT_OF_CTRL = np.array([g.ACTUATED.index(i) for i in g.QPOS_JOINTS])
+_STRENGTH_CTRL = g.STRENGTH[_ACT_OF_CTRL]
+REWARD_TERMS = ("r8_speed", "r9_torque", "r10_limit", "r11_lift", "r12_heel", "r13_knee", "r14_head")
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvConfig:
+    """Environment options. Defaults are the paper's (Sec. V-C) and docs/model.md's physics."""
+
+    control_dt: float = 0.02  #: control step delta [s]
+    stop_prob: float = 1 / 250  #: probability of stopping the trial after each step
+    contact_tol: float = 0.005  #: a joint "stands on the ground" when its height <= this [m]
+    timestep: float | None = None  #: physics timestep [s]; None = the MJCF's (0.005)
+    solver_iterations: int | None = None  #: None = the MJCF's (4)
+    ls_iterations: int | None = None  #: None = the MJCF's (4)
+    auto_reset: bool = True  #: reset a stopped trial inside ``step`` (batched training)
+    reward_scale: float = 1.0  #: multiplies the reward (a later study compares control steps)
+
+    def validate(self) -> None:
+        if not self.control_dt > 0:
+            raise ValueError(f"control_dt must be > 0 seconds, got {self.control_dt!r}")
+        if not 0.0 <= self.stop_prob < 1.0:
+            raise ValueError(f"stop_prob must be in [0, 1), got {self.stop_prob!r}")
+        if self.timestep is not None and not self.timestep > 0:
+            raise ValueError(f"timestep must be > 0 seconds, got {self.timestep!r}")
+        for name in ("solver_iterations", "ls_iterations"):
+            v = getattr(self, name)
+            if v is not None and (not isinstance(v, int) or v < 1):
+                raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
+
+
+@struct.dataclass
+class State:
+    """Immutable environment state (a pytree)."""
+
+    data: mjx.Data
+    obs: jax.Array  #: (31,) Table I
+    reward: jax.Array  #: () sum of (8)-(14) for the step that produced this state
+    done: jax.Array  #: () 1.0 if the trial was stopped after this step (or the physics failed)
+    metrics: dict[str, jax.Array]
+    info: dict[str, Any]
+
+
+def soft_step(x: jax.Array) -> jax.Array:
+    """The soft-step function f of Sec. V-B."""
+    return jnp.where(
+        x <= 0.0, 0.0, jnp.where(x <= 0.5, 2 * x**2, jnp.where(x <= 1.0, 1 - 2 * (x - 1) ** 2, 1.0))
+    )
+
+
+def forward_kinematics(qpos: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Joint positions (10, 2) [(x, y)] and link angles phi (9,) from MJX qpos (9,).
+
+    qpos = [x, z, theta, q3, q2, q1, q6, q7, q8]; omega_i = omega^0_i + q_i; the trunk angle is
+    phi_3 = theta. See nmrl/geometry.py for the conventions.
+    """
+    L = jnp.asarray(g.LINK_LENGTHS)
+    w0 = jnp.asarray(g.OMEGA0)
+    q = dict(zip(g.QPOS_JOINTS, qpos[3:]))
+    w = {i: w0[i - 1] + q.get(i, 0.0) for i in range(1, 9)}
+    phi3 = g.initial_link_angles()[3] + qpos[2]
+    phi = [None] * 9
+    phi[3] = phi3
+    phi[2] = phi3 - w[3]
+    phi[1] = phi[2] - w[2]
+    phi[0] = phi[1] - w[1]
+    for i in range(4, 9):
+        phi[i] = phi[i - 1] + w[i]
+    phi = jnp.stack(phi)
+    u = jnp.stack([jnp.cos(phi), jnp.sin(phi)], axis=-1) * L[:, None]
+    hip = jnp.asarray(g.initial_joint_positions()[3]) + qpos[:2]
+    p = [None] * 10
+    p[3] = hip
+    for i in (2, 1, 0):
+        p[i] = p[i + 1] - u[i]
+    for i in range(4, 10):
+        p[i] = p[i - 1] + u[i - 1]
+    return jnp.stack(p), phi
+
+
+def kinematics(qpos: jax.Array, qvel: jax.Array):
+    """(positions (10,2), velocities (10,2), phi (9,), dphi/dt (9,)) by forward-mode autodiff."""
+    (p, phi), (v, dphi) = jax.jvp(forward_kinematics, (qpos,), (qvel,))
+    return p, v, phi, dphi
+
+
+def observation(p, v, phi, dphi, contact_tol: float) -> jax.Array:
+    """The 31 state variables of Table I (obs[k-1] = s_{t,k})."""
+    y, xd, yd = p[:, 1], v[:, 0], v[:, 1]
+    on0 = (y[0] <= contact_tol).astype(p.dtype)
+    on9 = (y[9] <= contact_tol).astype(p.dtype)
+    head = jnp.stack([
+        (y[0] - 0.1) / 0.1,
+        yd[0] / 0.3,
+        (on0 - 0.5) / 0.5,
+        ((y[3] + y[4]) / 2 - 0.6) / 0.2,
+        (xd[3] + xd[4]) / 2 - 1.0,
+        yd[3] / 0.3,
+        yd[4] / 0.3,
+        (y[9] - 0.1) / 0.1,
+        yd[9] / 0.3,
+        (on9 - 0.5) / 0.5,
+    ])
+    links = jnp.array([0, 1, 2, 3, 6, 7, 8])
+    per_link = jnp.stack([jnp.cos(phi[links]) / 0.7, jnp.sin(phi[links]) / 0.7, dphi[links] / 3.0], axis=-1)
+    return jnp.concatenate([head, per_link.reshape(-1)])
+
+
+def state_rewards(p, v, contact_tol: float) -> dict[str, jax.Array]:
+    """Reward terms (8) and (11)-(14), functions of the state s_{t+1}."""
+    y, xd, yd = p[:, 1], v[:, 0], v[:, 1]
+    up0 = (y[0] > contact_tol).astype(p.dtype)
+    up9 = (y[9] > contact_tol).astype(p.dtype)
+    speed2 = xd[3] + xd[4]
+    return {
+        "r8_speed": 0.5 * speed2,
+        "r11_lift": (soft_step(0.3 * jnp.maximum(yd[3] + up0, yd[4] + up9) + 0.1) - 1.0)
+        * (1.0 - soft_step(1.5 * speed2)),
+        "r12_heel": soft_step(9.0 * y[1]) - 1.0,
+        "r13_knee": soft_step(5.0 * y[2]) - 1.0,
+        "r14_head": soft_step(2.0 * y[5]) - 1.0,
+    }
+
+
+def pd_torque(qpos: jax.Array, qvel: jax.Array, a0_ctrl: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """(tau, tau^0 + a^0) for the 6 actuated joints in actuator order (Sec. V-A)."""
+    q, qd = qpos[3:], qvel[3:]
+    tau0 = (2.0 / jnp.pi) * jnp.arctan(-2.0 * q - 0.05 * qd)
+    pre = tau0 + a0_ctrl
+    return jnp.asarray(_STRENGTH_CTRL, qpos.dtype) * jnp.clip(pre, -1.0, 1.0), pre
+
+
+class HalfCheetah:
+    """The paper's Half-Cheetah stepped by MJX. See the module docstring."""
+
+    obs_dim = OBS_DIM
+    act_dim = ACT_DIM
+
+    def __init__(self, config: EnvConfig | None = None, model_path: str | os.PathLike = MODEL_PATH):
+        self.config = config = config or EnvConfig()
+        config.validate()
+        mj = mujoco.MjModel.from_xml_path(str(model_path))
+        if config.timestep is not None:
+            mj.opt.timestep = config.timestep
+        if config.solver_iterations is not None:
+            mj.opt.iterations = config.solver_iterations
+        if config.ls_iterations is not None:
+            mj.opt.ls_iterations = config.ls_iterations
+        n_sub = config.control_dt / mj.opt.timestep
+        if abs(n_sub - round(n_sub)) > 1e-6 or round(n_sub) < 1:
+            raise ValueError(
+                f"control_dt={config.control_dt} must be a positive multiple of the physics timestep "
+                f"{mj.opt.timestep}"
+            )
+        self.n_substeps = int(round(n_sub))
+        self.mj_model = mj
+        self.model = mjx.put_model(mj)
+        d = mjx.make_data(self.model)
+        d = jax.jit(mjx.forward)(self.model, d)
+        # Rows of the constraint Jacobian that are joint limits (static layout in MJX).
+        efc_type = np.asarray(d._impl.efc_type)
+        self._limit_rows = np.nonzero(efc_type == int(mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT))[0]
+        self._data0 = d
+
+    # ------------------------------------------------------------------ reset
+    def reset(self, key: jax.Array) -> State:
+        """Initial pose of Sec. V-A, hind paw 0.1 m above the ground, at rest."""
+        data = self._data0
+        p, v, phi, dphi = kinematics(data.qpos, data.qvel)
+        zero = jnp.zeros((), data.qpos.dtype)
+        metrics = {k: zero for k in REWARD_TERMS}
+        metrics.update(self._extra_metrics(p, v, jnp.zeros((), bool)))
+        obs = observation(p, v, phi, dphi, self.config.contact_tol)
+        info = {"key": key, "steps": jnp.zeros((), jnp.int32), "terminal_obs": obs}
+        return State(data=data, obs=obs, reward=zero, done=zero, metrics=metrics, info=info)
+
+    # ------------------------------------------------------------------- step
+    def step(self, state: State, action: jax.Array) -> State:
+        """One control step; with ``auto_reset`` a stopped trial restarts (``done`` flags it)."""
+        action = self._check_action(action)
+        cfg = self.config
+        a0 = 0.1 * action[_ACT_OF_CTRL]
+
+        def substep(carry, _):
+            data = carry
+            tau, pre = pd_torque(data.qpos, data.qvel, a0)
+            data = mjx.step(self.model, data.replace(ctrl=tau))
+            tau_w = self._limit_torque(data)
+            return data, (jnp.maximum(jnp.abs(pre) - 1.0, 0.0), tau_w)
+
+        data, (over, tau_w) = jax.lax.scan(substep, state.data, None, length=self.n_substeps)
+        finite = jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel))
+        qpos = jnp.where(finite, data.qpos, self._data0.qpos)
+        qvel = jnp.where(finite, data.qvel, self._data0.qvel)
+        p, v, phi, dphi = kinematics(qpos, qvel)
+        terms = state_rewards(p, v, cfg.contact_tol)
+        terms["r9_torque"] = -0.05 * jnp.sum(jnp.mean(over, axis=0))
+        terms["r10_limit"] = -0.1 * jnp.sum(jnp.minimum(jnp.abs(jnp.mean(tau_w, axis=0)), 50.0))
+        terms = {k: jnp.where(finite, terms[k], 0.0) for k in REWARD_TERMS}
+        reward = cfg.reward_scale * sum(terms[k] for k in REWARD_TERMS)
+        obs = observation(p, v, phi, dphi, cfg.contact_tol)
+        key, k_stop = jax.random.split(state.info["key"])
+        stopped = (jax.random.uniform(k_stop) < cfg.stop_prob) | ~finite
+        metrics = dict(terms)
+        metrics.update(self._extra_metrics(p, v, ~finite))
+        info = {"key": key, "steps": state.info["steps"] + 1, "terminal_obs": obs}
+        new = State(data=data, obs=obs, reward=reward, done=stopped.astype(reward.dtype), metrics=metrics,
+                    info=info)
+        if cfg.auto_reset:
+            fresh = self.reset(key)
+            new = new.replace(
+                data=jax.tree.map(lambda a, b: jnp.where(stopped, a, b), fresh.data, data),
+                obs=jnp.where(stopped, fresh.obs, obs),
+                info={**info, "steps": jnp.where(stopped, 0, info["steps"])},
+            )
+        return new
+
+    # --------------------------------------------------------------- helpers
+    def _limit_torque(self, data: mjx.Data) -> jax.Array:
+        """tau^w: the joint-limit constraint force on each actuated joint (actuator order)."""
+        rows = self._limit_rows
+        J = data._impl.efc_J[rows]
+        f = data._impl.efc_force[rows]
+        return (J.T @ f)[3:]
+
+    def _extra_metrics(self, p, v, nonfinite) -> dict[str, jax.Array]:
+        y = p[:, 1]
+        tol = self.config.contact_tol
+        dt = p.dtype
+        return {
+            "forward_speed": 0.5 * (v[3, 0] + v[4, 0]),
+            "x": 0.5 * (p[3, 0] + p[4, 0]),
+            "heel_ground": (y[1] <= tol).astype(dt),
+            "knee_ground": (y[2] <= tol).astype(dt),
+            "head_ground": (y[5] <= tol).astype(dt),
+            "nonfinite": nonfinite.astype(dt),
+        }
+
+    @staticmethod
+    def _check_action(action: Any) -> jax.Array:
+        action = jnp.asarray(action)
+        if action.shape != (ACT_DIM,):
+            raise ValueError(
+                f"action must have shape ({ACT_DIM},) (vmap over a batch), got shape {action.shape}"
+            )
+        if not jnp.issubdtype(action.dtype, jnp.floating):
+            raise TypeError(f"action must be a floating-point array, got dtype {action.dtype}")
+        return action
