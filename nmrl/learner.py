@@ -1,0 +1,315 @@
+"""The classic actor-critic with TD(lambda) over non-Markov periods (Table II), batched.
+
+``trainer = make_train(config)`` gives pure functions ``trainer.init(key)``, ``trainer.chunk(ts)``
+(``chunk_steps`` control steps of every environment, a ``lax.scan``) and ``trainer.train(key)``
+(the whole budget as nested ``lax.scan``s under one ``jit``). All hyperparameters that a sweep may
+vary (l, Delta, alpha, sigma, gamma, lambda, beta) live in the traced :class:`Hyper` pytree inside the
+training state, so ``jax.vmap`` over (l, seed) points compiles one program.
+
+Per environment e, per nm-period k (Table II):
+
+1. perform l_k actions a_t = a~(s_t; theta) + xi_t (eq. (6)) with xi the piecewise AR process (4);
+   accumulate r_bar_k = sum_i gamma^i r_{t_k+i}; accumulate the Delta-sampled likelihood ratio
+   grad ln pi_Ahat(Ahat_k; S_k, theta) online (nmrl.noise.online_lr_add, the innovation form of (7));
+2. if the trial was stopped within the period, discard it: no update, traces z, y := 0 (a new trial
+   begins), and a new period starts at the reset state;
+3. d_k = r_bar_k + gamma_k V~(s_{t_{k+1}}; v) - V~(s_{t_k}; v), gamma_k = gamma^{l_k};
+4. z := lambda gamma_k z + grad ln pi_Ahat,   theta += beta^theta d_k z;
+5. y := lambda gamma_k y + dV~(s_{t_k}; v)/dv,  v += beta^v d_k y.
+
+Batching. N environments run in lock-step, each with its own period phase, traces and noise. At
+every control step the updates of all environments whose period ended at that step are *summed*
+with the paper's step sizes: theta += beta^theta sum_e d_e z_e (same for v). Each period thus moves
+the parameters by exactly the step the sequential algorithm would take for it, and N = 1 is the
+paper's sequential algorithm. (Averaging instead of summing would divide the step per sample by N.)
+With N > 1 the parameters change within a period of one environment (other environments update);
+the likelihood ratio of each sample is evaluated at the parameters that generated it (u = xi).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from nmrl import networks, noise
+from nmrl.env import ACT_DIM, OBS_DIM, REWARD_TERMS, EnvConfig, HalfCheetah, State
+
+Params = Any
+
+#: Named step-size presets. "paper" is Sec. V-C. Others are added only with a measured reason.
+PRESETS: dict[str, dict[str, float]] = {
+    "paper": {"beta_theta": 2e-6, "beta_v": 1e-5},
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """Everything that defines a training run. Defaults are the paper's (Sec. V-C, Table II)."""
+
+    # Table II / Sec. V-C
+    l: int = 10  #: nm-period length
+    delta: int = 4  #: sampling interval Delta of the likelihood ratio
+    alpha: float = 0.8  #: AR coefficient of xi (4)
+    sigma: float = 1.0  #: standard deviation of xi (Sigma = sigma^2 I)
+    gamma: float = 0.995  #: discount per control step
+    lam: float = 0.5  #: lambda of the TD(lambda) traces
+    beta_theta: float | None = None  #: actor step size; None = the preset's
+    beta_v: float | None = None  #: critic step size; None = the preset's
+    preset: str = "paper"
+    hidden_actor: int = 100  #: M^A
+    hidden_critic: int = 200  #: M^C
+    # environment
+    control_dt: float = 0.02
+    stop_prob: float = 1 / 250
+    # batching and budget
+    num_envs: int = 256  #: N environments in lock-step
+    chunk_steps: int = 250  #: control steps per environment in one jitted chunk
+    steps: int | None = None  #: budget in control steps per environment
+    trials: int | None = None  #: budget in trials, summed over environments (the paper's measure)
+    seed: int = 0
+    max_param_norm: float = 1e5  #: a parameter norm above this (or NaN) marks the run diverged
+
+    def resolved(self) -> "TrainConfig":
+        """Validate, fill step sizes from the preset and a default budget."""
+        self.validate()
+        p = PRESETS[self.preset]
+        out = dataclasses.replace(
+            self,
+            beta_theta=p["beta_theta"] if self.beta_theta is None else self.beta_theta,
+            beta_v=p["beta_v"] if self.beta_v is None else self.beta_v,
+        )
+        if out.steps is None and out.trials is None:
+            out = dataclasses.replace(out, steps=4 * out.chunk_steps)
+        return out
+
+    def validate(self) -> None:
+        def bad(name: str, allowed: str) -> ValueError:
+            return ValueError(f"{name}={getattr(self, name)!r} is invalid: {allowed}")
+
+        if self.preset not in PRESETS:
+            raise ValueError(f"preset={self.preset!r} is unknown: choose one of {sorted(PRESETS)}")
+        noise.validate(alpha=self.alpha, l=self.l, delta=self.delta)
+        for name in ("gamma", "lam"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and 0.0 <= v <= 1.0):
+                raise bad(name, "must be a number in [0, 1]")
+        if not (isinstance(self.sigma, (int, float)) and self.sigma > 0):
+            raise bad("sigma", "must be > 0")
+        for name in ("beta_theta", "beta_v"):
+            v = getattr(self, name)
+            if v is not None and not (isinstance(v, (int, float)) and v >= 0 and math.isfinite(v)):
+                raise bad(name, "must be a finite number >= 0")
+        for name in ("hidden_actor", "hidden_critic", "num_envs", "chunk_steps"):
+            v = getattr(self, name)
+            if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
+                raise bad(name, "must be an integer >= 1")
+        for name in ("steps", "trials"):
+            v = getattr(self, name)
+            if v is not None and not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
+                raise bad(name, "the budget must be an integer >= 1")
+        if self.steps is not None and self.trials is not None:
+            raise ValueError("give the budget as steps or as trials, not both")
+        if not self.max_param_norm > 0:
+            raise bad("max_param_norm", "must be > 0")
+        self.env_config().validate()
+
+    def env_config(self) -> EnvConfig:
+        return EnvConfig(control_dt=self.control_dt, stop_prob=self.stop_prob, auto_reset=True)
+
+    def num_chunks(self) -> int:
+        """Chunks needed for the budget (a trials budget uses the expected 1/stop_prob steps per trial)."""
+        cfg = self
+        if cfg.steps is not None:
+            return max(1, math.ceil(cfg.steps / cfg.chunk_steps))
+        steps_per_env = cfg.trials / (cfg.num_envs * cfg.stop_prob)
+        return max(1, math.ceil(steps_per_env / cfg.chunk_steps))
+
+
+class Hyper(NamedTuple):
+    """Traced hyperparameters (one program serves every value; the sweep vmaps over them)."""
+
+    l: jax.Array
+    delta: jax.Array
+    alpha: jax.Array
+    sigma: jax.Array
+    gamma: jax.Array
+    lam: jax.Array
+    beta_theta: jax.Array
+    beta_v: jax.Array
+
+    @staticmethod
+    def from_config(cfg: TrainConfig) -> "Hyper":
+        f = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+        return Hyper(l=jnp.asarray(cfg.l, jnp.int32), delta=jnp.asarray(cfg.delta, jnp.int32),
+                     alpha=f(cfg.alpha), sigma=f(cfg.sigma), gamma=f(cfg.gamma), lam=f(cfg.lam),
+                     beta_theta=f(cfg.beta_theta), beta_v=f(cfg.beta_v))
+
+
+@struct.dataclass
+class EnvSlot:
+    """Per-environment learner state (leading axis N)."""
+
+    env: State
+    ar: noise.ARState  #: xi_{t-1} and the in-period index of the next step
+    olr: noise.OnlineLR  #: likelihood ratio of the current period, accumulated online
+    z: Params  #: actor eligibility trace
+    y: Params  #: critic eligibility trace
+    s_start: jax.Array  #: s_{t_k}
+    rbar: jax.Array  #: r_bar_k so far
+    gpow: jax.Array  #: gamma^(steps so far in the period)
+
+
+@struct.dataclass
+class TrainState:
+    theta: Params
+    v: Params
+    slots: EnvSlot
+    key: jax.Array
+    hyper: Hyper
+    step: jax.Array  #: control steps per environment so far
+    trials: jax.Array  #: trials finished, summed over environments
+    periods: jax.Array  #: periods that took part in learning, summed over environments
+    diverged: jax.Array  #: True once an update made the parameters non-finite or too large
+
+
+class Trainer(NamedTuple):
+    config: TrainConfig
+    env: HalfCheetah
+    init: Callable[..., TrainState]
+    chunk: Callable[[TrainState], tuple[TrainState, dict]]
+    train: Callable[[jax.Array], tuple[TrainState, dict]]
+
+
+def _tree_where(c, a, b):
+    return jax.tree.map(lambda x, y: jnp.where(c, x, y), a, b)
+
+
+def make_train(config: TrainConfig, env: HalfCheetah | None = None) -> Trainer:
+    """Build the pure functions of a training run (see the module docstring)."""
+    cfg = config.resolved()
+    env = env or HalfCheetah(cfg.env_config())
+    actor = networks.make_actor(cfg.hidden_actor, ACT_DIM)
+    critic = networks.make_critic(cfg.hidden_critic)
+    N = cfg.num_envs
+
+    def init(key: jax.Array, hyper: Hyper | None = None) -> TrainState:
+        hyper = Hyper.from_config(cfg) if hyper is None else hyper
+        k_a, k_c, k_env, key = jax.random.split(key, 4)
+        theta = networks.init_params(actor, k_a, OBS_DIM)
+        v = networks.init_params(critic, k_c, OBS_DIM)
+        env_states = jax.vmap(env.reset)(jax.random.split(k_env, N))
+        zeros_like = lambda t: jax.tree.map(lambda x: jnp.zeros((N,) + x.shape, x.dtype), t)  # noqa: E731
+        olr = noise.online_lr_init(theta, OBS_DIM, ACT_DIM)
+        slots = EnvSlot(
+            env=env_states,
+            ar=jax.vmap(lambda _: noise.ar_init(ACT_DIM))(jnp.arange(N)),
+            olr=jax.tree.map(lambda x: jnp.broadcast_to(x, (N,) + x.shape), olr),
+            z=zeros_like(theta),
+            y=zeros_like(v),
+            s_start=env_states.obs,
+            rbar=jnp.zeros((N,), jnp.float32),
+            gpow=jnp.ones((N,), jnp.float32),
+        )
+        z32 = jnp.zeros((), jnp.int32)
+        return TrainState(theta=theta, v=v, slots=slots, key=key, hyper=hyper, step=z32, trials=z32,
+                          periods=z32, diverged=jnp.zeros((), bool))
+
+    def slot_step(theta, v, slot: EnvSlot, eps, h: Hyper):
+        """One control step of one environment; returns the slot and its (d, completed) and stats."""
+        obs = slot.env.obs
+        start = slot.ar.i == 0
+        s_start = jnp.where(start, obs, slot.s_start)
+        rbar = jnp.where(start, 0.0, slot.rbar)
+        gpow = jnp.where(start, 1.0, slot.gpow)
+        olr = _tree_where(start, noise.online_lr_reset(slot.olr), slot.olr)
+        i_used = slot.ar.i
+        mean = actor.apply(theta, obs)
+        ar, xi = noise.ar_step(slot.ar, eps, h.alpha, h.l, h.sigma)
+        sampled = jnp.remainder(i_used, h.delta) == 0
+        olr = noise.online_lr_add(olr, actor.apply, theta, obs, xi, h.alpha ** h.delta, h.sigma,
+                                  active=sampled)
+        env_state = env.step(slot.env, mean + xi)
+        r = env_state.reward
+        rbar = rbar + gpow * r
+        gpow = gpow * h.gamma
+        stopped = env_state.done > 0
+        completed = (ar.i == 0) & ~stopped
+        v_start, g_v = jax.value_and_grad(lambda p: networks.value(critic, p, s_start))(v)
+        v_next = networks.value(critic, v, env_state.obs)
+        d = rbar + gpow * v_next - v_start
+        decay = h.lam * gpow
+        z_new = jax.tree.map(lambda z, g: decay * z + g, slot.z, olr.grad)
+        y_new = jax.tree.map(lambda y, g: decay * y + g, slot.y, g_v)
+        keep = lambda new, old: jax.tree.map(  # noqa: E731
+            lambda n, o: jnp.where(completed, n, jnp.where(stopped, jnp.zeros_like(o), o)), new, old)
+        slot = EnvSlot(env=env_state, ar=ar._replace(i=jnp.where(stopped, 0, ar.i)), olr=olr,
+                       z=keep(z_new, slot.z), y=keep(y_new, slot.y), s_start=s_start, rbar=rbar,
+                       gpow=gpow)
+        d_used = jnp.where(completed, d, 0.0)
+        return slot, d_used, completed, stopped, env_state
+
+    def step(ts: TrainState, _):
+        h = ts.hyper
+        key, k_eps = jax.random.split(ts.key)
+        eps = jax.random.normal(k_eps, (N, ACT_DIM), jnp.float32)
+        slots, d, completed, stopped, es = jax.vmap(slot_step, in_axes=(None, None, 0, 0, None))(
+            ts.theta, ts.v, ts.slots, eps, h)
+        theta = jax.tree.map(lambda p, z: p + h.beta_theta * jnp.tensordot(d, z, axes=1), ts.theta, slots.z)
+        v = jax.tree.map(lambda p, y: p + h.beta_v * jnp.tensordot(d, y, axes=1), ts.v, slots.y)
+        ok = (networks.global_norm(theta) < cfg.max_param_norm) & (networks.global_norm(v) < cfg.max_param_norm)
+        ok = ok & ~ts.diverged  # a diverged point stays frozen at its last good parameters
+        theta = _tree_where(ok, theta, ts.theta)
+        v = _tree_where(ok, v, ts.v)
+        n_done = jnp.sum(stopped.astype(jnp.int32))
+        n_learn = jnp.sum(completed.astype(jnp.int32))
+        new = ts.replace(theta=theta, v=v, slots=slots, key=key, step=ts.step + 1,
+                         trials=ts.trials + n_done, periods=ts.periods + n_learn,
+                         diverged=ts.diverged | ~ok)
+        cnt = jnp.maximum(n_learn, 1)
+        stats = {
+            "reward": jnp.mean(es.reward),
+            **{k: jnp.mean(es.metrics[k]) for k in REWARD_TERMS},
+            "forward_speed": jnp.mean(es.metrics["forward_speed"]),
+            "nonfinite": jnp.sum(es.metrics["nonfinite"]),
+            "trials": n_done,
+            "periods": n_learn,
+            "td_sum": jnp.sum(d),
+            "td_sq": jnp.sum(d * d),
+            "td_absmax": jnp.max(jnp.abs(d)),
+        }
+        del cnt
+        return new, stats
+
+    def chunk(ts: TrainState) -> tuple[TrainState, dict]:
+        ts, stats = jax.lax.scan(step, ts, None, length=cfg.chunk_steps)
+        n = jnp.maximum(jnp.sum(stats["periods"]), 1)
+        td_mean = jnp.sum(stats["td_sum"]) / n
+        out = {
+            "avg_reward": jnp.mean(stats["reward"]),
+            "forward_speed": jnp.mean(stats["forward_speed"]),
+            **{k: jnp.mean(stats[k]) for k in REWARD_TERMS},
+            "trials_in_chunk": jnp.sum(stats["trials"]),
+            "periods_in_chunk": jnp.sum(stats["periods"]),
+            "nonfinite": jnp.sum(stats["nonfinite"]),
+            "td_mean": td_mean,
+            "td_std": jnp.sqrt(jnp.maximum(jnp.sum(stats["td_sq"]) / n - td_mean**2, 0.0)),
+            "td_absmax": jnp.max(stats["td_absmax"]),
+            "theta_norm": networks.global_norm(ts.theta),
+            "v_norm": networks.global_norm(ts.v),
+            "diverged": ts.diverged,
+            "step": ts.step,
+            "trials": ts.trials,
+            "periods": ts.periods,
+        }
+        return ts, out
+
+    def train(key: jax.Array, hyper: Hyper | None = None) -> tuple[TrainState, dict]:
+        ts = init(key, hyper)
+        return jax.lax.scan(lambda t, _: chunk(t), ts, None, length=cfg.num_chunks())
+
+    return Trainer(config=cfg, env=env, init=init, chunk=chunk, train=train)
