@@ -182,6 +182,7 @@ class HalfCheetah:
 
     obs_dim = OBS_DIM
     act_dim = ACT_DIM
+    reward_terms = REWARD_TERMS
 
     def __init__(self, config: EnvConfig | None = None, model_path: str | os.PathLike = MODEL_PATH):
         self.config = config = config or EnvConfig()

@@ -37,7 +37,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from nmrl import networks, noise
-from nmrl.env import ACT_DIM, OBS_DIM, REWARD_TERMS, EnvConfig, HalfCheetah, State
+from nmrl.env import EnvConfig, HalfCheetah, State
 
 Params = Any
 
@@ -189,10 +189,17 @@ def _tree_where(c, a, b):
     return jax.tree.map(lambda x, y: jnp.where(c, x, y), a, b)
 
 
-def make_train(config: TrainConfig, env: HalfCheetah | None = None) -> Trainer:
-    """Build the pure functions of a training run (see the module docstring)."""
+def make_train(config: TrainConfig, env: Any = None) -> Trainer:
+    """Build the pure functions of a training run (see the module docstring).
+
+    ``env`` defaults to ``HalfCheetah(config.env_config())``; any environment with the same interface
+    (``obs_dim``, ``act_dim``, ``reward_terms``, ``reset(key)``, ``step(state, action)`` with auto-reset,
+    ``State`` with ``obs``, ``reward``, ``done``, ``metrics`` incl. ``forward_speed`` and ``nonfinite``) works.
+    """
     cfg = config.resolved()
     env = env or HalfCheetah(cfg.env_config())
+    OBS_DIM, ACT_DIM = env.obs_dim, env.act_dim
+    REWARD_TERMS = tuple(env.reward_terms)
     actor = networks.make_actor(cfg.hidden_actor, ACT_DIM)
     critic = networks.make_critic(cfg.hidden_critic)
     N = cfg.num_envs

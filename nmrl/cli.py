@@ -1,0 +1,153 @@
+"""Command line: ``nmrl train``, ``nmrl sweep``, ``nmrl eval``, ``nmrl bench``.
+
+Every field of :class:`nmrl.learner.TrainConfig` is an option of ``train`` and ``sweep``
+(``--beta-theta 2e-6``, ``--num-envs 256``, ...). Bad values exit with status 2 and a message that
+names the value, before anything is written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import typing
+
+from nmrl.learner import PRESETS, TrainConfig
+
+#: Budget of a plain ``nmrl train`` (control steps per environment): a few minutes on 2 CPU cores.
+DEFAULT_STEPS = 3000
+_SWEEP_FIELDS = {"l", "seed"}  # given as lists to ``nmrl sweep``
+
+
+def _field_type(f: dataclasses.Field) -> type:
+    hints = typing.get_type_hints(TrainConfig)
+    t = hints[f.name]
+    args = [a for a in typing.get_args(t) if a is not type(None)]
+    return args[0] if args else t
+
+
+def add_config_options(p: argparse.ArgumentParser, skip: set[str] = frozenset()) -> None:
+    for f in dataclasses.fields(TrainConfig):
+        if f.name in skip:
+            continue
+        t = _field_type(f)
+        doc = {"preset": f"step-size preset: {', '.join(sorted(PRESETS))}"}.get(f.name, "")
+        p.add_argument("--" + f.name.replace("_", "-"), dest=f.name, type=t, default=None,
+                       help=f"{doc} (default: {f.default})".strip())
+
+
+def config_from_args(args: argparse.Namespace, skip: set[str] = frozenset()) -> TrainConfig:
+    kw = {f.name: getattr(args, f.name) for f in dataclasses.fields(TrainConfig)
+          if f.name not in skip and getattr(args, f.name, None) is not None}
+    return TrainConfig(**kw)
+
+
+def _fail(msg: str) -> int:
+    print(f"nmrl: error: {msg}", file=sys.stderr)
+    return 2
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    from nmrl import run
+
+    try:
+        cfg = config_from_args(args)
+        if not args.resume and cfg.steps is None and cfg.trials is None:
+            cfg = dataclasses.replace(cfg, steps=DEFAULT_STEPS)
+        cfg.validate()
+    except (ValueError, TypeError) as e:
+        return _fail(str(e))
+    try:
+        rows = run.train(cfg, args.out, resume=args.resume, progress=not args.quiet)
+    except run.RunError as e:
+        return _fail(str(e))
+    except run.Diverged as e:
+        print(f"nmrl: {e}", file=sys.stderr)
+        return 3
+    if rows:
+        first, last = rows[0], rows[-1]
+        print(json.dumps({"out": args.out, "step": last["step"], "trials": last["trials"],
+                          "avg_reward_first_chunk": first["avg_reward"], "avg_reward": last["avg_reward"],
+                          "forward_speed": last["forward_speed"]}))
+    return 0
+
+
+def cmd_eval(args: argparse.Namespace) -> int:
+    from nmrl import checkpoint, evaluate
+
+    if args.seconds <= 0:
+        return _fail(f"--seconds must be > 0, got {args.seconds}")
+    try:
+        result = evaluate.evaluate(args.run, step=args.step, seconds=args.seconds, seed=args.seed,
+                                   render=not args.no_render)
+    except checkpoint.CheckpointError as e:
+        return _fail(str(e))
+    print(json.dumps(result, indent=2))
+    return 0
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    from nmrl import sweep
+
+    try:
+        base = config_from_args(args, skip=_SWEEP_FIELDS)
+        spec = sweep.SweepSpec(ls=tuple(args.l), seeds=args.seeds, base=base)
+        spec.validate()
+    except (ValueError, TypeError) as e:
+        return _fail(str(e))
+    try:
+        sweep.run_sweep(spec, args.out, resume=args.resume, progress=not args.quiet)
+    except sweep.SweepError as e:
+        return _fail(str(e))
+    return 0
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from benchmarks.__main__ import main as bench_main
+
+    return bench_main(["--quick"] if args.quick else [])
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="nmrl", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="cmd", required=True)
+
+    p = sub.add_parser("train", help="train one (l, seed) point (Table II)")
+    add_config_options(p)
+    p.add_argument("--out", required=True, help="run directory (config, metrics.jsonl, checkpoints)")
+    p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
+    p.add_argument("--quiet", action="store_true", help="no progress display")
+    p.set_defaults(func=cmd_train)
+
+    p = sub.add_parser("sweep", help="the sweep over l and seeds as one vmapped program (Fig. 3)")
+    add_config_options(p, skip=_SWEEP_FIELDS)
+    p.add_argument("--l", type=int, nargs="+", required=True, help="period lengths, e.g. 1 2 3 5 10 15 20 30")
+    p.add_argument("--seeds", type=int, default=3, help="seeds per l (0..seeds-1)")
+    p.add_argument("--out", required=True)
+    p.add_argument("--resume", action="store_true")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=cmd_sweep)
+
+    p = sub.add_parser("eval", help="restore a policy, roll it out, print JSON, render the gait")
+    p.add_argument("run", help="run directory written by nmrl train")
+    p.add_argument("--step", type=int, default=None, help="checkpoint step (default: latest)")
+    p.add_argument("--seconds", type=float, default=10.0, help="simulated seconds per rollout")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--no-render", action="store_true", help="skip the strobe PNG and the GIF")
+    p.set_defaults(func=cmd_eval)
+
+    p = sub.add_parser("bench", help="run the benchmarks (python -m benchmarks)")
+    p.add_argument("--quick", action="store_true")
+    p.set_defaults(func=cmd_bench)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return args.func(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

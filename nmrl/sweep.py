@@ -1,0 +1,230 @@
+"""The sweep over the period length l (and seeds) as one program: the paper's Fig. 3.
+
+Every (l, seed) point is one training state; the states are stacked and ``jax.vmap`` runs the
+learner's chunk on all of them in one jitted program. l lives in the traced ``Hyper`` pytree
+(nmrl/learner.py): the in-period index is a counter compared with l, so no padding is needed and no
+point recompiles. The vmapped chunk gives, point by point, bit-identical results to separate
+``nmrl train`` runs (tests/test_sweep.py).
+
+Layout of ``OUT``::
+
+    sweep.json                       the sweep's spec (l values, seeds, base config)
+    points/l{l}_s{seed}/             a complete run directory per point (config.json,
+                                     metrics.jsonl, checkpoints/): ``nmrl eval`` and
+                                     ``nmrl train --resume`` work on it
+    results.csv                      l, seed, trials, steps, avg_reward, forward_speed, diverged, checkpoint
+    fig3.png                         Fig. 3 and the learning curves (nmrl/plots.py)
+
+``avg_reward`` in results.csv is the average reward per control step during learning (the
+exploring policy, as the paper measures it), averaged over the last tenth of the chunks. A
+diverged point is frozen at its last good parameters and marked; it never stops the sweep.
+Resuming restores every point from the newest checkpoint step that all points have.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+import json
+import os
+import pathlib
+import sys
+import time
+from typing import Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from nmrl import checkpoint, run
+from nmrl.learner import Hyper, TrainConfig, make_train
+
+SPEC_FILE = "sweep.json"
+RESULTS_FILE = "results.csv"
+RESULT_COLUMNS = ("l", "seed", "trials", "steps", "avg_reward", "forward_speed", "diverged", "checkpoint")
+
+
+class SweepError(Exception):
+    """The sweep cannot start or resume (message says why)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepSpec:
+    ls: tuple[int, ...]
+    seeds: int
+    base: TrainConfig = TrainConfig()
+
+    def validate(self) -> None:
+        if len(self.ls) == 0:
+            raise ValueError("the list of l values is empty: give at least one, e.g. --l 1 10")
+        for l in self.ls:
+            if not isinstance(l, int) or isinstance(l, bool) or l < 1:
+                raise ValueError(f"l={l!r} is invalid: every l must be an integer >= 1")
+        dup = sorted({l for l in self.ls if self.ls.count(l) > 1})
+        if dup:
+            raise ValueError(f"duplicate l values {dup}: each l may appear once")
+        if not isinstance(self.seeds, int) or isinstance(self.seeds, bool) or self.seeds < 1:
+            raise ValueError(f"seeds={self.seeds!r} is invalid: must be an integer >= 1")
+        for cfg in self.point_configs():
+            cfg.validate()
+
+    def points(self) -> list[tuple[int, int]]:
+        return [(l, s) for l in self.ls for s in range(self.seeds)]
+
+    def point_configs(self) -> list[TrainConfig]:
+        return [dataclasses.replace(self.base, l=l, seed=s) for l, s in self.points()]
+
+
+def point_dir(out: pathlib.Path, l: int, seed: int) -> pathlib.Path:
+    return out / "points" / f"l{l}_s{seed}"
+
+
+def _stack(trees):
+    return jax.tree.map(lambda *x: jnp.stack(x), *trees)
+
+
+def _unstack(tree, i: int):
+    return jax.tree.map(lambda x: x[i], tree)
+
+
+def final_avg(rows: list[dict], key: str) -> float:
+    """Mean of ``key`` over the last tenth (at least one) of the chunks."""
+    if not rows:
+        return float("nan")
+    k = max(1, len(rows) // 10)
+    return float(np.mean([r[key] for r in rows[-k:]]))
+
+
+def write_results(out: pathlib.Path, spec: SweepSpec) -> list[dict]:
+    """(Re)write results.csv atomically from the points' metrics; returns the rows."""
+    rows = []
+    for (l, s) in spec.points():
+        d = point_dir(out, l, s)
+        m = run.read_metrics(d)
+        last = m[-1] if m else {}
+        rows.append({
+            "l": l, "seed": s, "trials": last.get("trials", 0), "steps": last.get("step", 0),
+            "avg_reward": final_avg(m, "avg_reward"), "forward_speed": final_avg(m, "forward_speed"),
+            "diverged": bool(any(r["diverged"] for r in m)),
+            "checkpoint": os.path.relpath(d, out) if run.existing_step(d) is not None else "",
+        })
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=RESULT_COLUMNS)
+    w.writeheader()
+    w.writerows(rows)
+    run.atomic_write_text(out / RESULTS_FILE, buf.getvalue())
+    return rows
+
+
+def _progress_table(spec: SweepSpec, rows_by_point: dict, elapsed: float) -> str:
+    lines = [f"sweep: {len(spec.points())} points, {elapsed:,.0f} s"]
+    for (l, s), r in rows_by_point.items():
+        if r is None:
+            continue
+        flag = "  DIVERGED" if r["diverged"] else ""
+        lines.append(f"  l={l:>3} seed={s}  trials {r['trials']:>8,}  steps {r['step']:>8,}  "
+                     f"avg reward {r['avg_reward']:+.3f}  speed {r['forward_speed']:+.2f} m/s{flag}")
+    return "\n".join(lines)
+
+
+def run_sweep(spec: SweepSpec, out: str | os.PathLike, *, resume: bool = False, progress: bool = True,
+              keep: int = 2, max_chunks: int | None = None, plot: bool = True) -> list[dict]:
+    """Run (or resume) the sweep into ``out``; returns the results rows."""
+    spec.validate()
+    out = pathlib.Path(out)
+    if resume:
+        if not (out / SPEC_FILE).exists():
+            raise SweepError(f"--resume: {out / SPEC_FILE} not found; is {out} a sweep directory?")
+        saved = json.loads((out / SPEC_FILE).read_text())
+        base = TrainConfig(**saved["base"])
+        if spec.base.steps is not None or spec.base.trials is not None:  # the budget may be extended
+            base = dataclasses.replace(base, steps=spec.base.steps, trials=spec.base.trials)
+        spec = SweepSpec(ls=tuple(saved["ls"]), seeds=saved["seeds"], base=base)
+        spec.validate()
+    elif (out / SPEC_FILE).exists():
+        raise SweepError(f"{out} already holds a sweep; continue it with --resume or choose another --out")
+    base = spec.base.resolved()
+    spec = dataclasses.replace(spec, base=base)
+    configs = [c.resolved() for c in spec.point_configs()]
+    points = spec.points()
+    trainers = [make_train(configs[0])]
+    trainers += [make_train(c, env=trainers[0].env) for c in configs[1:]]
+
+    if resume:
+        steps = [run.existing_step(point_dir(out, l, s)) for l, s in points]
+        if any(st is None for st in steps):
+            raise SweepError(f"--resume: some points of {out} have no checkpoint; start a new sweep")
+        common = min(steps)
+        states = []
+        for (l, s), tr in zip(points, trainers):
+            d = point_dir(out, l, s)
+            if common not in checkpoint.all_steps(d):
+                raise SweepError(f"--resume: {d} lacks the checkpoint of step {common} shared by all points")
+            states.append(checkpoint.restore(d, tr, step=common))
+            run.truncate_metrics(d, common)
+    else:
+        out.mkdir(parents=True, exist_ok=True)
+        run.atomic_write_text(out / SPEC_FILE, json.dumps(
+            {"ls": list(spec.ls), "seeds": spec.seeds, "base": dataclasses.asdict(base)}, indent=2) + "\n")
+        init = jax.jit(jax.vmap(trainers[0].init))
+        keys = jnp.stack([jax.random.PRNGKey(c.seed) for c in configs])
+        hypers = _stack([Hyper.from_config(c) for c in configs])
+        ts = init(keys, hypers)
+        states = [_unstack(ts, i) for i in range(len(points))]
+        for (l, s), c in zip(points, configs):
+            d = point_dir(out, l, s)
+            d.mkdir(parents=True, exist_ok=True)
+            run.atomic_write_text(d / run.CONFIG_FILE, json.dumps(dataclasses.asdict(c), indent=2) + "\n")
+            (d / run.METRICS_FILE).unlink(missing_ok=True)
+    ts = jax.device_put(_stack(states))
+    chunk, compile_s = run.compile_chunk(jax.vmap(trainers[0].chunk), ts, donate=False)
+    if progress:
+        print(f"compiled the sweep chunk ({len(points)} points) in {compile_s:.1f} s", file=sys.stderr,
+              flush=True)
+
+    P = len(points)
+    active = np.array([not run.budget_done(c, int(ts.step[i]), int(ts.trials[i])) and not bool(ts.diverged[i])
+                       for i, c in enumerate(configs)])
+    last_rows: dict = {p: None for p in points}
+    t_start = time.time()
+    n_chunks = 0
+    while active.any():
+        t0 = time.time()
+        new_ts, m = chunk(ts)
+        m = jax.device_get(m)
+        wall = time.time() - t0
+        act = jnp.asarray(active)
+        ts = jax.tree.map(lambda n, o: jnp.where(act.reshape((-1,) + (1,) * (n.ndim - 1)), n, o), new_ts, ts)
+        for i, ((l, s), c) in enumerate(zip(points, configs)):
+            if not active[i]:
+                continue
+            row = run.metrics_row(c, run.to_python({k: v[i] for k, v in m.items()}), wall, points=P)
+            d = point_dir(out, l, s)
+            run.append_metrics(d, row)
+            last_rows[(l, s)] = row
+            if run.is_diverged(row):
+                active[i] = False  # keep its last good checkpoint; frozen from now on
+                continue
+            checkpoint.save(d, _unstack(ts, i), c, keep=keep)
+            if run.budget_done(c, row["step"], row["trials"]):
+                active[i] = False
+        results = write_results(out, spec)
+        if plot:
+            from nmrl import plots
+
+            plots.fig3(out, results)
+        if progress:
+            print(_progress_table(spec, last_rows, time.time() - t_start), file=sys.stderr, flush=True)
+        n_chunks += 1
+        if max_chunks is not None and n_chunks >= max_chunks:
+            break
+    return write_results(out, spec)
+
+
+def load_results(out: str | os.PathLike) -> list[dict]:
+    with open(pathlib.Path(out) / RESULTS_FILE) as f:
+        return list(csv.DictReader(f))
+
+
+__all__: Sequence[str] = ("SweepSpec", "SweepError", "run_sweep", "load_results", "point_dir", "final_avg")
