@@ -1,0 +1,22 @@
+"""Shared test set-up: CPU JAX and a persistent XLA compilation cache.
+
+Many tests build the same jitted programs (the Half-Cheetah step, the training chunk) in separate
+trainers; the on-disk cache turns their repeated compiles into look-ups. Subprocesses (CLI tests)
+inherit the cache through the environment variables.
+"""
+
+import os
+import pathlib
+import tempfile
+
+os.environ.setdefault("JAX_PLATFORMS", "cpu")
+_CACHE = pathlib.Path(tempfile.gettempdir()) / "nmrl-test-xla-cache"
+os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(_CACHE))
+os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
+os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
+
+import jax  # noqa: E402
+
+jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"])
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
