@@ -1,0 +1,518 @@
+"""Checkpoints of a training run (orbax-checkpoint).
+
+``save(run_dir, ts, config)`` writes the whole :class:`~nmrl.learner.TrainState` (theta, v, every
+:class:`~nmrl.learner.EnvSlot` with its MJX state, noise, likelihood ratio and traces, the PRNG key,
+the traced hyperparameters, the counters and the divergence flag) to ``RUN_DIR/checkpoints/<step>/``;
+``restore(run_dir, trainer)`` gives it back bit for bit, so a resumed run continues exactly as an
+uninterrupted one. ``restore_policy`` reads only (theta, v) for evaluation.
+
+On disk one checkpoint is an orbax step directory with three items::
+
+    RUN_DIR/checkpoints/<step>/
+        state/    every non-empty leaf of the TrainState, as a flat dict name -> array
+        policy/   {"theta": ..., "v": ...} again (small; evaluation reads only this)
+        meta/     JSON: schema, config, versions, git commit, model sha256, layout, digests, extra
+        _CHECKPOINT_METADATA, commit_success.txt   (orbax's own)
+
+Why a flat dict: orbax cannot save zero-size arrays (MJX keeps a few, e.g. ``data.act`` of shape
+(N, 0)), and flat names make the format independent of the Python classes of the pytree. Empty
+leaves are rebuilt from the template on restore. The flat names are the pytree key paths
+(``slots.env.data.qpos``); the layout (shape, dtype per name) and a sha256 digest of the array
+bytes are stored in the metadata, so a restore checks structure before reading and detects
+silently corrupted data after reading.
+
+Atomicity: orbax writes the step into ``<step>.orbax-checkpoint-tmp*`` and renames it to ``<step>``
+when complete (local file systems); unfinished tmp directories are ignored by readers. ``save`` is
+synchronous (async checkpointing off) and fsyncs the files before returning.
+
+Every failure a caller can meet (missing run, no checkpoints, unknown step, corrupted or truncated
+files, another model, an incompatible config) raises :class:`CheckpointError` naming the path.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import hashlib
+import json
+import logging
+import os
+import pathlib
+import platform
+import re
+import subprocess
+import sys
+import time
+from typing import Any, Iterator
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import nmrl
+from nmrl import networks
+from nmrl.env import MODEL_PATH, OBS_DIM, ACT_DIM
+from nmrl.learner import Params, TrainConfig, TrainState, Trainer
+
+__all__ = [
+    "CheckpointError",
+    "save",
+    "latest_step",
+    "all_steps",
+    "load_metadata",
+    "load_config",
+    "restore",
+    "restore_policy",
+    "checkpoint_dir",
+    "SCHEMA_VERSION",
+]
+
+#: Version of the on-disk layout below; bump when it changes incompatibly.
+SCHEMA_VERSION = 1
+FORMAT = "nmrl-checkpoint"
+CHECKPOINTS = "checkpoints"
+ITEMS = ("state", "policy", "meta")
+#: Config fields that may differ between a checkpoint and the trainer that resumes it.
+RESUMABLE_FIELDS = ("steps", "trials")
+
+_SEP = "."
+
+
+class CheckpointError(Exception):
+    """A checkpoint cannot be written, found, read or used; the message names the path and why."""
+
+
+# ----------------------------------------------------------------------------- helpers
+
+
+def checkpoint_dir(run_dir: str | os.PathLike) -> pathlib.Path:
+    """The directory that holds the step directories of a run."""
+    return pathlib.Path(run_dir) / CHECKPOINTS
+
+
+def _ocp():
+    # Imported lazily: orbax is heavy and evaluation-free code paths should not pay for it.
+    import orbax.checkpoint as ocp
+
+    return ocp
+
+
+@contextlib.contextmanager
+def _quiet_absl() -> Iterator[None]:
+    """orbax logs expected failures (and a line per save) at ERROR/INFO through absl; keep them out."""
+    loggers = [logging.getLogger("absl"), logging.getLogger("orbax")]
+    old = [lg.level for lg in loggers]
+    for lg in loggers:
+        lg.setLevel(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        for lg, lv in zip(loggers, old):
+            lg.setLevel(lv)
+
+
+def _manager(directory: pathlib.Path, *, keep: int | None = None, read_only: bool = False):
+    ocp = _ocp()
+    opts = ocp.CheckpointManagerOptions(
+        max_to_keep=keep,
+        create=not read_only,
+        read_only=read_only,
+        enable_async_checkpointing=False,
+        cleanup_tmp_directories=not read_only,
+    )
+    return ocp.CheckpointManager(directory, options=opts, item_names=ITEMS)
+
+
+def _key_name(k: Any) -> str:
+    tu = jax.tree_util
+    if isinstance(k, tu.GetAttrKey):
+        s = k.name
+    elif isinstance(k, tu.DictKey):
+        s = str(k.key)
+    elif isinstance(k, tu.SequenceKey):
+        s = str(k.idx)
+    elif isinstance(k, tu.FlattenedIndexKey):
+        s = str(k.key)
+    else:  # pragma: no cover - future key types
+        s = str(k)
+    return re.sub(r"[^A-Za-z0-9_]", "_", s)
+
+
+def _flatten(tree: Any) -> tuple[list[str], list[Any], Any]:
+    """(names, leaves, treedef) with names from the key paths; names are unique."""
+    with_path, treedef = jax.tree_util.tree_flatten_with_path(tree)
+    names = [_SEP.join(_key_name(k) for k in path) for path, _ in with_path]
+    if len(set(names)) != len(names):  # pragma: no cover - a naming bug, not a user error
+        raise AssertionError("leaf names of the training state are not unique")
+    return names, [leaf for _, leaf in with_path], treedef
+
+
+def _layout(names: list[str], leaves: list[Any]) -> dict[str, list]:
+    return {n: [list(map(int, x.shape)), str(np.dtype(x.dtype))] for n, x in zip(names, leaves)}
+
+
+def _digest(arrays: dict[str, np.ndarray]) -> str:
+    h = hashlib.sha256()
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(f"{name}|{a.dtype.str}|{a.shape}|".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def _sha256_file(path: pathlib.Path) -> str | None:
+    try:
+        return hashlib.sha256(path.read_bytes()).hexdigest()
+    except OSError:
+        return None
+
+
+def _git_commit() -> str | None:
+    root = pathlib.Path(nmrl.__file__).resolve().parents[1]
+    try:
+        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True,
+                             timeout=10)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return out.stdout.strip() or None if out.returncode == 0 else None
+
+
+def _versions() -> dict[str, str | None]:
+    from importlib import metadata as im
+
+    out: dict[str, str | None] = {"nmrl": nmrl.__version__, "python": platform.python_version()}
+    for dist in ("jax", "jaxlib", "mujoco", "mujoco-mjx", "flax", "orbax-checkpoint", "numpy"):
+        try:
+            out[dist] = im.version(dist)
+        except im.PackageNotFoundError:
+            out[dist] = None
+    return out
+
+
+def _fsync_tree(path: pathlib.Path) -> None:
+    """Flush the files and directories of a finished checkpoint (and its parent entry) to disk."""
+    for root, _dirs, files in os.walk(path):
+        for f in files:
+            with contextlib.suppress(OSError):
+                fd = os.open(os.path.join(root, f), os.O_RDONLY)
+                try:
+                    os.fsync(fd)
+                finally:
+                    os.close(fd)
+        with contextlib.suppress(OSError):
+            fd = os.open(root, os.O_RDONLY)
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+    with contextlib.suppress(OSError):
+        fd = os.open(path.parent, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+def _policy_template(config: TrainConfig) -> dict[str, Params]:
+    actor = networks.make_actor(config.hidden_actor, ACT_DIM)
+    critic = networks.make_critic(config.hidden_critic)
+    key = jax.random.PRNGKey(0)
+    return {
+        "theta": jax.eval_shape(lambda k: networks.init_params(actor, k, OBS_DIM), key),
+        "v": jax.eval_shape(lambda k: networks.init_params(critic, k, OBS_DIM), key),
+    }
+
+
+def _abstract(tree: Any) -> Any:
+    sharding = jax.sharding.SingleDeviceSharding(jax.devices()[0])
+    return jax.tree.map(lambda s: jax.ShapeDtypeStruct(s.shape, s.dtype, sharding=sharding), tree)
+
+
+def _err(path: pathlib.Path, what: str, exc: BaseException | None = None) -> CheckpointError:
+    msg = f"{path}: {what}"
+    if exc is not None:
+        detail = str(exc).strip().splitlines()
+        msg += f" ({type(exc).__name__}: {detail[0][:300] if detail else ''})"
+    return CheckpointError(msg)
+
+
+# ----------------------------------------------------------------------------- listing
+
+
+def _existing_dir(run_dir: str | os.PathLike) -> pathlib.Path:
+    run = pathlib.Path(run_dir)
+    if not run.is_dir():
+        raise CheckpointError(f"{run}: run directory does not exist")
+    d = checkpoint_dir(run)
+    if not d.is_dir():
+        raise CheckpointError(f"{d}: no checkpoints directory (nothing was saved in run {run})")
+    return d
+
+
+def all_steps(run_dir: str | os.PathLike) -> list[int]:
+    """Steps of the finished checkpoints of a run, ascending ([] if none; CheckpointError if no run)."""
+    d = _existing_dir(run_dir)
+    try:
+        with _quiet_absl(), _manager(d, read_only=True) as m:
+            return sorted(int(s) for s in m.all_steps())
+    except Exception as e:  # noqa: BLE001 - wrap every orbax failure
+        raise _err(d, "cannot list checkpoints", e) from e
+
+
+def latest_step(run_dir: str | os.PathLike) -> int | None:
+    """The newest finished checkpoint's step, or None if the run has none."""
+    steps = all_steps(run_dir)
+    return steps[-1] if steps else None
+
+
+def _resolve_step(run_dir: str | os.PathLike, step: int | None) -> tuple[pathlib.Path, int]:
+    d = _existing_dir(run_dir)
+    steps = all_steps(run_dir)
+    if not steps:
+        tmp = [p.name for p in d.iterdir() if ".orbax-checkpoint-tmp" in p.name]
+        why = f" ({len(tmp)} unfinished save(s) left by an interrupted process)" if tmp else ""
+        raise CheckpointError(f"{d}: contains no finished checkpoint{why}")
+    if step is None:
+        step = steps[-1]
+    step = int(step)
+    if step not in steps:
+        raise CheckpointError(f"{d / str(step)}: no checkpoint at step {step}; available steps: {steps}")
+    return d, step
+
+
+# ----------------------------------------------------------------------------- save
+
+
+def save(
+    run_dir: str | os.PathLike,
+    ts: TrainState,
+    config: TrainConfig,
+    *,
+    keep: int = 3,
+    extra: dict | None = None,
+) -> pathlib.Path:
+    """Write the full training state at step ``int(ts.step)``; keep the newest ``keep`` checkpoints.
+
+    Returns the step directory. Synchronous and atomic (see the module docstring). Saving a step
+    that already exists replaces it. ``extra`` must be JSON-serializable; it is stored in the
+    metadata unchanged.
+    """
+    if not (isinstance(keep, int) and keep >= 1):
+        raise ValueError(f"keep must be an integer >= 1, got {keep!r}")
+    extra = {} if extra is None else extra
+    try:
+        json.dumps(extra, allow_nan=False)
+    except (TypeError, ValueError) as e:
+        raise TypeError(f"extra must be a JSON-serializable dict: {e}") from e
+    d = checkpoint_dir(run_dir)
+    step = int(ts.step)
+
+    names, leaves, _ = _flatten(ts)
+    state_host = {n: np.asarray(x) for n, x in zip(names, leaves)}
+    layout = _layout(names, list(state_host.values()))
+    state_item = {n: a for n, a in state_host.items() if a.size > 0}
+    policy_item = {"theta": jax.tree.map(np.asarray, ts.theta), "v": jax.tree.map(np.asarray, ts.v)}
+    pnames, pleaves, _ = _flatten(policy_item)
+
+    meta = {
+        "format": FORMAT,
+        "schema": SCHEMA_VERSION,
+        "step": step,
+        "trials": int(ts.trials),
+        "periods": int(ts.periods),
+        "diverged": bool(ts.diverged),
+        "config": dataclasses.asdict(config),
+        "versions": _versions(),
+        "git_commit": _git_commit(),
+        "model_file": str(MODEL_PATH.relative_to(MODEL_PATH.parents[1])),
+        "model_sha256": _sha256_file(MODEL_PATH),
+        "saved_unix_time": time.time(),
+        "state_layout": layout,
+        "state_digest": _digest(state_item),
+        "policy_digest": _digest(dict(zip(pnames, pleaves))),
+        "extra": extra,
+    }
+    ocp = _ocp()
+    try:
+        with _quiet_absl(), _manager(d, keep=keep) as m:
+            if step in m.all_steps():
+                m.delete(step)
+            m.save(
+                step,
+                args=ocp.args.Composite(
+                    state=ocp.args.StandardSave(state_item),
+                    policy=ocp.args.StandardSave(policy_item),
+                    meta=ocp.args.JsonSave(meta),
+                ),
+                force=True,
+            )
+            m.wait_until_finished()
+    except Exception as e:  # noqa: BLE001
+        raise _err(d / str(step), "saving the checkpoint failed", e) from e
+    path = d / str(step)
+    if not path.is_dir():
+        raise CheckpointError(f"{path}: orbax reported success but the step directory is missing")
+    _fsync_tree(path)
+    return path
+
+
+# ----------------------------------------------------------------------------- load
+
+
+def _restore_items(d: pathlib.Path, step: int, **args: Any) -> Any:
+    ocp = _ocp()
+    path = d / str(step)
+    try:
+        with _quiet_absl(), _manager(d, read_only=True) as m:
+            return m.restore(step, args=ocp.args.Composite(**args))
+    except Exception as e:  # noqa: BLE001
+        items = ", ".join(args)
+        raise _err(path, f"cannot read checkpoint item(s) {items} (truncated or corrupted?)", e) from e
+
+
+def load_metadata(run_dir: str | os.PathLike, step: int | None = None) -> dict:
+    """The JSON metadata of a checkpoint (the newest if ``step`` is None)."""
+    d, step = _resolve_step(run_dir, step)
+    path = d / str(step)
+    meta = _restore_items(d, step, meta=_ocp().args.JsonRestore()).meta
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        raise CheckpointError(f"{path}: not an nmrl checkpoint (metadata has no format={FORMAT!r})")
+    if meta.get("schema") != SCHEMA_VERSION:
+        raise CheckpointError(
+            f"{path}: checkpoint schema {meta.get('schema')!r} is not supported (this nmrl reads "
+            f"schema {SCHEMA_VERSION})"
+        )
+    for k in ("config", "state_layout", "state_digest", "policy_digest", "model_sha256", "step"):
+        if k not in meta:
+            raise CheckpointError(f"{path}: checkpoint metadata lacks the field {k!r}")
+    if int(meta["step"]) != step:
+        raise CheckpointError(f"{path}: metadata says step {meta['step']} but the directory is step {step}")
+    meta["path"] = str(path)
+    return meta
+
+
+def _config_from_meta(meta: dict) -> TrainConfig:
+    path = meta.get("path", "?")
+    cfg = meta["config"]
+    known = {f.name for f in dataclasses.fields(TrainConfig)}
+    unknown = sorted(set(cfg) - known)
+    if unknown:
+        raise CheckpointError(f"{path}: the saved config has fields this nmrl does not know: {unknown}")
+    try:
+        return TrainConfig(**cfg)
+    except TypeError as e:
+        raise _err(pathlib.Path(path), "the saved config is invalid", e) from e
+
+
+def load_config(run_dir: str | os.PathLike, step: int | None = None) -> TrainConfig:
+    """The TrainConfig a checkpoint was saved with (as passed to :func:`save`)."""
+    return _config_from_meta(load_metadata(run_dir, step))
+
+
+def _check_model(meta: dict) -> None:
+    now = _sha256_file(MODEL_PATH)
+    if meta["model_sha256"] != now:
+        raise CheckpointError(
+            f"{meta['path']}: checkpoint of another model: {meta.get('model_file')} had sha256 "
+            f"{meta['model_sha256']}, {MODEL_PATH} now has {now}"
+        )
+
+
+def _check_config(meta: dict, config: TrainConfig) -> None:
+    saved = _config_from_meta(meta)
+    try:
+        a = dataclasses.asdict(saved.resolved())
+    except ValueError as e:
+        raise _err(pathlib.Path(meta["path"]), "the saved config is invalid", e) from e
+    b = dataclasses.asdict(config.resolved())
+    diff = [f"{k}: checkpoint {a[k]!r} != trainer {b[k]!r}" for k in a if k not in RESUMABLE_FIELDS
+            and a[k] != b[k]]
+    if diff:
+        raise CheckpointError(f"{meta['path']}: config incompatible with the trainer: " + "; ".join(diff))
+
+
+def _to_device(x: np.ndarray) -> jax.Array:
+    return jax.device_put(x, jax.devices()[0])
+
+
+def restore(run_dir: str | os.PathLike, trainer: Trainer, step: int | None = None) -> TrainState:
+    """Restore the full training state for an exact resume with ``trainer`` (newest step if None).
+
+    Checks the model file's sha256 and the config (every field but the budget) against the
+    trainer, the saved layout against ``jax.eval_shape(trainer.init, key)``, and the data digest.
+    The arrays come back with the template's shapes and dtypes, committed to the default device.
+    """
+    meta = load_metadata(run_dir, step)
+    path = pathlib.Path(meta["path"])
+    _check_model(meta)
+    _check_config(meta, trainer.config)
+
+    template = jax.eval_shape(trainer.init, jax.random.PRNGKey(0))
+    names, tleaves, treedef = _flatten(template)
+    want = _layout(names, tleaves)
+    have = meta["state_layout"]
+    if want != have:
+        missing = sorted(set(want) - set(have))
+        unexpected = sorted(set(have) - set(want))
+        changed = [f"{n}: saved {have[n]} vs expected {want[n]}" for n in want
+                   if n in have and have[n] != want[n]]
+        raise CheckpointError(
+            f"{path}: the saved training state does not fit this trainer: missing {missing[:5]}, "
+            f"unexpected {unexpected[:5]}, changed {changed[:5]}"
+        )
+    nonempty = {n: t for n, t in zip(names, tleaves) if int(np.prod(t.shape)) > 0}
+    ocp = _ocp()
+    restored = _restore_items(path.parent, int(meta["step"]),
+                              state=ocp.args.StandardRestore(_abstract(nonempty))).state
+    host = {}
+    for n, t in nonempty.items():
+        a = restored.get(n) if isinstance(restored, dict) else None
+        if a is None:
+            raise CheckpointError(f"{path}: the state item lacks the array {n!r}")
+        a = np.asarray(a)
+        if a.shape != tuple(t.shape) or a.dtype != np.dtype(t.dtype):
+            raise CheckpointError(f"{path}: array {n!r} has {a.shape} {a.dtype}, expected {t.shape} {t.dtype}")
+        host[n] = a
+    if _digest(host) != meta["state_digest"]:
+        raise CheckpointError(f"{path}: the state data does not match its digest (corrupted checkpoint)")
+    leaves = [
+        _to_device(host[n]) if n in host else jax.device_put(jnp.zeros(t.shape, t.dtype), jax.devices()[0])
+        for n, t in zip(names, tleaves)
+    ]
+    return jax.tree_util.tree_unflatten(treedef, leaves)
+
+
+def restore_policy(
+    run_dir: str | os.PathLike, step: int | None = None, *, check_model: bool = True
+) -> tuple[TrainConfig, Params, Params]:
+    """(config, theta, v) of a checkpoint for evaluation; reads only the small ``policy`` item.
+
+    With ``check_model`` (default) a checkpoint trained on another model file raises CheckpointError.
+    """
+    meta = load_metadata(run_dir, step)
+    path = pathlib.Path(meta["path"])
+    if check_model:
+        _check_model(meta)
+    config = _config_from_meta(meta)
+    template = _policy_template(config)
+    ocp = _ocp()
+    restored = _restore_items(path.parent, int(meta["step"]),
+                              policy=ocp.args.StandardRestore(_abstract(template))).policy
+    try:
+        pnames, pleaves, _ = _flatten({"theta": restored["theta"], "v": restored["v"]})
+        tnames, tleaves, _ = _flatten(template)
+    except (KeyError, TypeError) as e:
+        raise _err(path, "the policy item has an unexpected structure", e) from e
+    if pnames != tnames or any(tuple(a.shape) != tuple(t.shape) for a, t in zip(pleaves, tleaves)):
+        raise CheckpointError(f"{path}: the policy item does not fit the saved config's network sizes")
+    host = {n: np.asarray(a) for n, a in zip(pnames, pleaves)}
+    if _digest(host) != meta["policy_digest"]:
+        raise CheckpointError(f"{path}: the policy data does not match its digest (corrupted checkpoint)")
+    to_dev = lambda t: jax.tree.map(_to_device, jax.tree.map(np.asarray, t))  # noqa: E731
+    return config, to_dev(restored["theta"]), to_dev(restored["v"])
+
+
+if __name__ == "__main__":  # pragma: no cover - `python -m nmrl.checkpoint RUN` prints the metadata
+    m = load_metadata(sys.argv[1], int(sys.argv[2]) if len(sys.argv) > 2 else None)
+    m.pop("state_layout", None)
+    print(json.dumps(m, indent=2))

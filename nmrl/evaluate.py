@@ -1,0 +1,318 @@
+"""Evaluate a saved policy: one trial of T seconds per policy, a JSON summary and pictures.
+
+``evaluate(run_dir)`` restores only (config, theta, v) of a checkpoint (:func:`nmrl.checkpoint.restore_policy`),
+builds the Half-Cheetah with the run's control step (no random stopping, no automatic reset: a
+rollout is one trial of ``seconds``), and runs one jitted ``lax.scan`` rollout for
+
+* ``deterministic``: a_t = a~(s_t; theta);
+* ``exploring``:     a_t = a~(s_t; theta) + xi_t, xi the run's nm-period AR noise (4) with its l, alpha, sigma.
+
+Both use the same compiled program (the noise is scaled by a traced 0 or 1). The result is a
+JSON-able dict (see :func:`evaluate`) written to ``RUN_DIR/eval/eval.json``; with ``render`` the
+deterministic rollout is drawn as a Fig.-4-like strobe (``strobe.png``) and an animation
+(``gait.gif``, real time, camera following the trunk). Pictures use matplotlib's Agg backend only.
+Same checkpoint and seed give the identical JSON.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+import os
+import pathlib
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from nmrl import checkpoint, networks, noise
+from nmrl import geometry as g
+from nmrl.env import ACT_DIM, REWARD_TERMS, EnvConfig, HalfCheetah, forward_kinematics
+
+__all__ = ["evaluate", "render", "rollout", "plot_strobe", "write_gif", "GROUND_KEYS"]
+
+#: ground_share key -> metric of nmrl.env.
+GROUND_KEYS = {"heel": "heel_ground", "knee": "knee_ground", "head": "head_ground"}
+EVAL_DIR = "eval"
+GIF_FPS = 25.0
+
+
+# ----------------------------------------------------------------------------- rollout
+
+
+@functools.lru_cache(maxsize=4)
+def _env(control_dt: float) -> HalfCheetah:
+    return HalfCheetah(EnvConfig(control_dt=control_dt, stop_prob=0.0, auto_reset=False))
+
+
+@functools.lru_cache(maxsize=8)
+def _rollout_fn(control_dt: float, hidden_actor: int, n_steps: int):
+    """A jitted (theta, key, noise_scale, alpha, l, sigma) -> (traj, pos0, x0) for one trial."""
+    env = _env(control_dt)
+    actor = networks.make_actor(hidden_actor, ACT_DIM)
+
+    def run(theta, key, noise_scale, alpha, l, sigma):
+        k_reset, k_eps = jax.random.split(key)
+        s0 = env.reset(k_reset)
+        eps = jax.random.normal(k_eps, (n_steps, ACT_DIM), jnp.float32)
+
+        def step(carry, e):
+            s, ar = carry
+            mean = actor.apply(theta, s.obs)
+            ar, xi = noise.ar_step(ar, e, alpha, l, sigma)
+            s = env.step(s, mean + noise_scale * xi)
+            pos, _ = forward_kinematics(s.data.qpos)
+            out = {"reward": s.reward, "pos": pos}
+            for k in (*REWARD_TERMS, "forward_speed", "x", "nonfinite", *GROUND_KEYS.values()):
+                out[k] = s.metrics[k]
+            return (s, ar), out
+
+        _, traj = jax.lax.scan(step, (s0, noise.ar_init(ACT_DIM)), eps)
+        pos0, _ = forward_kinematics(s0.data.qpos)
+        return traj, pos0, s0.metrics["x"]
+
+    return jax.jit(run)
+
+
+def rollout(config, theta, *, seconds: float, seed: int, exploring: bool) -> dict[str, np.ndarray]:
+    """One trial of ``seconds`` with the run's config; numpy arrays per step (``pos``: (T+1, 10, 2))."""
+    n_steps = _num_steps(seconds, config.control_dt)
+    fn = _rollout_fn(float(config.control_dt), int(config.hidden_actor), n_steps)
+    traj, pos0, x0 = fn(theta, jax.random.PRNGKey(seed), jnp.float32(1.0 if exploring else 0.0),
+                        jnp.float32(config.alpha), jnp.int32(config.l), jnp.float32(config.sigma))
+    out = {k: np.asarray(v) for k, v in jax.device_get(traj).items()}
+    out["pos"] = np.concatenate([np.asarray(pos0)[None], out["pos"]], axis=0)
+    out["x0"] = np.asarray(x0)
+    return out
+
+
+def _num_steps(seconds: float, control_dt: float) -> int:
+    if not (isinstance(seconds, (int, float)) and math.isfinite(seconds) and seconds > 0):
+        raise ValueError(f"seconds must be a finite number > 0, got {seconds!r}")
+    return max(1, int(round(seconds / control_dt)))
+
+
+def _num(x: Any) -> float | None:
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def summarize(traj: dict[str, np.ndarray]) -> dict[str, Any]:
+    """The JSON summary of one rollout."""
+    x = traj["x"]
+    return {
+        "avg_reward": _num(np.mean(traj["reward"], dtype=np.float64)),
+        "forward_speed": _num(np.mean(traj["forward_speed"], dtype=np.float64)),
+        "distance": _num(x[-1] - traj["x0"]),
+        "terms": {k: _num(np.mean(traj[k], dtype=np.float64)) for k in REWARD_TERMS},
+        "ground_share": {k: _num(np.mean(traj[m], dtype=np.float64)) for k, m in GROUND_KEYS.items()},
+        "nonfinite": int(np.sum(traj["nonfinite"] > 0)),
+    }
+
+
+# ----------------------------------------------------------------------------- entry points
+
+
+def _atomic_write_text(path: pathlib.Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def evaluate(
+    run_dir: str | os.PathLike,
+    step: int | None = None,
+    seconds: float = 10.0,
+    seed: int = 0,
+    *,
+    render: bool = True,
+    out_dir: str | os.PathLike | None = None,
+) -> dict:
+    """Evaluate a checkpoint (newest if ``step`` is None); returns the JSON-able summary.
+
+    Keys: ``run_dir, step, trials, seconds, steps, seed, control_dt, l, alpha, sigma`` and, under
+    ``deterministic`` and ``exploring``: ``avg_reward`` (per control step), ``forward_speed`` (m/s,
+    mean), ``distance`` (m the trunk moved), ``terms`` (each reward term (8)-(14), mean per step),
+    ``ground_share`` {heel, knee, head} (share of steps with that joint on the ground),
+    ``nonfinite`` (steps whose physics failed). With ``render`` also ``files`` {strobe, gif}.
+    The JSON is also written to ``OUT_DIR/eval.json`` (``OUT_DIR`` = ``RUN_DIR/eval``).
+    Raises CheckpointError for a missing/bad checkpoint, ValueError for bad ``seconds``.
+    """
+    run = pathlib.Path(run_dir)
+    meta = checkpoint.load_metadata(run, step)
+    step = int(meta["step"])
+    config, theta, _v = checkpoint.restore_policy(run, step)
+    n_steps = _num_steps(seconds, config.control_dt)
+    det = rollout(config, theta, seconds=seconds, seed=seed, exploring=False)
+    exp = rollout(config, theta, seconds=seconds, seed=seed, exploring=True)
+    out_dir = pathlib.Path(out_dir) if out_dir is not None else run / EVAL_DIR
+    result: dict[str, Any] = {
+        "run_dir": str(run),
+        "step": step,
+        "trials": meta.get("trials"),
+        "seconds": float(seconds),
+        "steps": n_steps,
+        "seed": int(seed),
+        "control_dt": float(config.control_dt),
+        "l": int(config.l),
+        "alpha": float(config.alpha),
+        "sigma": float(config.sigma),
+        "deterministic": summarize(det),
+        "exploring": summarize(exp),
+    }
+    out_dir.mkdir(parents=True, exist_ok=True)
+    if render:
+        title = f"{run.name}, step {step}, deterministic policy"
+        strobe = plot_strobe(det["pos"], config.control_dt, out_dir / "strobe.png", title=title)
+        gif = write_gif(det["pos"], config.control_dt, out_dir / "gait.gif")
+        result["files"] = {"strobe": str(strobe), "gif": str(gif)}
+    _atomic_write_text(out_dir / "eval.json", json.dumps(result, indent=2, allow_nan=False) + "\n")
+    return result
+
+
+def render(
+    run_dir: str | os.PathLike,
+    step: int | None = None,
+    seconds: float = 10.0,
+    seed: int = 0,
+    *,
+    out_dir: str | os.PathLike | None = None,
+) -> dict[str, str]:
+    """Draw only the pictures of the deterministic policy; returns {strobe, gif} paths."""
+    run = pathlib.Path(run_dir)
+    config, theta, _v = checkpoint.restore_policy(run, step)
+    step = int(checkpoint.load_metadata(run, step)["step"])
+    det = rollout(config, theta, seconds=seconds, seed=seed, exploring=False)
+    out_dir = pathlib.Path(out_dir) if out_dir is not None else run / EVAL_DIR
+    out_dir.mkdir(parents=True, exist_ok=True)
+    title = f"{run.name}, step {step}, deterministic policy"
+    return {"strobe": str(plot_strobe(det["pos"], config.control_dt, out_dir / "strobe.png", title=title)),
+            "gif": str(write_gif(det["pos"], config.control_dt, out_dir / "gait.gif"))}
+
+
+# ----------------------------------------------------------------------------- pictures
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _tmp_path(path: pathlib.Path) -> pathlib.Path:
+    # keep the suffix: matplotlib and imageio choose the format from it
+    return path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+
+
+def _marker_sizes(scale: float) -> np.ndarray:
+    return scale * g.MASSES  # heavier joints bigger (hip 4 kg, head 2 kg)
+
+
+def plot_strobe(
+    pos: np.ndarray,
+    control_dt: float,
+    path: str | os.PathLike,
+    *,
+    every_s: float = 0.1,
+    span_s: float = 3.0,
+    title: str | None = None,
+) -> pathlib.Path:
+    """A Fig.-4-like strobe: the stick figure every ``every_s`` seconds of the first ``span_s``.
+
+    ``pos``: (T+1, 10, 2) joint positions (x, y) per control step, frame 0 the initial pose.
+    """
+    plt = _pyplot()
+    path = pathlib.Path(path)
+    k = max(1, int(round(every_s / control_dt)))
+    last = min(len(pos) - 1, int(round(span_s / control_dt)))
+    frames = [i for i in range(0, last + 1, k) if np.all(np.isfinite(pos[i]))]
+    if not frames:
+        frames = [0]
+    P = pos[frames]
+    x_lo = float(np.nanmin(P[..., 0])) - 0.2 if np.isfinite(P).any() else -1.0
+    x_hi = float(np.nanmax(P[..., 0])) + 0.2 if np.isfinite(P).any() else 1.0
+    y_hi = max(1.0, float(np.nanmax(P[..., 1])) + 0.15) if np.isfinite(P).any() else 1.0
+    width = min(24.0, max(5.0, 2.0 * (x_hi - x_lo) + 1.0))
+    fig, ax = plt.subplots(figsize=(width, 0.25 + 2.0 * (y_hi + 0.1) + 0.6), dpi=100)
+    cmap = plt.get_cmap("viridis")
+    sizes = _marker_sizes(10.0)
+    for j, i in enumerate(frames):
+        c = cmap(j / max(1, len(frames) - 1))
+        p = pos[i]
+        ax.plot(p[:, 0], p[:, 1], "-", color=c, lw=1.2, alpha=0.85)
+        ax.scatter(p[:, 0], p[:, 1], s=sizes, color=c, zorder=3, edgecolors="none")
+    ax.axhline(0.0, color="0.3", lw=1.5)
+    ax.set_xlim(x_lo, x_hi)
+    ax.set_ylim(-0.1, y_hi)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    dt_frames = k * control_dt
+    ax.set_title((title + "\n" if title else "") + f"every {dt_frames:.2f} s, "
+                 f"t = 0 to {frames[-1] * control_dt:.2f} s", fontsize=9)
+    fig.tight_layout()
+    tmp = _tmp_path(path)
+    try:
+        fig.savefig(tmp)
+    finally:
+        plt.close(fig)
+    os.replace(tmp, path)
+    return path
+
+
+def write_gif(
+    pos: np.ndarray,
+    control_dt: float,
+    path: str | os.PathLike,
+    *,
+    fps: float = GIF_FPS,
+    half_width: float = 1.5,
+) -> pathlib.Path:
+    """An animation of the stick figure in real time (about ``fps`` frames/s), the camera on the trunk."""
+    import imageio.v3 as iio
+
+    plt = _pyplot()
+    path = pathlib.Path(path)
+    stride = max(1, int(round(1.0 / (fps * control_dt))))
+    duration_ms = 1000.0 * stride * control_dt
+    idx = list(range(0, len(pos), stride))
+    fig, ax = plt.subplots(figsize=(5.0, 2.0), dpi=80)  # 3 m x 1.2 m at equal aspect
+    fig.subplots_adjust(left=0.0, right=1.0, bottom=0.0, top=1.0)
+    ax.set_axis_off()
+    ax.set_aspect("equal")
+    ax.set_xlim(-half_width, half_width)
+    ax.set_ylim(-0.15, 1.05)
+    (ground,) = ax.plot([], [], color="0.3", lw=1.5)
+    (ticks,) = ax.plot([], [], "|", color="0.3", ms=6)
+    (line,) = ax.plot([], [], "-", color="tab:blue", lw=2)
+    dots = ax.scatter(np.zeros(10), np.zeros(10), s=_marker_sizes(8.0), color="tab:red", zorder=3)
+    text = ax.text(0.02, 0.92, "", transform=ax.transAxes, fontsize=8)
+    frames = []
+    last_cx = 0.0
+    try:
+        for i in idx:
+            p = pos[i]
+            cx = 0.5 * (p[3, 0] + p[4, 0])
+            cx = float(cx) if np.isfinite(cx) else last_cx
+            last_cx = cx
+            lo, hi = cx - half_width, cx + half_width
+            ax.set_xlim(lo, hi)
+            ground.set_data([lo, hi], [0.0, 0.0])
+            tx = np.arange(math.floor(lo * 2) / 2, hi + 0.5, 0.5)  # ground marks every 0.5 m
+            ticks.set_data(tx, np.zeros_like(tx))
+            line.set_data(p[:, 0], p[:, 1])
+            dots.set_offsets(p)
+            text.set_text(f"t = {i * control_dt:5.2f} s")
+            fig.canvas.draw()
+            frames.append(np.asarray(fig.canvas.buffer_rgba())[..., :3].copy())
+    finally:
+        plt.close(fig)
+    tmp = _tmp_path(path)
+    iio.imwrite(tmp, np.stack(frames), duration=duration_ms, loop=0)
+    os.replace(tmp, path)
+    return path

@@ -1,0 +1,344 @@
+"""Checkpoints (nmrl.checkpoint): exact resume, bad checkpoints, keep, policy-only restore, killed saves.
+
+One tiny trainer (4 environments, 5 steps a chunk, 8 hidden units) is compiled once per module; the
+compiled chunk goes into a persistent JAX compilation cache that the killed-process subprocesses
+share, so they do not compile it again.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import pathlib
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+import jax
+import numpy as np
+import pytest
+
+from nmrl import checkpoint
+from nmrl.checkpoint import CheckpointError
+from nmrl.learner import TrainConfig, make_train
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+# orbax leaves an asyncio callback behind when a restore fails ("Event loop is closed"); harmless.
+pytestmark = pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")
+
+CFG = TrainConfig(num_envs=4, chunk_steps=5, hidden_actor=8, hidden_critic=8, steps=15, seed=0)
+
+
+def _same(a, b) -> bool:
+    """Bit-identical pytrees (structure, shapes, dtypes, values; NaN == NaN)."""
+    la, ta = jax.tree_util.tree_flatten(a)
+    lb, tb = jax.tree_util.tree_flatten(b)
+    if ta != tb or len(la) != len(lb):
+        return False
+    for x, y in zip(la, lb):
+        x, y = np.asarray(x), np.asarray(y)
+        if x.shape != y.shape or x.dtype != y.dtype or x.tobytes() != y.tobytes():
+            return False
+    return True
+
+
+@pytest.fixture(scope="module")
+def cache_dir(tmp_path_factory):
+    """A persistent compilation cache for this module and its subprocesses."""
+    from jax._src import compilation_cache as cc
+
+    old = jax.config.jax_compilation_cache_dir
+    d = old or str(tmp_path_factory.mktemp("jax_cache"))
+    if not old:
+        jax.config.update("jax_compilation_cache_dir", d)
+        cc.reset_cache()
+    yield d
+    if not old:
+        jax.config.update("jax_compilation_cache_dir", None)
+        cc.reset_cache()
+
+
+class Reference:
+    """An uninterrupted run: states and chunk metrics after k chunks, computed on demand."""
+
+    def __init__(self):
+        self.trainer = make_train(CFG)
+        self.chunk = jax.jit(self.trainer.chunk)
+        self.states = [jax.device_put(jax.jit(self.trainer.init)(jax.random.PRNGKey(CFG.seed)))]
+        self.metrics = [None]
+
+    def state(self, k: int):
+        while len(self.states) <= k:
+            ts, m = self.chunk(self.states[-1])
+            self.states.append(ts)
+            self.metrics.append(jax.device_get(m))
+        return self.states[k]
+
+
+@pytest.fixture(scope="module")
+def ref(cache_dir):
+    return Reference()
+
+
+@pytest.fixture(scope="module")
+def good_run(ref, tmp_path_factory):
+    """A run directory with one checkpoint at step 5 (after one chunk)."""
+    run = tmp_path_factory.mktemp("good_run")
+    checkpoint.save(run, ref.state(1), ref.trainer.config, extra={"note": "one chunk"})
+    return run
+
+
+def _copy_run(src: pathlib.Path, dst: pathlib.Path) -> pathlib.Path:
+    shutil.copytree(src, dst)
+    return dst
+
+
+# ----------------------------------------------------------------------------- round trip
+
+
+def test_resume_equals_uninterrupted(ref, tmp_path):
+    straight = ref.state(3)
+    run = tmp_path / "run"
+    path = checkpoint.save(run, ref.state(1), ref.trainer.config)
+    assert path == run / "checkpoints" / "5" and path.is_dir()
+
+    fresh = make_train(CFG)  # a new trainer, as in a new process
+    ts = checkpoint.restore(run, fresh)
+    assert _same(ts, ref.state(1))
+    leaf = jax.tree_util.tree_leaves(ts)[0]
+    assert leaf.committed and leaf.devices() == {jax.devices()[0]}
+    chunk = jax.jit(fresh.chunk)
+    ts, m2 = chunk(ts)
+    ts, m3 = chunk(ts)
+    assert chunk._cache_size() == 1  # restored arrays did not force a second compile
+    assert int(ts.step) == 15
+    assert _same(ts.theta, straight.theta) and _same(ts.v, straight.v)
+    assert _same(ts.slots.z, straight.slots.z) and _same(ts.slots.y, straight.slots.y)
+    assert _same(ts, straight)
+    assert _same(jax.device_get(m2), ref.metrics[2]) and _same(jax.device_get(m3), ref.metrics[3])
+
+
+def test_metadata_and_config(good_run, ref):
+    meta = checkpoint.load_metadata(good_run)
+    assert meta["schema"] == checkpoint.SCHEMA_VERSION and meta["step"] == 5
+    for dist in ("nmrl", "jax", "jaxlib", "mujoco", "flax", "orbax-checkpoint", "numpy"):
+        assert meta["versions"][dist], dist
+    assert meta["versions"]["jax"] == jax.__version__
+    assert meta["config"] == dataclasses.asdict(ref.trainer.config)
+    assert meta["model_file"] == "models/half_cheetah.xml" and len(meta["model_sha256"]) == 64
+    assert "git_commit" in meta
+    assert meta["extra"] == {"note": "one chunk"}
+    json.dumps(meta, allow_nan=False)
+    assert checkpoint.load_config(good_run) == ref.trainer.config
+    assert checkpoint.all_steps(good_run) == [5] and checkpoint.latest_step(good_run) == 5
+
+
+def test_restore_policy_matches_full_state(good_run, ref):
+    cfg, theta, v = checkpoint.restore_policy(good_run)
+    assert cfg == ref.trainer.config
+    assert _same(theta, ref.state(1).theta) and _same(v, ref.state(1).v)
+
+
+def test_keep_last_k(ref, tmp_path):
+    ts = ref.state(1)
+    run = tmp_path / "run"
+    for s in (1, 2, 3, 4, 5):
+        checkpoint.save(run, ts.replace(step=np.int32(s)), ref.trainer.config, keep=2)
+    assert checkpoint.all_steps(run) == [4, 5]
+    assert sorted(p.name for p in (run / "checkpoints").iterdir()) == ["4", "5"]
+    # re-saving an existing step replaces it
+    checkpoint.save(run, ts.replace(step=np.int32(5)), ref.trainer.config, keep=2, extra={"again": True})
+    assert checkpoint.all_steps(run) == [4, 5]
+    assert checkpoint.load_metadata(run, 5)["extra"] == {"again": True}
+    assert checkpoint.load_metadata(run, 4)["step"] == 4
+
+
+# ----------------------------------------------------------------------------- bad checkpoints
+
+
+def _raises(fn, path, *words):
+    with pytest.raises(CheckpointError) as e:
+        fn()
+    msg = str(e.value)
+    assert str(path) in msg, msg
+    for w in words:
+        assert w in msg, msg
+    return msg
+
+
+def test_missing_and_empty(tmp_path, ref):
+    missing = tmp_path / "nope"
+    _raises(lambda: checkpoint.latest_step(missing), missing, "does not exist")
+    _raises(lambda: checkpoint.restore_policy(missing), missing)
+    _raises(lambda: checkpoint.restore(missing, ref.trainer), missing)
+    no_ck = tmp_path / "no_ck"
+    no_ck.mkdir()
+    _raises(lambda: checkpoint.load_metadata(no_ck), no_ck, "no checkpoints")
+    (no_ck / "checkpoints").mkdir()
+    assert checkpoint.latest_step(no_ck) is None and checkpoint.all_steps(no_ck) == []
+    _raises(lambda: checkpoint.restore(no_ck, ref.trainer), no_ck, "no finished checkpoint")
+    (no_ck / "checkpoints" / "10.orbax-checkpoint-tmp-123").mkdir()
+    _raises(lambda: checkpoint.restore_policy(no_ck), no_ck, "unfinished")
+
+
+def test_unknown_step(good_run, ref):
+    _raises(lambda: checkpoint.restore(good_run, ref.trainer, step=7), good_run, "step 7", "[5]")
+
+
+def _data_files(run: pathlib.Path, item: str) -> list[pathlib.Path]:
+    files = [p for p in (run / "checkpoints" / "5" / item).rglob("*") if p.is_file()]
+    data = [p for p in files if p.parent.name == "d"]
+    assert data, files
+    return data
+
+
+def test_deleted_file(good_run, ref, tmp_path):
+    run = _copy_run(good_run, tmp_path / "run")
+    for p in _data_files(run, "state"):
+        p.unlink()
+    _raises(lambda: checkpoint.restore(run, ref.trainer), run / "checkpoints" / "5", "state")
+    # the policy item is separate and still readable
+    checkpoint.restore_policy(run)
+    for p in _data_files(run, "policy"):
+        p.unlink()
+    _raises(lambda: checkpoint.restore_policy(run), run / "checkpoints" / "5", "policy")
+
+
+def test_garbage_file(good_run, ref, tmp_path):
+    run = _copy_run(good_run, tmp_path / "run")
+    rng = np.random.default_rng(0)
+    for p in _data_files(run, "state"):
+        p.write_bytes(rng.integers(0, 256, p.stat().st_size, dtype=np.uint8).tobytes())
+    _raises(lambda: checkpoint.restore(run, ref.trainer), run / "checkpoints" / "5")
+    for p in (run / "checkpoints" / "5" / "state").glob("*manifest*"):
+        p.write_bytes(b"garbage")
+    _raises(lambda: checkpoint.restore(run, ref.trainer), run / "checkpoints" / "5")
+
+
+def test_truncated_file(good_run, ref, tmp_path):
+    run = _copy_run(good_run, tmp_path / "run")
+    for p in _data_files(run, "state"):
+        data = p.read_bytes()
+        p.write_bytes(data[: len(data) // 2])
+    _raises(lambda: checkpoint.restore(run, ref.trainer), run / "checkpoints" / "5")
+
+
+def _edit_meta(run: pathlib.Path, **changes) -> None:
+    f = run / "checkpoints" / "5" / "meta" / "metadata"
+    meta = json.loads(f.read_text())
+    meta.update(changes)
+    f.write_text(json.dumps(meta))
+
+
+def test_garbage_metadata(good_run, ref, tmp_path):
+    run = _copy_run(good_run, tmp_path / "run")
+    (run / "checkpoints" / "5" / "meta" / "metadata").write_text("{not json")
+    _raises(lambda: checkpoint.load_metadata(run), run / "checkpoints" / "5", "meta")
+    _raises(lambda: checkpoint.restore_policy(run), run / "checkpoints" / "5")
+    _raises(lambda: checkpoint.restore(run, ref.trainer), run / "checkpoints" / "5")
+
+
+def test_digest_detects_changed_data(good_run, ref, tmp_path):
+    run = _copy_run(good_run, tmp_path / "run")
+    _edit_meta(run, state_digest="0" * 64, policy_digest="1" * 64)
+    _raises(lambda: checkpoint.restore(run, ref.trainer), run / "checkpoints" / "5", "digest")
+    _raises(lambda: checkpoint.restore_policy(run), run / "checkpoints" / "5", "digest")
+
+
+def test_other_model(good_run, ref, tmp_path):
+    run = _copy_run(good_run, tmp_path / "run")
+    _edit_meta(run, model_sha256="ab" * 32)
+    _raises(lambda: checkpoint.restore(run, ref.trainer), run / "checkpoints" / "5", "another model")
+    _raises(lambda: checkpoint.restore_policy(run), run / "checkpoints" / "5", "another model")
+    checkpoint.restore_policy(run, check_model=False)
+
+
+def test_other_schema(good_run, ref, tmp_path):
+    run = _copy_run(good_run, tmp_path / "run")
+    _edit_meta(run, schema=99)
+    _raises(lambda: checkpoint.restore(run, ref.trainer), run / "checkpoints" / "5", "schema")
+
+
+@pytest.mark.parametrize("field,value", [("num_envs", 8), ("hidden_actor", 16), ("hidden_critic", 4),
+                                         ("chunk_steps", 7), ("control_dt", 0.01), ("l", 5)])
+def test_incompatible_config(good_run, ref, field, value):
+    other = ref.trainer._replace(config=dataclasses.replace(ref.trainer.config, **{field: value}))
+    msg = _raises(lambda: checkpoint.restore(good_run, other), good_run / "checkpoints" / "5", field)
+    assert "incompatible" in msg
+
+
+def test_budget_may_change(good_run, ref):
+    other = ref.trainer._replace(config=dataclasses.replace(ref.trainer.config, steps=1000))
+    assert _same(checkpoint.restore(good_run, other), ref.state(1))
+
+
+# ----------------------------------------------------------------------------- killed processes
+
+_SCRIPT = r"""
+import json, sys
+import jax
+from nmrl import checkpoint
+from nmrl.learner import TrainConfig, make_train
+cfg = TrainConfig(**json.loads(sys.argv[2]))
+tr = make_train(cfg)
+ts = jax.device_put(jax.jit(tr.init)(jax.random.PRNGKey(cfg.seed)))
+chunk = jax.jit(tr.chunk)
+print("ready", flush=True)
+for _ in range(400):
+    ts, _ = chunk(ts)
+    checkpoint.save(sys.argv[1], ts, tr.config, keep=3)
+"""
+
+
+def _finished_steps(run: pathlib.Path) -> list[int]:
+    d = run / "checkpoints"
+    return sorted(int(p.name) for p in d.iterdir() if p.name.isdigit()) if d.is_dir() else []
+
+
+def test_killed_process_leaves_a_restorable_checkpoint(ref, cache_dir, tmp_path):
+    env = dict(os.environ, JAX_PLATFORMS="cpu", JAX_COMPILATION_CACHE_DIR=cache_dir,
+               PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    ref.state(1)  # the chunk is compiled (and in the persistent cache) before the children start
+    runs = {sig: tmp_path / f"run_{sig.name}" for sig in (signal.SIGKILL, signal.SIGTERM)}
+    procs = {
+        sig: subprocess.Popen([sys.executable, "-c", _SCRIPT, str(run), json.dumps(dataclasses.asdict(CFG))],
+                              cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        for sig, run in runs.items()
+    }
+    signalled: dict[signal.Signals, bool] = {sig: False for sig in procs}
+    deadline = time.time() + 170
+    try:
+        while not all(signalled.values()):
+            assert time.time() < deadline, "the training subprocesses did not save a checkpoint in time"
+            for sig, p in procs.items():
+                if signalled[sig]:
+                    continue
+                if p.poll() is not None:
+                    out, err = p.communicate()
+                    pytest.fail(f"subprocess exited early ({p.returncode}):\n{err.decode()[-3000:]}")
+                if _finished_steps(runs[sig]):
+                    p.send_signal(sig)  # most likely in the middle of writing the next checkpoint
+                    signalled[sig] = True
+            time.sleep(0.05)
+        for sig, p in procs.items():
+            assert p.wait(timeout=60) == -sig
+    finally:
+        for p in procs.values():
+            if p.poll() is None:
+                p.kill()
+                p.wait()
+
+    for sig, run in runs.items():
+        step = checkpoint.latest_step(run)
+        assert step is not None and step % CFG.chunk_steps == 0, (sig, step)
+        ts = checkpoint.restore(run, ref.trainer)
+        assert int(ts.step) == step
+        assert _same(ts, ref.state(step // CFG.chunk_steps)), sig
+        # the run can continue saving into the same directory (unfinished tmp dirs are cleaned up)
+        nxt = ref.state(step // CFG.chunk_steps + 1)
+        checkpoint.save(run, nxt, ref.trainer.config, keep=3)
+        assert checkpoint.latest_step(run) == int(nxt.step)
+        assert not [p for p in (run / "checkpoints").iterdir() if "tmp" in p.name]
