@@ -94,10 +94,13 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         base = config_from_args(args, skip=_SWEEP_FIELDS)
         spec = sweep.SweepSpec(ls=tuple(args.l), seeds=args.seeds, base=base)
         spec.validate()
+        if args.checkpoint_every < 1:
+            raise ValueError(f"--checkpoint-every={args.checkpoint_every} is invalid: must be >= 1")
     except (ValueError, TypeError) as e:
         return _fail(str(e))
     try:
-        sweep.run_sweep(spec, args.out, resume=args.resume, progress=not args.quiet)
+        sweep.run_sweep(spec, args.out, resume=args.resume, progress=not args.quiet,
+                        checkpoint_every=args.checkpoint_every)
     except sweep.SweepError as e:
         return _fail(str(e))
     return 0
@@ -125,6 +128,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_config_options(p, skip=_SWEEP_FIELDS)
     p.add_argument("--l", type=int, nargs="+", required=True, help="period lengths, e.g. 1 2 3 5 10 15 20 30")
     p.add_argument("--seeds", type=int, default=3, help="seeds per l (0..seeds-1)")
+    p.add_argument("--checkpoint-every", type=int, default=1, help="checkpoint the points every K chunks")
     p.add_argument("--out", required=True)
     p.add_argument("--resume", action="store_true")
     p.add_argument("--quiet", action="store_true")
