@@ -16,7 +16,7 @@ import typing
 from nmrl.learner import PRESETS, TrainConfig
 
 #: Budget of a plain ``nmrl train`` (control steps per environment): a few minutes on 2 CPU cores.
-DEFAULT_STEPS = 3000
+DEFAULT_STEPS = 4000
 _SWEEP_FIELDS = {"l", "seed"}  # given as lists to ``nmrl sweep``
 
 
