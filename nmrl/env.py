@@ -22,7 +22,8 @@ open are listed in docs/model.md; in short:
   the joint's centre, and the floor is placed one contact-sphere radius below y = 0.
 * (8), (11)-(14) are evaluated at the state s_{t+1} reached at the end of the control step
   (r_t = r(a_t, s_{t+1}), Sec. II); (9) and (10) are averaged over the substeps of the step.
-* tau^w in (10) is the joint-limit constraint force MuJoCo's solver applies to the joint.
+* tau^w in (10) is the joint-limit constraint force MuJoCo's solver applies to the joint; the
+  per-instant term min{|tau^w_i|, 50} is averaged over the substeps, like (9).
 """
 
 from __future__ import annotations
@@ -68,6 +69,10 @@ class EnvConfig:
             raise ValueError(f"control_dt must be > 0 seconds, got {self.control_dt!r}")
         if not 0.0 <= self.stop_prob < 1.0:
             raise ValueError(f"stop_prob must be in [0, 1), got {self.stop_prob!r}")
+        if not (np.isfinite(self.contact_tol) and self.contact_tol >= 0):
+            raise ValueError(f"contact_tol must be a finite number >= 0 metres, got {self.contact_tol!r}")
+        if not np.isfinite(self.reward_scale):
+            raise ValueError(f"reward_scale must be a finite number, got {self.reward_scale!r}")
         if self.timestep is not None and not self.timestep > 0:
             raise ValueError(f"timestep must be > 0 seconds, got {self.timestep!r}")
         for name in ("solver_iterations", "ls_iterations"):
@@ -238,12 +243,12 @@ class HalfCheetah:
 
         data, (over, tau_w) = jax.lax.scan(substep, state.data, None, length=self.n_substeps)
         finite = jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel))
-        qpos = jnp.where(finite, data.qpos, self._data0.qpos)
-        qvel = jnp.where(finite, data.qvel, self._data0.qvel)
-        p, v, phi, dphi = kinematics(qpos, qvel)
+        # Non-finite physics is flagged and replaced by the reset state (it forces a trial stop).
+        data = jax.tree.map(lambda a, b: jnp.where(finite, a, b), data, self._data0)
+        p, v, phi, dphi = kinematics(data.qpos, data.qvel)
         terms = state_rewards(p, v, cfg.contact_tol)
         terms["r9_torque"] = -0.05 * jnp.sum(jnp.mean(over, axis=0))
-        terms["r10_limit"] = -0.1 * jnp.sum(jnp.minimum(jnp.abs(jnp.mean(tau_w, axis=0)), 50.0))
+        terms["r10_limit"] = -0.1 * jnp.sum(jnp.mean(jnp.minimum(jnp.abs(tau_w), 50.0), axis=0))
         terms = {k: jnp.where(finite, terms[k], 0.0) for k in REWARD_TERMS}
         reward = cfg.reward_scale * sum(terms[k] for k in REWARD_TERMS)
         obs = observation(p, v, phi, dphi, cfg.contact_tol)

@@ -2,9 +2,14 @@
 
 On a CPU machine XLA runs one vmapped MJX program on essentially one thread; with
 ``XLA_FLAGS=--xla_force_host_platform_device_count=N`` (set before JAX starts) and the batch split
-with ``jax.shard_map`` each device runs its shard on its own thread (benchmarks/bench_env.py:
-2 devices on 2 cores ~1.9x the 1-device throughput). GSPMD (``jit`` with NamedSharding inputs)
-gives no gain, and ``pmap`` is slower.
+with ``jax.shard_map`` each device runs its shard on its own thread. Measured on the 2-core
+reference machine (benchmarks/env.json, docs/model.md section 6): batch 256, 4 solver iterations,
+42-46k physics steps/s on 2 devices vs 15-23k on 1; GSPMD (``jit`` with sharded inputs) ~= 1
+device (26k); ``pmap`` slower (9.5k).
+
+EXPERIMENTAL -- the 2-device run at batch 4096 hung twice (every thread blocked in a futex, no
+CPU use, no error), and at batch 64/1024 the gain was small in a loaded machine. Use a timeout
+/ watchdog and prefer 1 device for long training runs until that is understood.
 
 Usage::
 
