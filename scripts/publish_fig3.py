@@ -1,0 +1,78 @@
+"""Publish a sweep's results under results/: CSV, Fig. 3, learning curves, best policies, gaits.
+
+    python scripts/publish_fig3.py runs/fig3_fast results/fig3_fast [--ls 1 10] [--seconds 10]
+
+Copies results.csv, sweep.json, fig3.png and every point's metrics.jsonl; for each l in --ls takes
+the seed with the highest avg_reward, copies its newest checkpoint's *policy* (actor and critic
+parameters plus metadata, small: ``nmrl eval`` restores it; the full training state stays in the
+sweep directory) and evaluates it with ``nmrl.evaluate`` (JSON, strobe PNG, GIF).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import shutil
+import sys
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
+
+from nmrl import checkpoint, evaluate, plots, sweep  # noqa: E402
+
+
+def copy_policy(point: pathlib.Path, dest: pathlib.Path) -> pathlib.Path:
+    step = checkpoint.latest_step(point)
+    src = checkpoint.checkpoint_dir(point) / str(step)
+    out = checkpoint.checkpoint_dir(dest) / str(step)
+    if dest.exists():
+        shutil.rmtree(dest)
+    out.mkdir(parents=True)
+    for name in ("policy", "meta", "_CHECKPOINT_METADATA", "commit_success.txt"):
+        p = src / name
+        (shutil.copytree if p.is_dir() else shutil.copy2)(p, out / name)
+    shutil.copy2(point / "config.json", dest / "config.json")
+    shutil.copy2(point / "metrics.jsonl", dest / "metrics.jsonl")
+    return dest
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("sweep_dir")
+    ap.add_argument("dest")
+    ap.add_argument("--ls", type=int, nargs="+", default=[1, 10])
+    ap.add_argument("--seconds", type=float, default=10.0)
+    args = ap.parse_args()
+    src, dest = pathlib.Path(args.sweep_dir), pathlib.Path(args.dest)
+    dest.mkdir(parents=True, exist_ok=True)
+    results = sweep.write_results(src, sweep.SweepSpec(**_spec(src)))
+    for name in (sweep.RESULTS_FILE, sweep.SPEC_FILE):
+        shutil.copy2(src / name, dest / name)
+    plots.fig3(src, results, dest / "fig3.png")
+    for r in results:
+        d = dest / "metrics" / f"l{r['l']}_s{r['seed']}.jsonl"
+        d.parent.mkdir(exist_ok=True)
+        shutil.copy2(sweep.point_dir(src, r["l"], r["seed"]) / "metrics.jsonl", d)
+    summary = {}
+    for l in args.ls:
+        rows = [r for r in results if r["l"] == l and not r["diverged"] and r["checkpoint"]]
+        if not rows:
+            continue
+        best = max(rows, key=lambda r: r["avg_reward"])
+        pol = copy_policy(sweep.point_dir(src, l, best["seed"]), dest / "policies" / f"l{l}_best")
+        ev = evaluate.evaluate(pol, seconds=args.seconds, seed=0, render=True)
+        summary[f"l{l}"] = {"seed": best["seed"], "sweep_avg_reward": best["avg_reward"], "eval": ev}
+        print(f"l={l} seed={best['seed']}: deterministic {ev['deterministic']['avg_reward']:+.3f} "
+              f"({ev['deterministic']['forward_speed']:+.2f} m/s), exploring {ev['exploring']['avg_reward']:+.3f}")
+    (dest / "best_policies.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
+
+
+def _spec(src: pathlib.Path) -> dict:
+    from nmrl.learner import TrainConfig
+
+    s = json.loads((src / sweep.SPEC_FILE).read_text())
+    return {"ls": tuple(s["ls"]), "seeds": s["seeds"], "base": TrainConfig(**s["base"])}
+
+
+if __name__ == "__main__":
+    main()
