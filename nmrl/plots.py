@@ -32,6 +32,14 @@ def mean_ci95(x: np.ndarray) -> tuple[float, float]:
     return float(x.mean()), float(stats.t.ppf(0.975, x.size - 1) * x.std(ddof=1) / np.sqrt(x.size))
 
 
+def smooth(y: np.ndarray, k: int = 5) -> np.ndarray:
+    """Trailing running mean over up to ``k`` points (the first points use what exists)."""
+    c = np.cumsum(np.insert(np.asarray(y, float), 0, 0.0))
+    i = np.arange(1, len(y) + 1)
+    lo = np.maximum(i - k, 0)
+    return (c[i] - c[lo]) / (i - lo)
+
+
 def _save(fig, path: pathlib.Path) -> None:
     tmp = path.with_name(path.stem + ".tmp.png")
     fig.savefig(tmp, dpi=110, bbox_inches="tight")
@@ -84,9 +92,9 @@ def fig3(out: str | os.PathLike, results: list[dict], path: str | os.PathLike | 
         n = min(len(c[0]) for c in curves)
         tr = np.mean([c[0][:n] for c in curves], axis=0)
         rw = np.mean([c[1][:n] for c in curves], axis=0)
-        ax2.plot(tr, rw, color=cmap(j / max(1, len(ls) - 1)), label=f"l={l}")
+        ax2.plot(tr, smooth(rw), color=cmap(j / max(1, len(ls) - 1)), label=f"l={l}")
     ax2.set_xlabel("trials")
-    ax2.set_ylabel("average reward per step (mean over seeds)")
+    ax2.set_ylabel("average reward per step (mean over seeds,\nrunning mean of 5 chunks)")
     ax2.set_title("learning curves")
     ax2.grid(alpha=0.3)
     ax2.legend(fontsize=8, ncol=2)
