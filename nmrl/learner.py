@@ -195,13 +195,24 @@ def _tree_where(c, a, b):
     return jax.tree.map(lambda x, y: jnp.where(c, x, y), a, b)
 
 
-def make_train(config: TrainConfig, env: Any = None) -> Trainer:
+def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = None,
+               num_shards: int = 1) -> Trainer:
     """Build the pure functions of a training run (see the module docstring).
 
     ``env`` defaults to ``HalfCheetah(config.env_config())``; any environment with the same interface
     (``obs_dim``, ``act_dim``, ``reward_terms``, ``reset(key)``, ``step(state, action)`` with auto-reset,
     ``State`` with ``obs``, ``reward``, ``done``, ``metrics`` incl. ``forward_speed`` and ``nonfinite``) works.
+
+    With ``axis_name`` and ``num_shards`` > 1, ``chunk`` is written for ``jax.shard_map`` over the
+    environment axis of ``TrainState.slots`` (nmrl/run.py does that): each shard steps its
+    ``num_envs / num_shards`` environments, and the summed update and the statistics are ``psum``-ed
+    over ``axis_name``. The noise of all N environments is drawn from the shared key and each shard
+    takes its slice, so the draws equal the unsharded program's.
     """
+    if num_shards < 1 or config.num_envs % num_shards:
+        raise ValueError(f"num_envs={config.num_envs} must be divisible by num_shards={num_shards}")
+    if num_shards > 1 and axis_name is None:
+        raise ValueError("num_shards > 1 needs an axis_name")
     cfg = config.resolved()
     env = env or HalfCheetah(cfg.env_config())
     OBS_DIM, ACT_DIM = env.obs_dim, env.act_dim
@@ -209,6 +220,13 @@ def make_train(config: TrainConfig, env: Any = None) -> Trainer:
     actor = networks.make_actor(cfg.hidden_actor, ACT_DIM)
     critic = networks.make_critic(cfg.hidden_critic)
     N = cfg.num_envs
+    N_local = N // num_shards
+
+    def psum(x):
+        return jax.lax.psum(x, axis_name) if num_shards > 1 else x
+
+    def pmax(x):
+        return jax.lax.pmax(x, axis_name) if num_shards > 1 else x
 
     def init(key: jax.Array, hyper: Hyper | None = None) -> TrainState:
         hyper = Hyper.from_config(cfg) if hyper is None else hyper
@@ -270,32 +288,32 @@ def make_train(config: TrainConfig, env: Any = None) -> Trainer:
         h = ts.hyper
         key, k_eps = jax.random.split(ts.key)
         eps = jax.random.normal(k_eps, (N, ACT_DIM), jnp.float32)
+        if num_shards > 1:
+            eps = jax.lax.dynamic_slice_in_dim(eps, jax.lax.axis_index(axis_name) * N_local, N_local)
         slots, d, completed, stopped, es = jax.vmap(slot_step, in_axes=(None, None, 0, 0, None))(
             ts.theta, ts.v, ts.slots, eps, h)
-        theta = jax.tree.map(lambda p, z: p + h.beta_theta * jnp.tensordot(d, z, axes=1), ts.theta, slots.z)
-        v = jax.tree.map(lambda p, y: p + h.beta_v * jnp.tensordot(d, y, axes=1), ts.v, slots.y)
+        theta = jax.tree.map(lambda p, z: p + h.beta_theta * psum(jnp.tensordot(d, z, axes=1)), ts.theta, slots.z)
+        v = jax.tree.map(lambda p, y: p + h.beta_v * psum(jnp.tensordot(d, y, axes=1)), ts.v, slots.y)
         ok = (networks.global_norm(theta) < cfg.max_param_norm) & (networks.global_norm(v) < cfg.max_param_norm)
         ok = ok & ~ts.diverged  # a diverged point stays frozen at its last good parameters
         theta = _tree_where(ok, theta, ts.theta)
         v = _tree_where(ok, v, ts.v)
-        n_done = jnp.sum(stopped.astype(jnp.int32))
-        n_learn = jnp.sum(completed.astype(jnp.int32))
+        n_done = psum(jnp.sum(stopped.astype(jnp.int32)))
+        n_learn = psum(jnp.sum(completed.astype(jnp.int32)))
         new = ts.replace(theta=theta, v=v, slots=slots, key=key, step=ts.step + 1,
                          trials=ts.trials + n_done, periods=ts.periods + n_learn,
                          diverged=ts.diverged | ~ok)
-        cnt = jnp.maximum(n_learn, 1)
         stats = {
-            "reward": jnp.mean(es.reward),
-            **{k: jnp.mean(es.metrics[k]) for k in REWARD_TERMS},
-            "forward_speed": jnp.mean(es.metrics["forward_speed"]),
-            "nonfinite": jnp.sum(es.metrics["nonfinite"]),
+            "reward": psum(jnp.sum(es.reward)) / N,
+            **{k: psum(jnp.sum(es.metrics[k])) / N for k in REWARD_TERMS},
+            "forward_speed": psum(jnp.sum(es.metrics["forward_speed"])) / N,
+            "nonfinite": psum(jnp.sum(es.metrics["nonfinite"])),
             "trials": n_done,
             "periods": n_learn,
-            "td_sum": jnp.sum(d),
-            "td_sq": jnp.sum(d * d),
-            "td_absmax": jnp.max(jnp.abs(d)),
+            "td_sum": psum(jnp.sum(d)),
+            "td_sq": psum(jnp.sum(d * d)),
+            "td_absmax": pmax(jnp.max(jnp.abs(d))),
         }
-        del cnt
         return new, stats
 
     def chunk(ts: TrainState) -> tuple[TrainState, dict]:

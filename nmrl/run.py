@@ -21,7 +21,7 @@ import time
 import jax
 import numpy as np
 
-from nmrl import checkpoint
+from nmrl import checkpoint, sharding
 from nmrl.learner import TrainConfig, make_train
 
 METRICS_FILE = "metrics.jsonl"
@@ -79,6 +79,19 @@ def existing_step(run_dir: pathlib.Path) -> int | None:
         return checkpoint.latest_step(run_dir)
     except checkpoint.CheckpointError:
         return None
+
+
+def _num_shards(cfg: TrainConfig) -> int:
+    """Local devices the environment batch is split over (1 when N is not divisible by them)."""
+    n = len(jax.local_devices())
+    return n if n > 1 and cfg.num_envs % n == 0 else 1
+
+
+def _sharded_trainer(cfg: TrainConfig, trainer):
+    n = _num_shards(cfg)
+    if n == 1:
+        return trainer
+    return make_train(cfg, env=trainer.env, axis_name=sharding.AXIS, num_shards=n)
 
 
 def compile_chunk(fn, ts, donate: bool = True):
@@ -159,6 +172,7 @@ def train(cfg: TrainConfig, out: str | os.PathLike, *, resume: bool = False, pro
         cfg = cfg.resolved()
         trainer = make_train(cfg)
         ts = checkpoint.restore(out, trainer)
+        trainer = _sharded_trainer(cfg, trainer)
         truncate_metrics(out, int(ts.step))
     else:
         cfg = cfg.resolved()
@@ -169,10 +183,17 @@ def train(cfg: TrainConfig, out: str | os.PathLike, *, resume: bool = False, pro
         atomic_write_text(out / CONFIG_FILE, json.dumps(dataclasses.asdict(cfg), indent=2) + "\n")
         (out / METRICS_FILE).unlink(missing_ok=True)
         ts = jax.jit(trainer.init)(jax.random.PRNGKey(cfg.seed))
-    ts = jax.device_put(ts)  # committed inputs: no second, hidden compile of the chunk
-    chunk, compile_s = compile_chunk(trainer.chunk, ts)
+        trainer = _sharded_trainer(cfg, trainer)
+    n_dev = _num_shards(cfg)
+    if n_dev > 1:
+        program, place = sharding.shard_train_chunk(trainer.chunk, ts, sharding.make_mesh())
+    else:
+        program, place = trainer.chunk, jax.device_put
+    ts = place(ts)  # committed inputs: no second, hidden compile of the chunk
+    chunk, compile_s = compile_chunk(program, ts)
     if progress:
-        print(f"compiled the training chunk in {compile_s:.1f} s", file=sys.stderr, flush=True)
+        print(f"compiled the training chunk ({cfg.num_envs} environments on {n_dev} device(s)) in "
+              f"{compile_s:.1f} s", file=sys.stderr, flush=True)
 
     stop = {"signal": None}
 
@@ -195,7 +216,7 @@ def train(cfg: TrainConfig, out: str | os.PathLike, *, resume: bool = False, pro
             wall = time.time() - t0
             row = metrics_row(cfg, m, wall)
             bad = is_diverged(m)
-            ts = ts_new
+            ts = place(ts_new)
             append_metrics(out, row)
             rows.append(row)
             if bad:

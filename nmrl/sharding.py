@@ -62,3 +62,26 @@ def shard_map_batch(f: Callable, mesh: Mesh | None = None, jit: bool = True) -> 
     mesh = make_mesh() if mesh is None else mesh
     g = jax.shard_map(f, mesh=mesh, in_specs=P(AXIS), out_specs=P(AXIS), check_vma=False)
     return jax.jit(g) if jit else g
+
+
+def train_state_specs(ts: Any) -> Any:
+    """PartitionSpecs for a learner ``TrainState``: its per-environment ``slots`` split over ``"b"``,
+    everything else (parameters, key, hyperparameters, counters) replicated."""
+    def spec(path, _x):
+        return P(AXIS) if getattr(path[0], "name", None) == "slots" else P()
+
+    return jax.tree_util.tree_map_with_path(spec, ts)
+
+
+def shard_train_chunk(chunk: Callable, ts: Any, mesh: Mesh) -> tuple[Callable, Callable]:
+    """(program, place): ``chunk`` (built with ``make_train(..., axis_name=AXIS, num_shards=mesh.size)``)
+    under ``shard_map`` over the environment axis, and a function that lays a TrainState out as the
+    program expects (call it on the initial state and on every returned state)."""
+    specs = train_state_specs(ts)
+    shardings = jax.tree.map(lambda s: NamedSharding(mesh, s), specs)
+    program = jax.shard_map(chunk, mesh=mesh, in_specs=(specs,), out_specs=(specs, P()), check_vma=False)
+
+    def place(t: Any) -> Any:
+        return jax.device_put(t, shardings)
+
+    return program, place
