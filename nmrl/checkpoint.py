@@ -86,8 +86,8 @@ class CheckpointError(Exception):
 
 
 def checkpoint_dir(run_dir: str | os.PathLike) -> pathlib.Path:
-    """The directory that holds the step directories of a run."""
-    return pathlib.Path(run_dir) / CHECKPOINTS
+    """The directory that holds the step directories of a run (absolute: orbax requires it)."""
+    return pathlib.Path(run_dir).absolute() / CHECKPOINTS
 
 
 def _ocp():

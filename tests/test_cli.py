@@ -1,0 +1,49 @@
+"""The ``nmrl`` command as a user runs it: relative paths, bad values, resume rules."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from nmrl import cli, run
+
+TINY = ["--num-envs", "4", "--chunk-steps", "5", "--hidden-actor", "8", "--hidden-critic", "8", "--quiet"]
+
+
+def test_relative_out_train_resume_eval(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(["train", *TINY, "--steps", "5", "--out", "rel"]) == 0
+    assert cli.main(["train", "--resume", "--steps", "10", "--out", "rel", "--quiet"]) == 0
+    rows = run.read_metrics(tmp_path / "rel")
+    assert [r["step"] for r in rows] == [5, 10]
+    capsys.readouterr()
+    assert cli.main(["eval", "rel", "--seconds", "0.2", "--no-render"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["step"] == 10 and set(out) >= {"deterministic", "exploring"}
+
+
+@pytest.mark.parametrize("argv,needle", [
+    (["--l", "0"], "l"),
+    (["--delta", "0"], "delta"),
+    (["--alpha", "1.0"], "alpha"),
+    (["--beta-theta=-1e-6"], "beta_theta"),
+    (["--steps", "0"], "steps"),
+    (["--trials", "-5"], "trials"),
+    (["--preset", "turbo"], "preset='turbo'"),
+    (["--num-envs", "0"], "num_envs"),
+])
+def test_bad_values_exit_2_and_write_nothing(tmp_path, capsys, argv, needle):
+    out = tmp_path / "run"
+    assert cli.main(["train", *argv, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert needle in err and "error" in err
+    assert not out.exists()
+
+
+def test_resume_rules(tmp_path, capsys):
+    assert cli.main(["train", "--resume", "--out", str(tmp_path / "nothing")]) == 2
+    assert "no checkpoint" in capsys.readouterr().err
+    assert cli.main(["train", *TINY, "--steps", "5", "--out", str(tmp_path / "r")]) == 0
+    assert cli.main(["train", *TINY, "--steps", "5", "--out", str(tmp_path / "r")]) == 2
+    assert "--resume" in capsys.readouterr().err
