@@ -5,8 +5,10 @@ learner's chunk on all of them in one jitted program. l lives in the traced ``Hy
 (nmrl/learner.py): the in-period index is a counter compared with l, so no padding is needed and no
 point recompiles. With several local devices (e.g. ``XLA_FLAGS=--xla_force_host_platform_device_count=2``
 on a 2-core CPU) the points are split over them with ``shard_map`` (results then differ from a
-1-device run in the last float bits). The vmapped chunk gives, point by point, bit-identical results to separate
-``nmrl train`` runs (tests/test_sweep.py).
+1-device run in the last float bits). The vmapped chunk gives, point by point, the results of separate ``nmrl train``
+runs: bit-identical with the small networks of tests/test_sweep.py, and equal up to float rounding
+at the paper's sizes (largest parameter difference 2.4e-7 after 320 steps, benchmarks/bench_sweep.py),
+where XLA batches the matrix products differently.
 
 Layout of ``OUT``::
 

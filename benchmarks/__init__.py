@@ -1,0 +1,1 @@
+"""Benchmarks of nmrl: ``python -m benchmarks [--quick]`` (see benchmarks/__main__.py)."""

@@ -1,0 +1,417 @@
+"""Run every nmrl benchmark, write one JSON file, a markdown table and a throughput figure.
+
+    python -m benchmarks                 # full run   -> benchmarks/results.json, throughput.png
+    python -m benchmarks --quick         # ~1 minute  -> benchmarks/results_quick.json, throughput_quick.png
+    python -m benchmarks --only env,sweep --out /tmp/r.json
+    nmrl bench [--quick]                 # the same
+
+Benchmarks (each module has ``run(quick) -> dict``):
+
+* ``env``        MJX physics steps/s vs MuJoCo C (``mujoco.rollout``), MJX on 1 and 2 CPU devices,
+                 C with 1 and 2 threads (benchmarks/bench_env.py; MJX in subprocesses with a timeout);
+* ``learning``   training chunk vs environment-only scan, same batch (benchmarks/bench_learning.py);
+* ``likelihood`` tridiagonal vs dense likelihood ratio (benchmarks/bench_likelihood.py);
+* ``sweep``      one vmapped sweep program vs the same points one after another (bench_sweep.py);
+* ``scaling``    training chunk on 1 vs 2 CPU devices, the sweep's shard_map path (bench_scaling.py).
+
+Every comparison is a ratio measured within one run, the contenders interleaved, so that a
+background load affects both alike; absolute numbers are reported beside the machine description
+and the load average. Compile time is always reported apart from steady-state time; XLA's
+persistent compile cache (``JAX_COMPILATION_CACHE_DIR``, default ``~/.cache/nmrl/xla``) is used, so a
+second run (and a quick run after a full one: the quick shapes are a subset of the full ones)
+skips most of the compilation.
+
+The JSON file has the same top-level keys in quick and full mode. With ``--only`` the sections not
+run are kept from the existing output file (if any), otherwise they are ``null``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import datetime
+import json
+import os
+import pathlib
+import statistics
+import sys
+import time
+import traceback
+
+# Before JAX / numpy are imported (here and in the subprocesses, which inherit the environment).
+os.environ.setdefault("JAX_PLATFORMS", "cpu")
+os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.expanduser("~/.cache/nmrl/xla"))
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # see benchmarks/bench_likelihood.py
+
+HERE = pathlib.Path(__file__).resolve().parent
+ROOT = HERE.parent
+sys.path.insert(0, str(ROOT))
+
+SECTIONS = ("env", "learning", "likelihood", "sweep", "scaling")
+TOP_KEYS = ("meta", "machine", *SECTIONS, "summary")
+
+# env: control steps (batch x T) per timed MJX call, the same in quick and full mode so that a quick
+# run hits the compile cache of a full run (T = max(4096 // B, 8))
+ENV_STEPS_PER_CALL = 4096
+ENV_FULL_BATCHES = [64, 256, 1024]
+ENV_QUICK_BATCHES = [64]
+
+
+# ------------------------------------------------------------------------------- sections
+
+
+def bench_env_section(quick: bool) -> dict:
+    """MJX (1 device, 2 devices shard_map) vs MuJoCo C (1, 2 threads); C measured before, between
+    and after the MJX subprocesses, and its median taken, so C and MJX see the same load."""
+    from benchmarks import bench_env
+
+    sizes = ENV_QUICK_BATCHES if quick else ENV_FULL_BATCHES
+    rep = 1 if quick else 3
+    timeout = 240 if quick else 600
+    t0 = time.perf_counter()
+    threads = sorted({1, 2, os.cpu_count() or 1})
+    c_runs, mjx, load = [], {}, {}
+    c_runs.append(bench_env.c_rollout(sizes, ENV_STEPS_PER_CALL, threads, repeats=rep))
+    load["before"] = list(os.getloadavg())
+    mjx["1dev_single"] = bench_env.mjx_subprocess(sizes, "single", 1, ENV_STEPS_PER_CALL, rep, timeout=timeout)
+    c_runs.append(bench_env.c_rollout(sizes, ENV_STEPS_PER_CALL, threads, repeats=rep))
+    load["between"] = list(os.getloadavg())
+    mjx["2dev_shard_map"] = bench_env.mjx_subprocess(sizes, "shard_map", 2, ENV_STEPS_PER_CALL, rep,
+                                                      timeout=timeout)
+    c_runs.append(bench_env.c_rollout(sizes, ENV_STEPS_PER_CALL, threads, repeats=rep))
+    load["after"] = list(os.getloadavg())
+    c = []
+    for nt in threads:
+        for B in sizes:
+            vals = [r["physics_steps_per_s"] for run in c_runs for r in run if r["batch"] == B and r["nthread"] == nt]
+            c.append({"batch": B, "nthread": nt, "physics_steps_per_s": statistics.median(vals),
+                      "physics_steps_per_s_runs": vals})
+    ratios = {}
+    for B in sizes:
+        mj = {k: r["physics_steps_per_s"] for k, v in mjx.items() for r in v.get("results", []) if r["batch"] == B}
+        cc = {f"c_{r['nthread']}thread": r["physics_steps_per_s"] for r in c if r["batch"] == B}
+        if not mj:
+            continue
+        ratios[str(B)] = {
+            **{f"{a}/{b}": mj[a] / cc[b] for a in mj for b in cc},
+            "best_mjx/best_c": max(mj.values()) / max(cc.values()),
+        }
+    best = [r["best_mjx/best_c"] for r in ratios.values()]
+    return {
+        "benchmark": "Half-Cheetah physics steps/s: MJX (jit scan of vmap(env.step)) vs MuJoCo C rollout",
+        "quick": quick,
+        "config": {"batches": sizes, "control_steps_per_call": ENV_STEPS_PER_CALL, "repeats": rep,
+                   "c_threads": threads, "mjx_statistic": "best of repeats (bench_env.py)",
+                   "c_statistic": "median over 3 runs (before, between, after the MJX runs) of the best of repeats",
+                   "timeout_s": timeout},
+        "mjx": mjx, "c": c, "c_runs": c_runs,
+        "ratio_mjx_over_c": ratios,
+        "goal": "MJX >= 0.75 x MuJoCo C physics steps/s",
+        "goal_met": bool(best) and min(best) >= 0.75,
+        "best_ratio_range": [min(best), max(best)] if best else None,
+        "load_avg": load,
+        "wall_s": time.perf_counter() - t0,
+    }
+
+
+def run_section(name: str, quick: bool) -> dict:
+    if name == "env":
+        return bench_env_section(quick)
+    if name == "learning":
+        from benchmarks import bench_learning
+
+        return bench_learning.run(quick)
+    if name == "likelihood":
+        from benchmarks import bench_likelihood
+
+        return bench_likelihood.run(quick)
+    if name == "sweep":
+        from benchmarks import bench_sweep
+
+        return bench_sweep.run(quick)
+    if name == "scaling":
+        from benchmarks import bench_scaling
+
+        return bench_scaling.run(quick)
+    raise ValueError(name)
+
+
+# ------------------------------------------------------------------------------- machine
+
+
+def machine() -> dict:
+    import jax
+    import mujoco
+
+    cpu = ""
+    try:
+        cpu = next(l.split(":", 1)[1].strip() for l in open("/proc/cpuinfo") if l.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    mem = None
+    try:
+        mem = int(next(l.split()[1] for l in open("/proc/meminfo") if l.startswith("MemTotal"))) / 2**20
+    except (OSError, StopIteration, ValueError):
+        pass
+    import platform
+
+    cache = os.environ.get("JAX_COMPILATION_CACHE_DIR")
+    entries = len(os.listdir(cache)) if cache and os.path.isdir(cache) else 0  # > 0: compile_s may be cache hits
+    return {"cpu": cpu, "cpu_count": os.cpu_count(), "mem_gib": mem, "platform": platform.platform(),
+            "python": platform.python_version(), "jax": jax.__version__, "jax_backend": jax.default_backend(),
+            "mujoco": mujoco.__version__, "load_avg_at_start": list(os.getloadavg()),
+            "compile_cache": cache, "compile_cache_entries_at_start": entries}
+
+
+# ------------------------------------------------------------------------------- summary / table
+
+
+def _get(d, *keys, default=None):
+    for k in keys:
+        if not isinstance(d, dict) or k not in d:
+            return default
+        d = d[k]
+    return d
+
+
+def summary(res: dict) -> dict:
+    s = {}
+    env = res.get("env")
+    if env and "ratio_mjx_over_c" in env:
+        s["env_best_mjx_over_best_c"] = {B: r["best_mjx/best_c"] for B, r in env["ratio_mjx_over_c"].items()}
+        s["env_goal_met"] = env.get("goal_met")
+    lr = res.get("learning")
+    if lr and "results" in lr:
+        s["learning_overhead"] = {str(r["batch"]): r["overhead"] for r in lr["results"]}
+        s["learning_goal_met"] = lr.get("goal_met")
+    sw = res.get("sweep")
+    if sw and "sweep_over_sequential" in sw:
+        s["sweep_over_sequential"] = sw["sweep_over_sequential"]
+        s["sweep_goal_met"] = sw.get("goal_met")
+    sc = res.get("scaling")
+    if sc and "hung_or_failed" in sc:
+        s["scaling_2dev_over_1dev"] = sc.get("speedup_2dev_over_1dev")
+        s["scaling_hung_or_failed"] = sc.get("hung_or_failed")
+    li = res.get("likelihood")
+    if li and "results" in li:
+        by = {(r["method"], r["l"]): r["median_s"] for r in li["results"]}
+        s["likelihood_dense_over_tridiagonal"] = {
+            str(l): by[("lr_dense", l)] / by[("lr_tridiagonal", l)] for (m, l) in by if m == "lr_tridiagonal"
+            and ("lr_dense", l) in by}
+    return s
+
+
+def _f(x, nd=0, suffix=""):
+    if x is None:
+        return "–"
+    if isinstance(x, float) and abs(x) >= 1000:
+        return f"{x:,.0f}{suffix}"
+    return f"{x:.{nd}f}{suffix}"
+
+
+def table(res: dict) -> str:
+    rows = [("Benchmark", "Setting", "Candidate", "Baseline", "Ratio", "Compile [s]")]
+    env = res.get("env")
+    if env and "mjx" in env:
+        for B in env["config"]["batches"]:
+            mj = {k: next((r for r in v.get("results", []) if r["batch"] == B), None) for k, v in env["mjx"].items()}
+            cc = {r["nthread"]: r["physics_steps_per_s"] for r in env["c"] if r["batch"] == B}
+            for key, nt, label in (("1dev_single", 1, "1 dev / 1 thread"), ("2dev_shard_map", 2, "2 dev / 2 threads")):
+                r = mj.get(key)
+                if r is None:
+                    err = env["mjx"].get(key, {}).get("error", "no result")
+                    rows.append((f"env physics steps/s, B={B}", label, f"failed: {err}", _f(cc.get(nt), 0), "–", "–"))
+                    continue
+                rows.append((f"env physics steps/s, B={B}", f"MJX {label} vs MuJoCo C",
+                             _f(r["physics_steps_per_s"]), _f(cc.get(nt)),
+                             _f(r["physics_steps_per_s"] / cc[nt], 2, "×") if nt in cc else "–",
+                             _f(r["compile_s"], 1)))
+    lr = res.get("learning")
+    if lr and "results" in lr:
+        for r in lr["results"]:
+            rows.append((f"learning ctrl steps/s, B={r['batch']}",
+                         f"train chunk vs env-only scan (T={r['chunk_steps']})",
+                         _f(r["train"]["control_steps_per_s"]), _f(r["env"]["control_steps_per_s"]),
+                         f"{r['train_over_env']:.2f}× (overhead {100 * r['overhead']:.0f}%; "
+                         f"{100 * (1 - r['train_over_env_of_medians']):.0f}% from medians)",
+                         f"{r['compile_s']['train']:.1f} / {r['compile_s']['env']:.1f}"))
+    li = res.get("likelihood")
+    if li and "results" in li:
+        by = {(r["method"], r["l"]): r for r in li["results"]}
+        for l in (max(li["config"]["ls"]),):
+            for a, b, what in (("lr_tridiagonal", "lr_dense", "likelihood ratio, actor 31-100-6"),
+                               ("tridiagonal", "dense_solve", "(Λ⁻¹⊗Σ⁻¹)u")):
+                if (a, l) in by and (b, l) in by:
+                    ra, rb = by[(a, l)], by[(b, l)]
+                    rows.append((f"likelihood µs/call, l={l}", f"{what}: tridiagonal vs dense",
+                                 f"{ra['median_s'] * 1e6:.0f} µs", f"{rb['median_s'] * 1e6:.0f} µs",
+                                 f"{rb['median_s'] / ra['median_s']:.1f}× faster",
+                                 f"{ra['compile_s']:.1f} / {rb['compile_s']:.1f}"))
+    sw = res.get("sweep")
+    if sw and "sweep" in sw:
+        c = sw["config"]
+        rows.append(("sweep ctrl steps/s per point",
+                     f"{c['points']} points × {c['num_envs_per_point']} envs: vmapped vs sequential",
+                     _f(sw["sweep"]["per_point_control_steps_per_s"]),
+                     _f(sw["sequential"]["per_point_control_steps_per_s"]),
+                     _f(sw["sweep_over_sequential"], 2, "×"),
+                     f"{sw['compile_s']['sweep']:.1f} / {sw['compile_s']['sequential_one_point']:.1f}"))
+    sc = res.get("scaling")
+    if sc and "two_device_process" in sc:
+        two = sc["two_device_process"]
+        c = sc["config"]
+        setting = f"{c['points']} points × {c['num_envs_per_point']} envs: 2 dev (shard_map) vs 1 dev"
+        if "error" in two:
+            rows.append(("training ctrl steps/s, devices", setting, f"failed: {two['error']}", "–", "–", "–"))
+        else:
+            m = two["modes"]
+            rows.append(("training ctrl steps/s, devices", setting,
+                         _f(m["2dev"]["control_steps_per_s"]), _f(m["1dev"]["control_steps_per_s"]),
+                         _f(sc["speedup_2dev_over_1dev"], 2, "×"),
+                         f"{m['2dev']['compile_s']:.1f} / {m['1dev']['compile_s']:.1f}"))
+    widths = [max(len(str(r[i])) for r in rows) for i in range(len(rows[0]))]
+    line = lambda r: "| " + " | ".join(str(x).ljust(w) for x, w in zip(r, widths)) + " |"  # noqa: E731
+    out = [line(rows[0]), "|" + "|".join("-" * (w + 2) for w in widths) + "|"]
+    out += [line(r) for r in rows[1:]]
+    return "\n".join(out)
+
+
+# ------------------------------------------------------------------------------- figure
+
+
+def plot(res: dict, path: pathlib.Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
+    env = res.get("env")
+    if env and "mjx" in env:
+        for key, label, st in (("1dev_single", "MJX, 1 CPU device", "C0o-"),
+                               ("2dev_shard_map", "MJX, 2 CPU devices (shard_map)", "C1s-")):
+            r = env["mjx"].get(key, {}).get("results", [])
+            if r:
+                ax1.plot([x["batch"] for x in r], [x["physics_steps_per_s"] for x in r], st, label=label)
+        for nt, st in zip(sorted({r["nthread"] for r in env["c"]}), ("C2^--", "C3v--", "C4d--")):
+            r = [x for x in env["c"] if x["nthread"] == nt]
+            ax1.plot([x["batch"] for x in r], [x["physics_steps_per_s"] for x in r], st,
+                     label=f"MuJoCo C rollout, {nt} thread{'s' if nt > 1 else ''}")
+    ax1.set_ylabel("physics steps / s (timestep 0.005 s)")
+    ax1.set_title("environment only", fontsize=9)
+    lr = res.get("learning")
+    if lr and "results" in lr:
+        r = lr["results"]
+        ax2.plot([x["batch"] for x in r], [x["train"]["control_steps_per_s"] for x in r], "C0o-",
+                 label="training chunk (learning), 1 device")
+        ax2.plot([x["batch"] for x in r], [x["env"]["control_steps_per_s"] for x in r], "C0o:",
+                 mfc="none", label="env-only scan, same batch")
+    sw = res.get("sweep")
+    if sw and "sweep" in sw:
+        n = sw["config"]["points"] * sw["config"]["num_envs_per_point"]
+        ax2.plot([n], [sw["sweep"]["control_steps_per_s"]], "C2D", label=f"sweep, {sw['config']['points']} points vmapped")
+        ax2.plot([n], [sw["sequential"]["control_steps_per_s"]], "C2D", mfc="none",
+                 label=f"same {sw['config']['points']} points sequential")
+    sc = res.get("scaling")
+    if sc and "modes" in (sc.get("two_device_process") or {}):
+        m = sc["two_device_process"]["modes"]
+        n = sc["config"]["points"] * sc["config"]["num_envs_per_point"]
+        ax2.plot([n], [m["2dev"]["control_steps_per_s"]], "C1s", label="2 points, 2 devices (shard_map)")
+        ax2.plot([n], [m["1dev"]["control_steps_per_s"]], "C1s", mfc="none", label="2 points, 1 device")
+    ax2.set_ylabel("control steps / s (all environments)")
+    ax2.set_title("training (paper network sizes) vs env only", fontsize=9)
+    for ax in (ax1, ax2):
+        ax.set_xscale("log", base=2)
+        ax.set_yscale("log")
+        ax.set_xlabel("batch size (environments, all points)")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+    m = res.get("machine") or {}
+    la = m.get("load_avg_at_start") or [float("nan")]
+    fig.suptitle(f"nmrl throughput{' (quick)' if res['meta']['quick'] else ''}: {m.get('cpu', '')}, "
+                 f"{m.get('cpu_count')} cores, load avg {la[0]:.1f} at start; jax {m.get('jax')}, "
+                 f"mujoco {m.get('mujoco')}", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+# ------------------------------------------------------------------------------- main
+
+
+def _atomic_write(path: pathlib.Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m benchmarks", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="small batches, few repeats (~1 minute with a warm cache)")
+    ap.add_argument("--out", type=pathlib.Path, default=None,
+                    help="JSON output (default benchmarks/results.json; --quick: benchmarks/results_quick.json)")
+    ap.add_argument("--only", default=",".join(SECTIONS),
+                    help=f"comma-separated subset of {','.join(SECTIONS)} (default: all)")
+    ap.add_argument("--no-plot", action="store_true", help="do not write the figure")
+    args = ap.parse_args(argv)
+    only = [s.strip() for s in args.only.split(",") if s.strip()]
+    bad = [s for s in only if s not in SECTIONS]
+    if bad or not only:
+        print(f"--only: unknown benchmark(s) {bad}; choose from {','.join(SECTIONS)}", file=sys.stderr)
+        return 2
+    out = args.out or HERE / ("results_quick.json" if args.quick else "results.json")
+    png = out.with_name("throughput_quick.png" if args.quick else "throughput.png") if args.out is None \
+        else out.with_suffix(".png")
+
+    import jax  # may already be imported (``nmrl bench``): then the environment variable came too late
+
+    if not jax.config.jax_compilation_cache_dir:
+        jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"])
+
+    t0 = time.perf_counter()
+    res: dict = {k: None for k in TOP_KEYS}
+    if set(only) != set(SECTIONS) and out.exists():  # keep the sections not re-run
+        try:
+            old = json.loads(out.read_text())
+            res.update({k: old.get(k) for k in SECTIONS})
+        except (OSError, ValueError):
+            pass
+    res["machine"] = machine()
+    failed = []
+    for name in only:
+        print(f"== {name}", file=sys.stderr, flush=True)
+        t1 = time.perf_counter()
+        try:
+            with contextlib.redirect_stdout(sys.stderr):  # progress lines; stdout is the table
+                res[name] = run_section(name, args.quick)
+        except Exception as e:  # noqa: BLE001 -- one broken benchmark must not lose the others
+            failed.append(name)
+            res[name] = {"error": f"{type(e).__name__}: {e}", "traceback": traceback.format_exc()[-3000:]}
+            print(res[name]["traceback"], file=sys.stderr, flush=True)
+        print(f"== {name}: {time.perf_counter() - t1:.1f} s", file=sys.stderr, flush=True)
+    res["machine"]["load_avg_at_end"] = list(os.getloadavg())
+    res["meta"] = {"quick": args.quick, "sections_run": only, "failed": failed,
+                   "command": "python -m benchmarks" + (" --quick" if args.quick else "")
+                   + ("" if set(only) == set(SECTIONS) else f" --only {','.join(only)}"),
+                   "date": datetime.datetime.now().isoformat(timespec="seconds"),
+                   "wall_s": time.perf_counter() - t0}
+    res["summary"] = summary(res)
+    _atomic_write(out, json.dumps(res, indent=1, default=float) + "\n")
+    md = table(res)
+    print(md)
+    m = res["machine"]
+    print(f"\n{m['cpu']}, {m['cpu_count']} cores; load avg {m['load_avg_at_start'][0]:.2f} at start, "
+          f"{m['load_avg_at_end'][0]:.2f} at end; wall {res['meta']['wall_s']:.0f} s; wrote {out}")
+    if not args.no_plot:
+        try:
+            plot(res, png)
+            print(f"wrote {png}")
+        except Exception:  # noqa: BLE001
+            traceback.print_exc()
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,170 @@
+"""Training-chunk throughput on 1 vs 2 CPU devices: the sweep's shard_map path over points.
+
+A worker subprocess with ``XLA_FLAGS=--xla_force_host_platform_device_count=2`` builds P = 2 sweep
+points (l = 10, seeds 0 and 1, ``num_envs`` environments each) and times, interleaved (1dev, 2dev,
+1dev, ...; medians of the per-round ratio):
+
+* ``1dev``: ``jit(vmap(trainer.chunk))`` with the stacked state on device 0 only;
+* ``2dev``: ``nmrl.sharding.shard_map_batch(vmap(trainer.chunk))`` with the points split over the
+  two devices by ``nmrl.sharding.shard_batch`` -- exactly what ``nmrl sweep`` runs with 2 devices.
+
+In full mode a second worker without the flag (a plain 1-device process) times ``1dev`` alone, as a
+check that forcing 2 host devices does not slow the 1-device program (not interleaved: a separate
+process, so only roughly comparable).
+
+Splitting a *single* run's environment batch over devices needs a psum of the summed update and is
+not implemented (README, "Many devices and hosts"), so only the points axis is measured.
+
+Every worker runs with a timeout: a 2-device shard_map run has hung before (nmrl/sharding.py), and
+a hang is reported as ``{"error": "timeout ..."}`` with whatever the worker printed, instead of
+blocking the harness.
+
+``run(quick) -> dict``; ``python benchmarks/bench_scaling.py [--quick]`` prints it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pathlib
+import statistics
+import subprocess
+import sys
+import time
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+POINTS = 2
+NUM_ENVS = 64  # per point; the same in quick and full mode (compile-cache reuse)
+CHUNK_STEPS = 32
+L = 10
+
+
+def _worker(modes: list[str], rounds: int) -> dict:
+    import jax
+    import jax.numpy as jnp
+
+    from benchmarks.bench_learning import interleave, timing
+    from nmrl import sharding
+    from nmrl.learner import Hyper, TrainConfig, make_train
+    from nmrl.run import compile_chunk
+
+    devs = jax.local_devices()
+    configs = [TrainConfig(num_envs=NUM_ENVS, chunk_steps=CHUNK_STEPS, l=L, seed=s).resolved()
+               for s in range(POINTS)]
+    trainer = make_train(configs[0])
+    keys = jnp.stack([jax.random.PRNGKey(c.seed) for c in configs])
+    hypers = jax.tree.map(lambda *x: jnp.stack(x), *[Hyper.from_config(c) for c in configs])
+    stacked = jax.block_until_ready(jax.jit(jax.vmap(trainer.init))(keys, hypers))
+    program = jax.vmap(trainer.chunk)
+    calls, info, box = {}, {}, {}
+    for mode in modes:
+        if mode == "1dev":
+            place = lambda t: jax.device_put(t, devs[0])  # noqa: E731
+            fn = program
+        elif mode == "2dev":
+            if len(devs) < 2:
+                raise RuntimeError(f"2dev needs 2 devices, have {len(devs)}")
+            mesh = sharding.make_mesh(devs[:2])
+            place = lambda t, mesh=mesh: sharding.shard_batch(t, mesh)  # noqa: E731
+            fn = sharding.shard_map_batch(program, mesh, jit=False)
+        else:
+            raise ValueError(mode)
+        ts = place(stacked)
+        compiled, compile_s = compile_chunk(fn, ts, donate=False)
+        t0 = time.perf_counter()
+        out, m = compiled(ts)
+        jax.block_until_ready((out, m))
+        first = time.perf_counter() - t0
+        box[mode] = place(out)
+        info[mode] = {"compile_s": compile_s, "first_call_s": first}
+        print(json.dumps({"mode": mode, **info[mode]}), file=sys.stderr, flush=True)
+
+        def call(mode=mode, compiled=compiled, place=place):
+            out, m = compiled(box[mode])
+            jax.block_until_ready((out, m))
+            box[mode] = place(out)
+
+        calls[mode] = call
+    times = interleave(calls, rounds)
+    work = POINTS * NUM_ENVS * CHUNK_STEPS
+    res = {"devices": len(devs), "modes": {}}
+    for mode in modes:
+        res["modes"][mode] = {**info[mode], **timing(times[mode], work)}
+    if "1dev" in times and "2dev" in times:
+        res["speedup_2dev_over_1dev"] = statistics.median(
+            [a / b for a, b in zip(times["1dev"], times["2dev"])])
+    return res
+
+
+def worker_subprocess(ndev: int, modes: list[str], rounds: int, timeout: float) -> dict:
+    env = dict(os.environ)
+    env["JAX_PLATFORMS"] = "cpu"
+    env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
+    env.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.expanduser("~/.cache/nmrl/xla"))
+    flags = f"--xla_force_host_platform_device_count={ndev}" if ndev > 1 else ""
+    extra = os.environ.get("XLA_FLAGS", "")
+    extra = " ".join(f for f in extra.split() if not f.startswith("--xla_force_host_platform_device_count"))
+    env["XLA_FLAGS"] = f"{flags} {extra}".strip()
+    cmd = [sys.executable, str(pathlib.Path(__file__).resolve()), "--worker", "--rounds", str(rounds),
+           "--modes", *modes]
+    t0 = time.perf_counter()
+    try:
+        p = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=timeout)
+        stdout, stderr, rc = p.stdout, p.stderr, p.returncode
+    except subprocess.TimeoutExpired as e:
+        stdout = ""
+        stderr = e.stderr.decode(errors="replace") if isinstance(e.stderr, bytes) else (e.stderr or "")
+        rc = "timeout"
+    wall = time.perf_counter() - t0
+    if rc != 0 or not stdout.strip():
+        done = [json.loads(l) for l in stderr.splitlines() if l.startswith('{"mode"')]
+        what = f"timeout after {timeout:.0f} s (hang?)" if rc == "timeout" else f"worker rc={rc}"
+        return {"xla_flags": env["XLA_FLAGS"], "error": what, "compiled_before_failure": done,
+                "stderr_tail": stderr[-1500:], "wall_s": wall}
+    res = json.loads(stdout.strip().splitlines()[-1])
+    res["xla_flags"] = env["XLA_FLAGS"]
+    res["wall_s"] = wall
+    return res
+
+
+def run(quick: bool = False) -> dict:
+    rounds = 2 if quick else 7
+    timeout = 150 if quick else 420
+    t0 = time.perf_counter()
+    out = {
+        "benchmark": "training chunk (sweep points) on 1 vs 2 CPU devices via nmrl.sharding shard_map",
+        "quick": quick,
+        "config": {"points": POINTS, "l": L, "num_envs_per_point": NUM_ENVS, "chunk_steps": CHUNK_STEPS,
+                   "rounds": rounds, "timeout_s": timeout, "split": "points (sweep axis)",
+                   "statistic": "median over rounds of the per-round ratio t_1dev/t_2dev"},
+        "two_device_process": worker_subprocess(2, ["1dev", "2dev"], rounds, timeout),
+        "one_device_process": None,
+    }
+    if not quick:
+        out["one_device_process"] = worker_subprocess(1, ["1dev"], rounds, timeout)
+    two = out["two_device_process"]
+    out["speedup_2dev_over_1dev"] = two.get("speedup_2dev_over_1dev")
+    out["hung_or_failed"] = "error" in two
+    out["load_avg"] = list(os.getloadavg())
+    out["wall_s"] = time.perf_counter() - t0
+    sp = out["speedup_2dev_over_1dev"]
+    print(f"scaling: 2 devices / 1 device = {sp:.2f}x" if sp else f"scaling: {two.get('error')}",
+          file=sys.stderr, flush=True)
+    return out
+
+
+if __name__ == "__main__":
+    import argparse
+
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--worker", action="store_true")
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--modes", nargs="+", default=["1dev", "2dev"])
+    a = ap.parse_args()
+    if a.worker:
+        print(json.dumps(_worker(a.modes, a.rounds)))
+    else:
+        print(json.dumps(run(a.quick), indent=1))
