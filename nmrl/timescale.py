@@ -1,0 +1,58 @@
+"""The same learning problem at another control step delta (groundwork for the finer-delta study).
+
+The paper runs one control step, delta_0 = 0.02 s. To compare delta in {0.02, 0.01, 0.005} s on
+the same problem in continuous time, every per-step constant is converted so that its meaning per
+second is unchanged (k = delta / delta_0):
+
+* discount per second:           gamma_delta = gamma_0 ** k            (gamma^{1/delta} fixed)
+* noise correlation per second:  alpha_delta = alpha_0 ** k            (alpha^{1/delta} fixed, eq. (4))
+* mean trial length in seconds:  stop_prob_delta = stop_prob_0 * k     (5 s at the paper's 1/250)
+* nm-period of a fixed duration: l_delta = period_seconds / delta; the stationary arm keeps l = 1
+* sampled actions per period:    Delta_delta = Delta_0 / k (the same instants are sampled)
+* trace decay per second:        lambda is applied once per period (Table II); an arm whose period
+                                 has a fixed duration keeps lambda_0, the stationary arm (period =
+                                 delta) uses lambda_0 ** k
+* rewards: (8)-(14) are rates (m/s, penalties per step of any length), so the average reward per
+  step is already comparable across delta.
+Step sizes are not converted: they are chosen per arm by a grid (the study's rule).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+from nmrl.learner import TrainConfig
+
+#: The paper's control step [s].
+DELTA_0 = 0.02
+
+
+def _as_int(x: float, what: str) -> int:
+    n = round(x)
+    if n < 1 or abs(x - n) > 1e-6:
+        raise ValueError(f"{what} = {x:g} is not a positive integer; choose compatible values")
+    return n
+
+
+def at_control_step(base: TrainConfig, control_dt: float, period_seconds: float | None) -> TrainConfig:
+    """``base`` (written for delta_0 = 0.02 s) converted to ``control_dt`` by the rules above.
+
+    ``period_seconds`` is the nm-period duration, or None for the stationary policy (l = 1).
+    """
+    if not control_dt > 0:
+        raise ValueError(f"control_dt must be > 0 s, got {control_dt!r}")
+    if period_seconds is not None and not period_seconds > 0:
+        raise ValueError(f"period_seconds must be > 0 s or None (stationary), got {period_seconds!r}")
+    k = control_dt / DELTA_0
+    if period_seconds is None:
+        l, lam = 1, base.lam ** k
+    else:
+        l, lam = _as_int(period_seconds / control_dt, "period_seconds / control_dt"), base.lam
+    delta = _as_int(base.delta / k, "Delta_0 * delta_0 / control_dt") if k < 1 else max(1, math.floor(base.delta / k))
+    cfg = dataclasses.replace(
+        base, control_dt=control_dt, l=l, lam=lam, delta=delta,
+        gamma=base.gamma ** k, alpha=base.alpha ** k, stop_prob=base.stop_prob * k,
+    )
+    cfg.validate()
+    return cfg
