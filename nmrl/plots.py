@@ -54,7 +54,8 @@ def fig3(out: str | os.PathLike, results: list[dict], path: str | os.PathLike | 
     out = pathlib.Path(out)
     path = pathlib.Path(path) if path else out / "fig3.png"
     ls = sorted({int(r["l"]) for r in results})
-    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(12, 4.5))
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(13, 4.8))
+    fig.subplots_adjust(wspace=0.32)
     means, halves, divs = [], [], []
     for l in ls:
         rs = [r for r in results if int(r["l"]) == l]
