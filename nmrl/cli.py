@@ -107,6 +107,12 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
+    import pathlib
+
+    root = pathlib.Path(__file__).resolve().parents[1]  # benchmarks/ lives beside nmrl/ in the checkout
+    if not (root / "benchmarks" / "__main__.py").exists():
+        return _fail(f"benchmarks/ not found beside {root / 'nmrl'}; run from a source checkout")
+    sys.path.insert(0, str(root))
     from benchmarks.__main__ import main as bench_main
 
     return bench_main(["--quick"] if args.quick else [])
