@@ -140,27 +140,22 @@ def run_section(name: str, quick: bool) -> dict:
 
 
 def machine() -> dict:
+    """bench_env's machine description plus memory, backend and the compile-cache state."""
     import jax
-    import mujoco
 
-    cpu = ""
-    try:
-        cpu = next(l.split(":", 1)[1].strip() for l in open("/proc/cpuinfo") if l.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
+    from benchmarks import bench_env
+
+    m = bench_env.machine()
     mem = None
     try:
         mem = int(next(l.split()[1] for l in open("/proc/meminfo") if l.startswith("MemTotal"))) / 2**20
     except (OSError, StopIteration, ValueError):
         pass
-    import platform
-
     cache = os.environ.get("JAX_COMPILATION_CACHE_DIR")
     entries = len(os.listdir(cache)) if cache and os.path.isdir(cache) else 0  # > 0: compile_s may be cache hits
-    return {"cpu": cpu, "cpu_count": os.cpu_count(), "mem_gib": mem, "platform": platform.platform(),
-            "python": platform.python_version(), "jax": jax.__version__, "jax_backend": jax.default_backend(),
-            "mujoco": mujoco.__version__, "load_avg_at_start": list(os.getloadavg()),
-            "compile_cache": cache, "compile_cache_entries_at_start": entries}
+    m.update({"mem_gib": mem, "jax_backend": jax.default_backend(), "load_avg_at_start": list(m["load_avg_at_start"]),
+              "compile_cache": cache, "compile_cache_entries_at_start": entries})
+    return m
 
 
 # ------------------------------------------------------------------------------- summary / table
