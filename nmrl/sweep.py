@@ -22,7 +22,8 @@ Layout of ``OUT``::
 ``avg_reward`` in results.csv is the average reward per control step during learning (the
 exploring policy, as the paper measures it), averaged over the last tenth of the chunks. A
 diverged point is frozen at its last good parameters and marked; it never stops the sweep.
-Resuming restores every point from the newest checkpoint step that all points have.
+Resuming restores every point from the newest checkpoint step that all live points have; a
+diverged point stays frozen at its last good checkpoint and keeps its metrics.
 """
 
 from __future__ import annotations
@@ -162,14 +163,23 @@ def run_sweep(spec: SweepSpec, out: str | os.PathLike, *, resume: bool = False, 
     trainers = [make_train(configs[0])]
     trainers += [make_train(c, env=trainers[0].env) for c in configs[1:]]
 
+    frozen = np.zeros(len(points), bool)
     if resume:
         steps = [run.existing_step(point_dir(out, l, s)) for l, s in points]
         if any(st is None for st in steps):
             raise SweepError(f"--resume: some points of {out} have no checkpoint; start a new sweep")
-        common = min(steps)
+        # A diverged point stopped saving at its last good step and stays frozen there: it must not
+        # pull the common resume step (and everybody's metrics) back to that step.
+        frozen = np.array([any(run.is_diverged(r) for r in run.read_metrics(point_dir(out, l, s)))
+                           for l, s in points])
+        live = [st for st, f in zip(steps, frozen) if not f]
+        common = min(live) if live else None
         states = []
-        for (l, s), tr in zip(points, trainers):
+        for (l, s), tr, st, f in zip(points, trainers, steps, frozen):
             d = point_dir(out, l, s)
+            if f:
+                states.append(checkpoint.restore(d, tr, step=st))
+                continue
             if common not in checkpoint.all_steps(d):
                 raise SweepError(f"--resume: {d} lacks the checkpoint of step {common} shared by all points")
             states.append(checkpoint.restore(d, tr, step=common))
@@ -206,7 +216,7 @@ def run_sweep(spec: SweepSpec, out: str | os.PathLike, *, resume: bool = False, 
               file=sys.stderr, flush=True)
 
     active = np.array([not run.budget_done(c, int(ts.step[i]), int(ts.trials[i])) and not bool(ts.diverged[i])
-                       for i, c in enumerate(configs)])
+                       and not frozen[i] for i, c in enumerate(configs)])
     last_rows: dict = {p: None for p in points}
     t_start = time.time()
     n_chunks = 0

@@ -83,6 +83,33 @@ def test_resume_equals_uninterrupted(swept, tmp_path):
             assert _rows(sweep.point_dir(part, l, seed)) == _rows(sweep.point_dir(out, l, seed))
 
 
+def test_resume_keeps_a_diverged_point_frozen(swept, tmp_path):
+    """A diverged point has no checkpoint after its last good step: the others must not go back."""
+    import shutil
+
+    out, _ = swept
+    part = tmp_path / "frozen"
+    shutil.copytree(out, part)
+    bad = sweep.point_dir(part, 3, 1)
+    shutil.rmtree(bad / "checkpoints" / "50")
+    rows = run.read_metrics(bad)
+    run.truncate_metrics(bad, 25)
+    run.append_metrics(bad, {**rows[-1], "diverged": True})
+    before = run.read_metrics(bad)
+    sweep.run_sweep(sweep.SweepSpec(ls=(99,), seeds=1, base=dataclasses.replace(BASE, steps=75)), part,
+                    resume=True, progress=False, plot=False)
+    for r in sweep.load_results(part):
+        l, seed = int(r["l"]), int(r["seed"])
+        if (l, seed) == (3, 1):
+            assert r["diverged"] == "True" and int(r["steps"]) == 50
+            assert run.read_metrics(bad) == before
+            assert checkpoint.latest_step(bad) == 25
+        else:
+            rows = _rows(sweep.point_dir(part, l, seed))
+            assert [x["step"] for x in rows] == [25, 50, 75], (l, seed)
+            assert rows[:2] == _rows(sweep.point_dir(out, l, seed))
+
+
 def _same_results(a, b):
     ra, rb = sweep.load_results(a), sweep.load_results(b)
     return [{k: v for k, v in r.items() if k != "checkpoint"} for r in ra] == \
