@@ -33,6 +33,7 @@ import math
 from typing import Any, Callable, NamedTuple
 
 import jax
+import jax.flatten_util
 import jax.numpy as jnp
 from flax import struct
 
@@ -79,6 +80,12 @@ class TrainConfig:
     trials: int | None = None  #: budget in trials, summed over environments (the paper's measure)
     seed: int = 0
     max_param_norm: float = 1e5  #: a parameter norm above this (or NaN) marks the run diverged
+    #: the learner receives reward_scale * r_t (the finer-delta study uses delta / 0.02 s so that the
+    #: discounted return, an integral over time, keeps its scale; nmrl/timescale.py). Metrics report r_t.
+    reward_scale: float = 1.0
+    #: diagnostic: every chunk also returns sums of the per-period actor gradient estimates
+    #: g_k = d_k grad ln pi (nmrl/gradvar.py); off in training (it costs a little)
+    grad_stats: bool = False
 
     def resolved(self) -> "TrainConfig":
         """Validate, fill step sizes from the preset and a default budget."""
@@ -122,6 +129,9 @@ class TrainConfig:
             raise ValueError("give the budget as steps or as trials, not both")
         if not self.max_param_norm > 0:
             raise bad("max_param_norm", "must be > 0")
+        if not (isinstance(self.reward_scale, (int, float)) and self.reward_scale > 0
+                and math.isfinite(self.reward_scale)):
+            raise bad("reward_scale", "must be a finite number > 0")
         self.env_config().validate()
 
     def env_config(self) -> EnvConfig:
@@ -265,7 +275,7 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
         olr = noise.online_lr_add(olr, actor.apply, theta, obs, xi, h.alpha ** h.delta, h.sigma,
                                   active=sampled)
         env_state = env.step(slot.env, mean + xi)
-        r = env_state.reward
+        r = env_state.reward * cfg.reward_scale
         rbar = rbar + gpow * r
         gpow = gpow * h.gamma
         stopped = env_state.done > 0
@@ -314,6 +324,12 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
             "td_sq": psum(jnp.sum(d * d)),
             "td_absmax": pmax(jnp.max(jnp.abs(d))),
         }
+        if cfg.grad_stats:
+            # g_e = d_e grad ln pi_e for every period that ended here (d_e = 0 otherwise), unflattened
+            g = jax.vmap(lambda t: jax.flatten_util.ravel_pytree(t)[0])(slots.olr.grad)
+            g = d[:, None] * g
+            stats["g_sum"] = psum(jnp.sum(g, axis=0))
+            stats["g_sqnorm"] = psum(jnp.sum(g * g))
         return new, stats
 
     def chunk(ts: TrainState) -> tuple[TrainState, dict]:
@@ -337,6 +353,9 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
             "trials": ts.trials,
             "periods": ts.periods,
         }
+        if cfg.grad_stats:
+            out["g_sum"] = jnp.sum(stats["g_sum"], axis=0)
+            out["g_sqnorm"] = jnp.sum(stats["g_sqnorm"])
         return ts, out
 
     def train(key: jax.Array, hyper: Hyper | None = None) -> tuple[TrainState, dict]:

@@ -125,6 +125,7 @@ def reference_run(cfg: TrainConfig, env, seed: int, n_steps: int, every: int):
     per = [dict(i=0, xi=None, S=[], A=[], rbar=0.0, z=np.zeros_like(actor.vec),
                 y=np.zeros_like(critic.vec)) for _ in range(N)]
     out, stops, periods = [], 0, 0
+    g_sum, g_sq = np.zeros_like(actor.vec), 0.0  # the per-period actor estimates d_k grad ln pi
     for t in range(n_steps):
         key, k_eps = jax.random.split(key)
         eps = np.asarray(jax.random.normal(k_eps, (N, env.act_dim), jnp.float32), np.float64)
@@ -142,7 +143,7 @@ def reference_run(cfg: TrainConfig, env, seed: int, n_steps: int, every: int):
             P["S"].append(s)
             P["A"].append(a)
             states[e] = env_step(states[e], jnp.asarray(a, jnp.float32))
-            P["rbar"] += gamma ** P["i"] * float(states[e].reward)
+            P["rbar"] += gamma ** P["i"] * cfg.reward_scale * float(states[e].reward)
             P["i"] += 1
             if float(states[e].done) > 0:  # trial stopped: the period is discarded, a new trial
                 stops += 1
@@ -156,6 +157,8 @@ def reference_run(cfg: TrainConfig, env, seed: int, n_steps: int, every: int):
                 d = P["rbar"] + g_k * critic.apply(s_next[None])[0, 0] - critic.apply(s0[None])[0, 0]
                 lr = dense_likelihood_ratio(actor, P["S"], P["A"], alpha, sigma, delta)
                 P["z"] = lam * g_k * P["z"] + lr
+                g_sum += d * lr
+                g_sq += float(np.sum((d * lr) ** 2))
                 P["y"] = lam * g_k * P["y"] + np.asarray(
                     grad_v(jnp.asarray(critic.vec, jnp.float32), jnp.asarray(s0, jnp.float32)), np.float64)
                 d_theta += cfg.beta_theta * d * P["z"]
@@ -165,6 +168,7 @@ def reference_run(cfg: TrainConfig, env, seed: int, n_steps: int, every: int):
         if (t + 1) % every == 0:
             out.append((actor.vec.copy(), critic.vec.copy(), [P["z"].copy() for P in per],
                         [P["y"].copy() for P in per]))
+    reference_run.grad_stats = (g_sum, g_sq)
     return out, stops, periods
 
 
@@ -204,17 +208,25 @@ def assert_params_close(got, want, start, what, rtol=2e-5):
 
 
 @pytest.mark.parametrize(
-    "l,delta,stop_prob,sigma,n_chunks",
-    [(1, 1, 0.1, 1.0, 3), (3, 1, 0.1, 1.3, 4), (10, 4, 0.05, 1.0, 6)],
-    ids=["l1", "l3_delta1", "l10_delta4"],
+    "l,delta,stop_prob,sigma,n_chunks,reward_scale",
+    [(1, 1, 0.1, 1.0, 3, 1.0), (3, 1, 0.1, 1.3, 4, 1.0), (10, 4, 0.05, 1.0, 6, 1.0),
+     (5, 2, 0.1, 1.0, 4, 0.25)],
+    ids=["l1", "l3_delta1", "l10_delta4", "l5_reward_scale"],
 )
-def test_single_env_matches_sequential_table2(l, delta, stop_prob, sigma, n_chunks):
+def test_single_env_matches_sequential_table2(l, delta, stop_prob, sigma, n_chunks, reward_scale):
     env = TinyEnv(stop_prob=stop_prob)
-    cfg = tiny_config(l=l, delta=delta, sigma=sigma, chunk_steps=50)
+    cfg = tiny_config(l=l, delta=delta, sigma=sigma, chunk_steps=50, reward_scale=reward_scale,
+                      grad_stats=True)
     trainer, hist = run_learner(cfg, env, seed=3, n_chunks=n_chunks)
     ref, stops, periods = reference_run(trainer.config, env, seed=3, n_steps=50 * n_chunks, every=50)
     assert stops >= 3 and periods >= 8, (stops, periods)
     assert int(hist[-1][0].trials) == stops and int(hist[-1][0].periods) == periods
+    # the diagnostic sums of g_k = d_k grad ln pi (nmrl/gradvar.py) over all periods
+    g_sum, g_sq = reference_run.grad_stats
+    got_sum = sum(np.asarray(m["g_sum"], np.float64) for _, m in hist)
+    got_sq = sum(float(m["g_sqnorm"]) for _, m in hist)
+    np.testing.assert_allclose(got_sum, g_sum, rtol=2e-4, atol=2e-4 * np.max(np.abs(g_sum)))
+    np.testing.assert_allclose(got_sq, g_sq, rtol=2e-4)
     theta_init, v_init, _, _ = initial_params(trainer.config, env, jax.random.key(3))
     theta0, v0 = flat(theta_init), flat(v_init)
     for c, ((ts, _), (th, v, _, _)) in enumerate(zip(hist, ref)):
@@ -367,6 +379,8 @@ def test_same_seed_same_run_different_seed_differs():
         (dict(preset="nope"), r"preset.*nope"),
         (dict(steps=100, trials=10), r"steps.*trials|trials.*steps"),
         (dict(num_envs=0), r"num_envs.*0"),
+        (dict(reward_scale=0.0), r"reward_scale.*0"),
+        (dict(reward_scale=float("nan")), r"reward_scale.*nan"),
     ],
 )
 def test_bad_config_raises_value_error(kw, pattern):
