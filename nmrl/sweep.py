@@ -36,7 +36,7 @@ import os
 import pathlib
 import sys
 import time
-from typing import Sequence
+from typing import Callable, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -122,61 +122,65 @@ def write_results(out: pathlib.Path, spec: SweepSpec) -> list[dict]:
     return rows
 
 
-def _progress_table(spec: SweepSpec, rows_by_point: dict, elapsed: float) -> str:
-    lines = [f"sweep: {len(spec.points())} points, {elapsed:,.0f} s"]
-    for (l, s), r in rows_by_point.items():
+HYPER_FIELDS = tuple(Hyper._fields)
+
+
+def _program_key(cfg: TrainConfig) -> TrainConfig:
+    """The part of a config that is compiled into the program (everything but Hyper and the seed)."""
+    return dataclasses.replace(cfg, seed=0, **{k: getattr(TrainConfig(), k) for k in HYPER_FIELDS})
+
+
+def _progress_table(names: Sequence[str], rows_by_point: dict, elapsed: float) -> str:
+    lines = [f"sweep: {len(names)} points, {elapsed:,.0f} s"]
+    w = max(len(n) for n in names)
+    for name in names:
+        r = rows_by_point.get(name)
         if r is None:
             continue
         flag = "  DIVERGED" if r["diverged"] else ""
-        lines.append(f"  l={l:>3} seed={s}  trials {r['trials']:>8,}  steps {r['step']:>8,}  "
+        lines.append(f"  {name:<{w}}  trials {r['trials']:>8,}  steps {r['step']:>8,}  "
                      f"avg reward {r['avg_reward']:+.3f}  speed {r['forward_speed']:+.2f} m/s{flag}")
     return "\n".join(lines)
 
 
-def run_sweep(spec: SweepSpec, out: str | os.PathLike, *, resume: bool = False, progress: bool = True,
-              keep: int = 2, max_chunks: int | None = None, plot: bool = True,
-              checkpoint_every: int = 1) -> list[dict]:
-    """Run (or resume) the sweep into ``out``; returns the results rows.
+def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[TrainConfig], *,
+               resume: bool = False, progress: bool = True, keep: int = 2, max_chunks: int | None = None,
+               checkpoint_every: int = 1, on_chunk: Callable[[], None] | None = None) -> None:
+    """Train every config as one vmapped program; point ``names[i]`` lives in ``out/points/<name>/``.
 
-    Every point is checkpointed every ``checkpoint_every`` chunks and when it finishes (a resume
-    continues from the newest step all points have and drops the later metrics rows).
+    The configs may differ only in the traced :class:`Hyper` fields and the seed (one program).
+    Every point is checkpointed every ``checkpoint_every`` chunks and when it finishes. ``resume``
+    continues from the newest step all live points have (their later metrics rows are dropped); a
+    diverged point stays frozen at its last good checkpoint. ``on_chunk()`` runs after every chunk.
     """
-    spec.validate()
     if not (isinstance(checkpoint_every, int) and checkpoint_every >= 1):
         raise ValueError(f"checkpoint_every={checkpoint_every!r} is invalid: must be an integer >= 1")
+    if len(names) != len(configs) or len(set(names)) != len(names) or not names:
+        raise ValueError(f"need one distinct name per config, got {len(names)} names for {len(configs)} configs")
     out = pathlib.Path(out)
-    if resume:
-        if not (out / SPEC_FILE).exists():
-            raise SweepError(f"--resume: {out / SPEC_FILE} not found; is {out} a sweep directory?")
-        saved = json.loads((out / SPEC_FILE).read_text())
-        base = TrainConfig(**saved["base"])
-        if spec.base.steps is not None or spec.base.trials is not None:  # the budget may be extended
-            base = dataclasses.replace(base, steps=spec.base.steps, trials=spec.base.trials)
-        spec = SweepSpec(ls=tuple(saved["ls"]), seeds=saved["seeds"], base=base)
-        spec.validate()
-    elif (out / SPEC_FILE).exists():
-        raise SweepError(f"{out} already holds a sweep; continue it with --resume or choose another --out")
-    base = spec.base.resolved()
-    spec = dataclasses.replace(spec, base=base)
-    configs = [c.resolved() for c in spec.point_configs()]
-    points = spec.points()
+    configs = [c.resolved() for c in configs]
+    key0 = _program_key(configs[0])
+    for n, c in zip(names, configs):
+        if _program_key(c) != key0:
+            diff = [f.name for f in dataclasses.fields(c) if getattr(_program_key(c), f.name) != getattr(key0, f.name)]
+            raise ValueError(f"point {n!r} differs from {names[0]!r} in {diff}: one program can only vary "
+                             f"{', '.join(HYPER_FIELDS)} and the seed")
     trainers = [make_train(configs[0])]
     trainers += [make_train(c, env=trainers[0].env) for c in configs[1:]]
+    dirs = [out / "points" / n for n in names]
 
-    frozen = np.zeros(len(points), bool)
+    frozen = np.zeros(len(names), bool)
     if resume:
-        steps = [run.existing_step(point_dir(out, l, s)) for l, s in points]
+        steps = [run.existing_step(d) for d in dirs]
         if any(st is None for st in steps):
             raise SweepError(f"--resume: some points of {out} have no checkpoint; start a new sweep")
         # A diverged point stopped saving at its last good step and stays frozen there: it must not
         # pull the common resume step (and everybody's metrics) back to that step.
-        frozen = np.array([any(run.is_diverged(r) for r in run.read_metrics(point_dir(out, l, s)))
-                           for l, s in points])
+        frozen = np.array([any(run.is_diverged(r) for r in run.read_metrics(d)) for d in dirs])
         live = [st for st, f in zip(steps, frozen) if not f]
         common = min(live) if live else None
         states = []
-        for (l, s), tr, st, f in zip(points, trainers, steps, frozen):
-            d = point_dir(out, l, s)
+        for d, tr, st, f in zip(dirs, trainers, steps, frozen):
             if f:
                 states.append(checkpoint.restore(d, tr, step=st))
                 continue
@@ -185,20 +189,16 @@ def run_sweep(spec: SweepSpec, out: str | os.PathLike, *, resume: bool = False, 
             states.append(checkpoint.restore(d, tr, step=common))
             run.truncate_metrics(d, common)
     else:
-        out.mkdir(parents=True, exist_ok=True)
-        run.atomic_write_text(out / SPEC_FILE, json.dumps(
-            {"ls": list(spec.ls), "seeds": spec.seeds, "base": dataclasses.asdict(base)}, indent=2) + "\n")
         init = jax.jit(jax.vmap(trainers[0].init))
         keys = jnp.stack([jax.random.PRNGKey(c.seed) for c in configs])
         hypers = _stack([Hyper.from_config(c) for c in configs])
         ts = init(keys, hypers)
-        states = [_unstack(ts, i) for i in range(len(points))]
-        for (l, s), c in zip(points, configs):
-            d = point_dir(out, l, s)
+        states = [_unstack(ts, i) for i in range(len(names))]
+        for d, c in zip(dirs, configs):
             d.mkdir(parents=True, exist_ok=True)
             run.atomic_write_text(d / run.CONFIG_FILE, json.dumps(dataclasses.asdict(c), indent=2) + "\n")
             (d / run.METRICS_FILE).unlink(missing_ok=True)
-    P = len(points)
+    P = len(names)
     # Points are independent: split them over the local devices (no communication at all).
     n_dev = len(jax.local_devices())
     if n_dev > 1 and P % n_dev == 0:
@@ -217,7 +217,7 @@ def run_sweep(spec: SweepSpec, out: str | os.PathLike, *, resume: bool = False, 
 
     active = np.array([not run.budget_done(c, int(ts.step[i]), int(ts.trials[i])) and not bool(ts.diverged[i])
                        and not frozen[i] for i, c in enumerate(configs)])
-    last_rows: dict = {p: None for p in points}
+    last_rows: dict = {}
     t_start = time.time()
     n_chunks = 0
     while active.any():
@@ -228,13 +228,12 @@ def run_sweep(spec: SweepSpec, out: str | os.PathLike, *, resume: bool = False, 
         act = jnp.asarray(active)
         ts = place(jax.tree.map(lambda n, o: jnp.where(act.reshape((-1,) + (1,) * (n.ndim - 1)), n, o),
                                 new_ts, ts))
-        for i, ((l, s), c) in enumerate(zip(points, configs)):
+        for i, (name, d, c) in enumerate(zip(names, dirs, configs)):
             if not active[i]:
                 continue
             row = run.metrics_row(c, run.to_python({k: v[i] for k, v in m.items()}), wall, points=P)
-            d = point_dir(out, l, s)
             run.append_metrics(d, row)
-            last_rows[(l, s)] = row
+            last_rows[name] = row
             if run.is_diverged(row):
                 active[i] = False  # keep its last good checkpoint; frozen from now on
                 continue
@@ -243,16 +242,49 @@ def run_sweep(spec: SweepSpec, out: str | os.PathLike, *, resume: bool = False, 
                 checkpoint.save(d, _unstack(ts, i), c, keep=keep)
             if finished:
                 active[i] = False
+        if on_chunk is not None:
+            on_chunk()
+        if progress:
+            print(_progress_table(names, last_rows, time.time() - t_start), file=sys.stderr, flush=True)
+        n_chunks += 1
+        if max_chunks is not None and n_chunks >= max_chunks:
+            break
+
+
+def run_sweep(spec: SweepSpec, out: str | os.PathLike, *, resume: bool = False, progress: bool = True,
+              keep: int = 2, max_chunks: int | None = None, plot: bool = True,
+              checkpoint_every: int = 1) -> list[dict]:
+    """Run (or resume) the sweep into ``out`` (:func:`run_points`); returns the results rows."""
+    spec.validate()
+    out = pathlib.Path(out)
+    if resume:
+        if not (out / SPEC_FILE).exists():
+            raise SweepError(f"--resume: {out / SPEC_FILE} not found; is {out} a sweep directory?")
+        saved = json.loads((out / SPEC_FILE).read_text())
+        base = TrainConfig(**saved["base"])
+        if spec.base.steps is not None or spec.base.trials is not None:  # the budget may be extended
+            base = dataclasses.replace(base, steps=spec.base.steps, trials=spec.base.trials)
+        spec = SweepSpec(ls=tuple(saved["ls"]), seeds=saved["seeds"], base=base)
+        spec.validate()
+    elif (out / SPEC_FILE).exists():
+        raise SweepError(f"{out} already holds a sweep; continue it with --resume or choose another --out")
+    base = spec.base.resolved()
+    spec = dataclasses.replace(spec, base=base)
+    if not resume:
+        out.mkdir(parents=True, exist_ok=True)
+        run.atomic_write_text(out / SPEC_FILE, json.dumps(
+            {"ls": list(spec.ls), "seeds": spec.seeds, "base": dataclasses.asdict(base)}, indent=2) + "\n")
+
+    def on_chunk():
         results = write_results(out, spec)
         if plot:
             from nmrl import plots
 
             plots.fig3(out, results)
-        if progress:
-            print(_progress_table(spec, last_rows, time.time() - t_start), file=sys.stderr, flush=True)
-        n_chunks += 1
-        if max_chunks is not None and n_chunks >= max_chunks:
-            break
+
+    names = [point_dir(out, l, s).name for l, s in spec.points()]
+    run_points(out, names, spec.point_configs(), resume=resume, progress=progress, keep=keep,
+               max_chunks=max_chunks, checkpoint_every=checkpoint_every, on_chunk=on_chunk)
     return write_results(out, spec)
 
 
@@ -261,4 +293,4 @@ def load_results(out: str | os.PathLike) -> list[dict]:
         return list(csv.DictReader(f))
 
 
-__all__: Sequence[str] = ("SweepSpec", "SweepError", "run_sweep", "load_results", "point_dir", "final_avg")
+__all__: Sequence[str] = ("SweepSpec", "SweepError", "run_sweep", "run_points", "load_results", "point_dir", "final_avg")
