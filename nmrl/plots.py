@@ -119,3 +119,130 @@ def learning_curve(run_dir: str | os.PathLike, path: str | os.PathLike | None = 
     ax.legend()
     _save(fig, path)
     return path
+
+
+def _arm_order(rows: list[dict]) -> list[str]:
+    arms = sorted({r["arm"] for r in rows}, key=lambda a: (a != "stationary", float(a[1:-1]) if a != "stationary" else 0))
+    return arms
+
+
+def _arm_label(arm: str) -> str:
+    return "stationary (l = 1)" if arm == "stationary" else f"nm-period {arm[1:-1]} s"
+
+
+def timescale(out: str | os.PathLike, grid: list[dict], final: list[dict], gradvar: list[dict],
+              path: str | os.PathLike | None = None) -> pathlib.Path:
+    """The finer-delta study (nmrl/study.py): ``timescale.png`` (reward per second against delta,
+    one line per period duration, 95% t-intervals over seeds; the per-period gradient variance and
+    the signal-to-noise per second; learning curves per delta) and ``grid.png`` (the step-size grid)."""
+    out = pathlib.Path(out)
+    path = pathlib.Path(path) if path else out / "timescale.png"
+    arms = _arm_order(grid)
+    dts = sorted({float(r["dt"]) for r in grid}, reverse=True)
+    colors = {a: f"C{i}" for i, a in enumerate(arms)}
+    fig, axes = plt.subplots(2, 3, figsize=(15, 8.5))
+    ax = axes[0, 0]
+    for a in arms:
+        xs, ms, cs = [], [], []
+        for dt in dts:
+            v = [float(r["reward_per_s"]) for r in final if r["arm"] == a and float(r["dt"]) == dt]
+            if v:
+                m, c = mean_ci95(np.array(v))
+                xs.append(dt), ms.append(m), cs.append(c)
+        if xs:
+            ax.errorbar(xs, ms, yerr=cs, marker="o", capsize=4, color=colors[a], label=_arm_label(a))
+    ax.set_xscale("log")
+    ax.set_xticks(dts, [f"{d:g}" for d in dts])
+    ax.minorticks_off()
+    ax.invert_xaxis()
+    ax.set_xlabel("control step δ [s]")
+    ax.set_ylabel("average reward per second (last tenth)")
+    ax.set_title("learning at finer δ (equal simulated time)")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    pols = sorted({r["policy"] for r in gradvar})
+    styles = {p: s for p, s in zip(pols, ["-", "--", ":", "-."])}
+    for ax, key, title in ((axes[0, 1], "trcov", "tr Cov of the actor's gradient estimate per period"),
+                           (axes[0, 2], "snr_per_s", "signal-to-noise of the estimates summed over 1 s")):
+        for p in pols:
+            for a in arms:
+                rr = sorted([r for r in gradvar if r["policy"] == p and r["arm"] == a], key=lambda r: -float(r["dt"]))
+                if not rr:
+                    continue
+                x = [float(r["dt"]) for r in rr]
+                y = [float(r[key]) for r in rr]
+                e = [float(r[key + "_ci"]) for r in rr] if key + "_ci" in rr[0] else None
+                ax.errorbar(x, y, yerr=e, marker="o", ls=styles[p], color=colors[a], capsize=3,
+                            label=f"{_arm_label(a)}, {p}" if a == arms[0] or p == pols[0] else None)
+        ax.set_xscale("log")
+        ax.set_yscale("log" if key == "trcov" else "symlog", **({} if key == "trcov" else {"linthresh": 1e-3}))
+        ax.set_xticks(dts, [f"{d:g}" for d in dts])
+        ax.minorticks_off()
+        ax.invert_xaxis()
+        ax.set_xlabel("control step δ [s]")
+        ax.set_title(title, fontsize=10)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=6)
+    for j, dt in enumerate(dts[:3]):
+        ax = axes[1, j]
+        for a in arms:
+            curves = []
+            for r in final:
+                if r["arm"] != a or float(r["dt"]) != dt:
+                    continue
+                d = out / "final" / f"dt{dt:g}" / "points" / f"{a}_s{r['seed']}"
+                m = _read_jsonl(d / "metrics.jsonl")
+                curves.append(([x["step"] * dt for x in m], [x["avg_reward"] / 0.02 for x in m]))
+            if not curves:
+                continue
+            n = min(len(c[0]) for c in curves)
+            t = np.array(curves[0][0][:n])
+            y = np.mean([c[1][:n] for c in curves], axis=0)
+            ax.plot(t, smooth(y, 3), color=colors[a], label=_arm_label(a))
+        ax.set_title(f"δ = {dt:g} s: mean over seeds", fontsize=10)
+        ax.set_xlabel("simulated seconds per environment")
+        ax.set_ylabel("reward per second")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    _save(fig, path)
+    _grid_figure(grid, arms, dts, out / "grid.png")
+    return path
+
+
+def _read_jsonl(p: pathlib.Path) -> list[dict]:
+    import json
+
+    return [json.loads(x) for x in p.read_text().splitlines() if x.strip()] if p.exists() else []
+
+
+def _grid_figure(grid: list[dict], arms: list[str], dts: list[float], path: pathlib.Path) -> None:
+    bts = sorted({float(r["beta_theta"]) for r in grid})
+    bvs = sorted({float(r["beta_v"]) for r in grid})
+    fig, axes = plt.subplots(len(dts), len(arms), figsize=(3.2 * len(arms), 2.8 * len(dts)), squeeze=False)
+    for i, dt in enumerate(dts):
+        for j, a in enumerate(arms):
+            ax = axes[i, j]
+            z = np.full((len(bts), len(bvs)), np.nan)
+            for r in grid:
+                if r["arm"] == a and float(r["dt"]) == dt:
+                    s = float(r["score"])
+                    z[bts.index(float(r["beta_theta"])), bvs.index(float(r["beta_v"]))] = s / 0.02 if np.isfinite(s) else np.nan
+                    if str(r["chosen"]) == "True":
+                        ax.add_patch(plt.Rectangle((bvs.index(float(r["beta_v"])) - 0.5, bts.index(float(r["beta_theta"])) - 0.5),
+                                                   1, 1, fill=False, ec="red", lw=2))
+            im = ax.imshow(z, origin="lower", cmap="viridis")
+            for (bi, vi), val in np.ndenumerate(z):
+                ax.text(vi, bi, "div." if np.isnan(val) else f"{val:.0f}", ha="center", va="center", fontsize=7,
+                        color="w")
+            ax.set_xticks(range(len(bvs)), [f"{b:.0e}" for b in bvs], fontsize=7)
+            ax.set_yticks(range(len(bts)), [f"{b:.0e}" for b in bts], fontsize=7)
+            ax.set_title(f"δ={dt:g} s, {_arm_label(a)}", fontsize=8)
+            if j == 0:
+                ax.set_ylabel("β^θ")
+            if i == len(dts) - 1:
+                ax.set_xlabel("β^v")
+            fig.colorbar(im, ax=ax, fraction=0.046)
+    fig.suptitle("step-size grid: reward per second over the second half of the grid run (red: chosen)", fontsize=10)
+    fig.tight_layout()
+    _save(fig, path)

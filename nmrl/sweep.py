@@ -145,13 +145,15 @@ def _progress_table(names: Sequence[str], rows_by_point: dict, elapsed: float) -
 
 def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[TrainConfig], *,
                resume: bool = False, progress: bool = True, keep: int = 2, max_chunks: int | None = None,
-               checkpoint_every: int = 1, on_chunk: Callable[[], None] | None = None) -> None:
+               checkpoint_every: int = 1, on_chunk: Callable[[], None] | None = None,
+               table: bool = True) -> None:
     """Train every config as one vmapped program; point ``names[i]`` lives in ``out/points/<name>/``.
 
     The configs may differ only in the traced :class:`Hyper` fields and the seed (one program).
     Every point is checkpointed every ``checkpoint_every`` chunks and when it finishes. ``resume``
     continues from the newest step all live points have (their later metrics rows are dropped); a
-    diverged point stays frozen at its last good checkpoint. ``on_chunk()`` runs after every chunk.
+    diverged point stays frozen at its last good checkpoint. ``on_chunk()`` runs after every chunk;
+    ``progress`` prints the compile time and (with ``table``) every point's latest metrics.
     """
     if not (isinstance(checkpoint_every, int) and checkpoint_every >= 1):
         raise ValueError(f"checkpoint_every={checkpoint_every!r} is invalid: must be an integer >= 1")
@@ -244,7 +246,7 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[T
                 active[i] = False
         if on_chunk is not None:
             on_chunk()
-        if progress:
+        if progress and table:
             print(_progress_table(names, last_rows, time.time() - t_start), file=sys.stderr, flush=True)
         n_chunks += 1
         if max_chunks is not None and n_chunks >= max_chunks:

@@ -12,8 +12,11 @@ second is unchanged (k = delta / delta_0):
 * trace decay per second:        lambda is applied once per period (Table II); an arm whose period
                                  has a fixed duration keeps lambda_0, the stationary arm (period =
                                  delta) uses lambda_0 ** k
-* rewards: (8)-(14) are rates (m/s, penalties per step of any length), so the average reward per
-  step is already comparable across delta.
+* rewards per second: (8)-(14) are rates (m/s, and penalties that are functions of the state at
+  the step's end), so the learner receives r_t * k (``reward_scale``): the discounted sum
+  sum_t gamma^t r_t k approximates the same integral over time at every delta and V keeps its
+  scale. The average reward per second, sum of the received rewards over a second, is then
+  mean(r_t) / delta_0, directly comparable across delta.
 Step sizes are not converted: they are chosen per arm by a grid (the study's rule).
 """
 
@@ -53,6 +56,7 @@ def at_control_step(base: TrainConfig, control_dt: float, period_seconds: float 
     cfg = dataclasses.replace(
         base, control_dt=control_dt, l=l, lam=lam, delta=delta,
         gamma=base.gamma ** k, alpha=base.alpha ** k, stop_prob=base.stop_prob * k,
+        reward_scale=base.reward_scale * k,
     )
     cfg.validate()
     return cfg

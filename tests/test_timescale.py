@@ -19,6 +19,11 @@ def test_per_second_quantities_are_unchanged(dt):
     assert math.isclose(c.gamma ** steps_per_s, BASE.gamma ** 50, rel_tol=1e-9)
     assert math.isclose(c.alpha ** steps_per_s, BASE.alpha ** 50, rel_tol=1e-9)
     assert math.isclose(dt / c.stop_prob, 5.0, rel_tol=1e-9)  # mean trial length [s]
+    # a constant reward rate r gives the same discounted return (an integral over time) at every dt
+    r = 1.7
+    ret = sum(c.gamma ** t * c.reward_scale * r for t in range(int(round(30 / dt))))
+    ret0 = sum(BASE.gamma ** t * r for t in range(int(round(30 / 0.02))))
+    assert math.isclose(ret, ret0, rel_tol=0.02)
     assert c.l == round(0.2 / dt) and c.lam == BASE.lam
     # the same number of sampled actions per period as at 0.02 s with l = 10, Delta = 4
     assert len(noise.sampled_indices(c.l, c.delta)) == len(noise.sampled_indices(10, 4))

@@ -1,0 +1,421 @@
+"""Beyond the paper: does learning survive a finer time discretization? (issue 9)
+
+The paper's thesis (Sec. III, eq. (1)): as the control step delta shrinks, a stationary policy
+(white exploration noise, l = 1) learns worse, and nm-periods of a fixed *duration* do not. Its
+experiment uses delta = 0.02 s only. This study runs delta in {0.02, 0.01, 0.005} s on the same
+physics (5 ms MuJoCo steps, 4/2/1 per control step) and the same problem in continuous time
+(nmrl/timescale.py: gamma, alpha, lambda, stop probability, Delta and rewards converted per second).
+
+Arms, per delta: the stationary policy (l = 1) and nm-periods of 0.1, 0.2 and 0.4 s
+(l = period / delta, e.g. 10, 20, 40 for 0.2 s).
+
+The rule for step sizes (the same for every arm): a grid beta^theta x beta^v (one seed, a shorter
+budget in simulated seconds) is run for every (delta, arm); the chosen pair is the one with the
+highest average reward over the second half of its grid run (diverged runs are never chosen).
+Every arm then runs ``seeds`` seeds at its chosen pair for the same budget in simulated seconds.
+
+Layout of ``OUT``::
+
+    study.json                   the spec (refuses to continue a different one)
+    grid/dt{delta}/points/...    one vmapped program per delta (nmrl.sweep.run_points)
+    grid.csv                     every grid run: delta, arm, betas, score, diverged, chosen
+    final/dt{delta}/points/...   the chosen step sizes x seeds
+    final.csv                    delta, arm, seed, betas, reward per second, speed, diverged
+    gradvar.csv                  tr Cov of the per-period actor gradient estimate (nmrl/gradvar.py)
+    timescale.png, grid.png      the figures (nmrl/plots.py)
+
+Every phase resumes where it stopped: run the same command again.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import io
+import json
+import math
+import pathlib
+import sys
+import time
+from typing import Sequence
+
+import jax
+import numpy as np
+
+from nmrl import checkpoint, gradvar, run, sweep
+from nmrl.learner import TrainConfig, make_train
+from nmrl.timescale import DELTA_0, at_control_step
+
+SPEC_FILE = "study.json"
+GRID_COLUMNS = ("dt", "arm", "period_s", "l", "delta", "beta_theta", "beta_v", "steps", "seconds",
+                "trials", "score", "avg_reward", "diverged", "chosen")
+FINAL_COLUMNS = ("dt", "arm", "period_s", "l", "delta", "seed", "beta_theta", "beta_v", "steps", "seconds",
+                 "trials", "avg_reward", "reward_per_s", "forward_speed", "diverged")
+GRADVAR_COLUMNS = ("policy", "dt", "arm", "period_s", "l", "periods", "trcov", "trcov_ci", "mean_sq",
+                   "mean_sq_ci", "snr_per_s")
+
+
+class StudyError(Exception):
+    """The study cannot start or continue (the message says why)."""
+
+
+def arm_name(period: float | None) -> str:
+    return "stationary" if period is None else f"p{period:g}s"
+
+
+@dataclasses.dataclass(frozen=True)
+class StudySpec:
+    dts: tuple[float, ...] = (0.02, 0.01, 0.005)
+    periods: tuple[float | None, ...] = (None, 0.1, 0.2, 0.4)  #: None = the stationary policy
+    beta_theta_grid: tuple[float, ...] = (3e-6, 1e-5, 3e-5)
+    beta_v_grid: tuple[float, ...] = (5e-5, 1.5e-4, 5e-4)
+    grid_seconds: float = 40.0  #: simulated seconds per environment in a grid run
+    final_seconds: float = 150.0  #: simulated seconds per environment in a final run
+    chunk_seconds: float = 5.0  #: simulated seconds per jitted chunk
+    seeds: int = 3
+    num_envs: int = 32
+    checkpoint_every: int = 3  #: chunks between checkpoints
+    gradvar_envs: int = 64
+    gradvar_batches: int = 8
+    base: TrainConfig = TrainConfig()  #: the paper's constants at delta_0 = 0.02 s
+
+    def validate(self) -> None:
+        def bad(name, allowed):
+            return ValueError(f"{name}={getattr(self, name)!r} is invalid: {allowed}")
+
+        if not self.dts or any(not (isinstance(d, (int, float)) and d > 0) for d in self.dts):
+            raise bad("dts", "give control steps > 0 s, e.g. 0.02 0.01 0.005")
+        if len(set(self.dts)) != len(self.dts):
+            raise bad("dts", "each control step may appear once")
+        if not self.periods or any(p is not None and not (isinstance(p, (int, float)) and p > 0) for p in self.periods):
+            raise bad("periods", "give durations > 0 s (None = the stationary policy)")
+        if len(set(self.periods)) != len(self.periods):
+            raise bad("periods", "each period may appear once")
+        for name in ("beta_theta_grid", "beta_v_grid"):
+            g = getattr(self, name)
+            if len(g) < 1 or any(not (isinstance(b, (int, float)) and b > 0 and math.isfinite(b)) for b in g):
+                raise bad(name, "give step sizes > 0")
+        for name in ("seeds", "num_envs", "checkpoint_every", "gradvar_envs", "gradvar_batches"):
+            v = getattr(self, name)
+            if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
+                raise bad(name, "must be an integer >= 1")
+        if self.gradvar_batches < 2:
+            raise bad("gradvar_batches", "need >= 2 batches for an interval")
+        for name in ("grid_seconds", "final_seconds", "chunk_seconds"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and v > 0):
+                raise bad(name, "must be > 0 s")
+        for name in ("grid_seconds", "final_seconds"):
+            if abs(getattr(self, name) / self.chunk_seconds - round(getattr(self, name) / self.chunk_seconds)) > 1e-9:
+                raise bad(name, f"must be a multiple of chunk_seconds={self.chunk_seconds:g}")
+        for dt in self.dts:
+            self._steps(self.chunk_seconds, dt, "chunk_seconds")
+            for p in self.periods:
+                self.arm_config(dt, p)  # raises if period / dt is not an integer
+
+    @staticmethod
+    def _steps(seconds: float, dt: float, what: str) -> int:
+        n = round(seconds / dt)
+        if n < 1 or abs(seconds / dt - n) > 1e-6:
+            raise ValueError(f"{what}={seconds:g} s is not a whole number of control steps of {dt:g} s")
+        return n
+
+    def arm_config(self, dt: float, period: float | None) -> TrainConfig:
+        cfg = at_control_step(self.base, dt, period)
+        return dataclasses.replace(cfg, num_envs=self.num_envs,
+                                   chunk_steps=self._steps(self.chunk_seconds, dt, "chunk_seconds"))
+
+    def grid_points(self, dt: float) -> tuple[list[str], list[TrainConfig]]:
+        names, cfgs = [], []
+        steps = self._steps(self.grid_seconds, dt, "grid_seconds")
+        for p in self.periods:
+            for bt in self.beta_theta_grid:
+                for bv in self.beta_v_grid:
+                    names.append(f"{arm_name(p)}_bt{bt:.1e}_bv{bv:.1e}")
+                    cfgs.append(dataclasses.replace(self.arm_config(dt, p), beta_theta=bt, beta_v=bv,
+                                                    steps=steps, seed=0))
+        return names, cfgs
+
+    def final_points(self, dt: float, chosen: dict[str, tuple[float, float]]) -> tuple[list[str], list[TrainConfig]]:
+        names, cfgs = [], []
+        steps = self._steps(self.final_seconds, dt, "final_seconds")
+        for p in self.periods:
+            bt, bv = chosen[arm_name(p)]
+            for s in range(self.seeds):
+                names.append(f"{arm_name(p)}_s{s}")
+                cfgs.append(dataclasses.replace(self.arm_config(dt, p), beta_theta=bt, beta_v=bv,
+                                                steps=steps, seed=s))
+        return names, cfgs
+
+    def to_json(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["dts"], d["periods"] = list(self.dts), list(self.periods)
+        d["beta_theta_grid"], d["beta_v_grid"] = list(self.beta_theta_grid), list(self.beta_v_grid)
+        return d
+
+    @staticmethod
+    def from_json(d: dict) -> "StudySpec":
+        d = dict(d)
+        for k in ("dts", "periods", "beta_theta_grid", "beta_v_grid"):
+            d[k] = tuple(d[k])
+        d["base"] = TrainConfig(**d["base"])
+        return StudySpec(**d)
+
+
+def _dt_dir(out: pathlib.Path, phase: str, dt: float) -> pathlib.Path:
+    return out / phase / f"dt{dt:g}"
+
+
+def _write_csv(path: pathlib.Path, columns: Sequence[str], rows: list[dict]) -> None:
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=columns)
+    w.writeheader()
+    w.writerows(rows)
+    run.atomic_write_text(path, buf.getvalue())
+
+
+def read_csv(path: str | pathlib.Path) -> list[dict]:
+    with open(path) as f:
+        return list(csv.DictReader(f))
+
+
+def _point_done(d: pathlib.Path, steps: int) -> bool:
+    m = run.read_metrics(d)
+    return bool(m) and (m[-1]["step"] >= steps or any(run.is_diverged(r) for r in m))
+
+
+def _run_phase(out: pathlib.Path, phase: str, dt: float, names: list[str], cfgs: list[TrainConfig],
+               spec: StudySpec, progress: bool) -> None:
+    d = _dt_dir(out, phase, dt)
+    dirs = [d / "points" / n for n in names]
+    steps = cfgs[0].steps
+    if all(_point_done(p, steps) for p in dirs):
+        return
+    have = [run.existing_step(p) is not None for p in dirs]
+    if any(have) and not all(have):
+        raise StudyError(f"{d}: some points have checkpoints and some do not; remove {d} to rerun this phase")
+    resume = all(have)
+    t0 = time.time()
+
+    def on_chunk():
+        if not progress:
+            return
+        rows = [run.read_metrics(p) for p in dirs]
+        done = [r[-1] for r in rows if r]
+        if not done:
+            return
+        step = max(r["step"] for r in done)
+        avg = np.array([r["avg_reward"] for r in done])
+        print(f"[{phase} dt={dt:g}] {step * dt:6.1f}/{steps * dt:g} s simulated, {len(done)} points, "
+              f"avg reward median {np.median(avg):+.3f} max {avg.max():+.3f}, {time.time() - t0:,.0f} s wall",
+              file=sys.stderr, flush=True)
+
+    if progress:
+        print(f"[{phase} dt={dt:g}] {'resuming' if resume else 'starting'} {len(names)} points "
+              f"x {cfgs[0].num_envs} environments", file=sys.stderr, flush=True)
+    sweep.run_points(d, names, cfgs, resume=resume, progress=progress, table=False,
+                     checkpoint_every=spec.checkpoint_every, on_chunk=on_chunk)
+
+
+def _grid_rows(out: pathlib.Path, spec: StudySpec) -> list[dict]:
+    rows = []
+    for dt in spec.dts:
+        names, cfgs = spec.grid_points(dt)
+        per_arm: dict[str, list[dict]] = {}
+        for i, (n, c) in enumerate(zip(names, cfgs)):
+            period = spec.periods[i // (len(spec.beta_theta_grid) * len(spec.beta_v_grid))]
+            m = run.read_metrics(_dt_dir(out, "grid", dt) / "points" / n)
+            if not m or m[-1]["step"] < c.steps and not any(run.is_diverged(r) for r in m):
+                return []  # the grid of this delta is not finished
+            diverged = any(run.is_diverged(r) for r in m)
+            half = m[len(m) // 2:]
+            score = float("-inf") if diverged else float(np.mean([r["avg_reward"] for r in half]))
+            row = {"dt": dt, "arm": arm_name(period), "period_s": "" if period is None else period, "l": c.l,
+                   "delta": c.delta, "beta_theta": c.beta_theta, "beta_v": c.beta_v, "steps": m[-1]["step"],
+                   "seconds": m[-1]["step"] * dt, "trials": m[-1]["trials"], "score": score,
+                   "avg_reward": sweep.final_avg(m, "avg_reward"), "diverged": diverged, "chosen": False}
+            per_arm.setdefault(row["arm"], []).append(row)
+            rows.append(row)
+        for arm_rows in per_arm.values():
+            best = max(arm_rows, key=lambda r: r["score"])
+            if best["score"] == float("-inf"):
+                raise StudyError(f"dt={dt:g}, arm {best['arm']}: every grid run diverged; extend the grid to smaller steps")
+            best["chosen"] = True
+    return rows
+
+
+def chosen_betas(grid_rows: list[dict], dt: float) -> dict[str, tuple[float, float]]:
+    return {r["arm"]: (float(r["beta_theta"]), float(r["beta_v"])) for r in grid_rows
+            if float(r["dt"]) == dt and str(r["chosen"]) == "True"}
+
+
+def _final_rows(out: pathlib.Path, spec: StudySpec, grid_rows: list[dict]) -> list[dict]:
+    rows = []
+    for dt in spec.dts:
+        names, cfgs = spec.final_points(dt, chosen_betas(grid_rows, dt))
+        for i, (n, c) in enumerate(zip(names, cfgs)):
+            period = spec.periods[i // spec.seeds]
+            m = run.read_metrics(_dt_dir(out, "final", dt) / "points" / n)
+            if not m:
+                continue
+            avg = sweep.final_avg(m, "avg_reward")
+            rows.append({"dt": dt, "arm": arm_name(period), "period_s": "" if period is None else period,
+                         "l": c.l, "delta": c.delta, "seed": c.seed, "beta_theta": c.beta_theta,
+                         "beta_v": c.beta_v, "steps": m[-1]["step"], "seconds": m[-1]["step"] * dt,
+                         "trials": m[-1]["trials"], "avg_reward": avg, "reward_per_s": avg / DELTA_0,
+                         "forward_speed": sweep.final_avg(m, "forward_speed"),
+                         "diverged": any(run.is_diverged(r) for r in m)})
+    return rows
+
+
+def _policies(out: pathlib.Path, spec: StudySpec) -> list[tuple[str, object, object]]:
+    """The fixed policies whose gradient variance is measured at every delta: the initial one (seed 0)
+    and the seed-0 final policies of the stationary arm and of the 0.2 s arm (or the first period arm)
+    learned at the paper's control step (the largest delta of the study)."""
+    dt0 = max(spec.dts)
+    cfg0 = spec.arm_config(dt0, None)
+    tr = make_train(dataclasses.replace(cfg0, num_envs=1, steps=1))
+    init = tr.init(jax.random.PRNGKey(0))
+    pols = [("initial", init.theta, init.v)]
+    period_arms = [p for p in spec.periods if p is not None]
+    pick = 0.2 if 0.2 in period_arms else (period_arms[0] if period_arms else None)
+    for p in [None] + ([pick] if pick is not None else []):
+        if p not in spec.periods:
+            continue
+        d = _dt_dir(out, "final", dt0) / "points" / f"{arm_name(p)}_s0"
+        cfg = checkpoint.load_config(d)
+        ts = checkpoint.restore(d, make_train(cfg))
+        pols.append((f"trained_{arm_name(p)}", ts.theta, ts.v))
+    return pols
+
+
+def _gradvar(out: pathlib.Path, spec: StudySpec, progress: bool) -> list[dict]:
+    path = out / "gradvar.csv"
+    if path.exists():
+        return read_csv(path)
+    pols = _policies(out, spec)
+    rows = []
+    for dt in spec.dts:
+        t0 = time.time()
+        cfgs, policies, labels = [], [], []
+        for name, theta, v in pols:
+            for p in spec.periods:
+                c = dataclasses.replace(spec.arm_config(dt, p), num_envs=spec.gradvar_envs)
+                cfgs.append(c)
+                policies.append((theta, v))
+                labels.append((name, p, c))
+        sums = gradvar.measure(cfgs, policies, batches=spec.gradvar_batches)
+        for (name, p, c), s in zip(labels, sums):
+            period_s = dt if p is None else p
+            st = gradvar.summarize(np.array(s["n"]), np.stack(s["g_sum"]), np.array(s["g_sqnorm"]), period_s)
+            rows.append({"policy": name, "dt": dt, "arm": arm_name(p), "period_s": period_s, "l": c.l,
+                         "periods": st["periods"], "trcov": st["trcov"], "trcov_ci": st["trcov_ci"],
+                         "mean_sq": st["mean_sq"], "mean_sq_ci": st["mean_sq_ci"], "snr_per_s": st["snr_per_s"]})
+        if progress:
+            print(f"[gradvar dt={dt:g}] {len(cfgs)} (policy, arm) pairs in {time.time() - t0:,.0f} s",
+                  file=sys.stderr, flush=True)
+    _write_csv(path, GRADVAR_COLUMNS, rows)
+    return read_csv(path)
+
+
+PHASES = ("grid", "final", "gradvar", "plot")
+
+
+def run_study(spec: StudySpec, out: str | pathlib.Path, *, phases: Sequence[str] = PHASES,
+              progress: bool = True) -> dict:
+    """Run (or continue) the study into ``out``; returns {"grid": rows, "final": rows, "gradvar": rows}."""
+    spec.validate()
+    bad = [p for p in phases if p not in PHASES]
+    if bad:
+        raise ValueError(f"unknown phase(s) {bad}: choose from {list(PHASES)}")
+    out = pathlib.Path(out).absolute()
+    spec_path = out / SPEC_FILE
+    if spec_path.exists():
+        saved = StudySpec.from_json(json.loads(spec_path.read_text()))
+        if saved != spec:
+            diff = [f.name for f in dataclasses.fields(spec) if getattr(saved, f.name) != getattr(spec, f.name)]
+            raise StudyError(f"{out} holds a study with other settings ({', '.join(diff)}); "
+                             f"continue it with the same options or choose another --out")
+    else:
+        out.mkdir(parents=True, exist_ok=True)
+        run.atomic_write_text(spec_path, json.dumps(spec.to_json(), indent=2) + "\n")
+    result: dict = {"grid": [], "final": [], "gradvar": []}
+    if "grid" in phases:
+        for dt in spec.dts:
+            names, cfgs = spec.grid_points(dt)
+            _run_phase(out, "grid", dt, names, cfgs, spec, progress)
+    grid_rows = _grid_rows(out, spec)
+    if grid_rows:
+        _write_csv(out / "grid.csv", GRID_COLUMNS, grid_rows)
+        result["grid"] = read_csv(out / "grid.csv")
+    if "final" in phases:
+        if not grid_rows:
+            raise StudyError(f"{out}: the step-size grid is not finished; run the grid phase first")
+        for dt in spec.dts:
+            names, cfgs = spec.final_points(dt, chosen_betas(result["grid"], dt))
+            _run_phase(out, "final", dt, names, cfgs, spec, progress)
+    if grid_rows:
+        final_rows = _final_rows(out, spec, result["grid"])
+        if final_rows:
+            _write_csv(out / "final.csv", FINAL_COLUMNS, final_rows)
+            result["final"] = read_csv(out / "final.csv")
+    if "gradvar" in phases:
+        if len(result["final"]) < len(spec.dts) * len(spec.periods) * spec.seeds or any(
+                float(r["seconds"]) + 1e-9 < spec.final_seconds and r["diverged"] == "False" for r in result["final"]):
+            raise StudyError(f"{out}: the final runs are not finished; run the final phase first")
+        result["gradvar"] = _gradvar(out, spec, progress)
+    elif (out / "gradvar.csv").exists():
+        result["gradvar"] = read_csv(out / "gradvar.csv")
+    if "plot" in phases and result["grid"]:
+        from nmrl import plots
+
+        plots.timescale(out, result["grid"], result["final"], result["gradvar"])
+    return result
+
+
+def _period(s: str) -> float | None:
+    if s in ("stationary", "none", "1"):
+        return None
+    try:
+        v = float(s)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"period {s!r} is invalid: give seconds > 0 or 'stationary'") from None
+    return v
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m nmrl.study", description=__doc__.split("\n\n")[0])
+    d = StudySpec()
+    ap.add_argument("--out", required=True, help="study directory (continued if it exists)")
+    ap.add_argument("--dt", type=float, nargs="+", default=list(d.dts), help="control steps [s]")
+    ap.add_argument("--periods", type=_period, nargs="+", default=list(d.periods),
+                    help="nm-period durations [s]; 'stationary' = l = 1")
+    ap.add_argument("--beta-theta", type=float, nargs="+", default=list(d.beta_theta_grid))
+    ap.add_argument("--beta-v", type=float, nargs="+", default=list(d.beta_v_grid))
+    ap.add_argument("--grid-seconds", type=float, default=d.grid_seconds)
+    ap.add_argument("--final-seconds", type=float, default=d.final_seconds)
+    ap.add_argument("--chunk-seconds", type=float, default=d.chunk_seconds)
+    ap.add_argument("--seeds", type=int, default=d.seeds)
+    ap.add_argument("--num-envs", type=int, default=d.num_envs)
+    ap.add_argument("--checkpoint-every", type=int, default=d.checkpoint_every)
+    ap.add_argument("--gradvar-envs", type=int, default=d.gradvar_envs)
+    ap.add_argument("--gradvar-batches", type=int, default=d.gradvar_batches)
+    ap.add_argument("--phases", nargs="+", default=list(PHASES), help=f"any of {list(PHASES)}")
+    ap.add_argument("--quiet", action="store_true")
+    a = ap.parse_args(argv)
+    spec = StudySpec(dts=tuple(a.dt), periods=tuple(a.periods), beta_theta_grid=tuple(a.beta_theta),
+                     beta_v_grid=tuple(a.beta_v), grid_seconds=a.grid_seconds, final_seconds=a.final_seconds,
+                     chunk_seconds=a.chunk_seconds, seeds=a.seeds, num_envs=a.num_envs,
+                     checkpoint_every=a.checkpoint_every, gradvar_envs=a.gradvar_envs,
+                     gradvar_batches=a.gradvar_batches)
+    try:
+        run_study(spec, a.out, phases=a.phases, progress=not a.quiet)
+    except (ValueError, StudyError, sweep.SweepError, checkpoint.CheckpointError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
