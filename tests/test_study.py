@@ -1,0 +1,158 @@
+"""The finer-delta study (nmrl/study.py) and the gradient-variance statistics (nmrl/gradvar.py)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+
+import numpy as np
+import pytest
+
+from nmrl import gradvar, run, study
+from nmrl.learner import TrainConfig
+from nmrl.timescale import DELTA_0
+
+# ------------------------------------------------------------------ gradvar.summarize vs numpy / MC
+
+
+def _batch_sums(g: np.ndarray, batches: int):
+    parts = np.array_split(g, batches)
+    return (np.array([len(p) for p in parts]), np.stack([p.sum(0) for p in parts]),
+            np.array([float(np.sum(p * p)) for p in parts]))
+
+
+def test_summarize_equals_numpy_sample_statistics():
+    rng = np.random.default_rng(0)
+    mu = rng.normal(size=7)
+    g = mu + rng.normal(size=(5000, 7)) * np.linspace(0.5, 3.0, 7)
+    n, s, q = _batch_sums(g, 10)
+    st = gradvar.summarize(n, s, q, period_s=0.2)
+    trcov = float(np.sum(np.var(g, axis=0, ddof=1)))
+    assert math.isclose(st["trcov"], trcov, rel_tol=1e-9)
+    assert math.isclose(st["mean_sq"], float(np.sum(g.mean(0) ** 2)) - trcov / len(g), rel_tol=1e-9)
+    assert math.isclose(st["snr_per_s"], st["mean_sq"] / (st["trcov"] * 0.2), rel_tol=1e-12)
+    assert st["periods"] == 5000 and st["batches"] == 10 and st["trcov_ci"] > 0
+
+
+def test_summarize_mean_sq_is_unbiased_monte_carlo():
+    """E[mean_sq] = |E g|^2 even when the noise dwarfs the mean (small samples)."""
+    rng = np.random.default_rng(1)
+    mu = np.array([0.3, -0.2, 0.1])  # |mu|^2 = 0.14
+    est = []
+    for _ in range(4000):
+        g = mu + 2.0 * rng.normal(size=(20, 3))
+        n, s, q = _batch_sums(g, 2)
+        est.append(gradvar.summarize(n, s, q, period_s=1.0)["mean_sq"])
+    est = np.array(est)
+    se = est.std(ddof=1) / math.sqrt(len(est))
+    assert abs(est.mean() - 0.14) < 4 * se, (est.mean(), se)
+    naive = np.mean(est + 12.0 / 40)  # |g_bar|^2 would be biased by tr Cov / n = 12 / 40
+    assert abs(naive - 0.14) > 10 * se
+
+
+def test_summarize_rejects_bad_sums():
+    with pytest.raises(ValueError, match="at least 2 periods"):
+        gradvar.summarize(np.array([1, 5]), np.zeros((2, 3)), np.zeros(2), 0.2)
+    with pytest.raises(ValueError, match="inconsistent"):
+        gradvar.summarize(np.array([3, 5]), np.zeros((3, 3)), np.zeros(2), 0.2)
+
+
+# ------------------------------------------------------------------ spec and rules
+
+
+def test_arm_configs_follow_the_per_second_rules():
+    spec = study.StudySpec()
+    for dt in spec.dts:
+        k = dt / DELTA_0
+        for p in spec.periods:
+            c = spec.arm_config(dt, p)
+            assert c.control_dt == dt and c.reward_scale == pytest.approx(k)
+            assert c.l == (1 if p is None else round(p / dt))
+            assert c.chunk_steps * dt == pytest.approx(spec.chunk_seconds)
+            assert c.gamma ** (1 / dt) == pytest.approx(0.995 ** 50)
+        names, cfgs = spec.grid_points(dt)
+        assert len(names) == len(set(names)) == len(spec.periods) * 9
+        assert all(c.steps * dt == pytest.approx(spec.grid_seconds) for c in cfgs)
+
+
+@pytest.mark.parametrize("kw,needle", [
+    (dict(dts=()), "dts"),
+    (dict(dts=(0.02, 0.02)), "dts"),
+    (dict(dts=(0.03,), chunk_seconds=0.6, grid_seconds=1.2, final_seconds=1.2),
+     "not a positive integer"),  # 0.1 s / 0.03 s
+    (dict(periods=(None, -0.1)), "periods"),
+    (dict(beta_theta_grid=(1e-5, -1.0)), "beta_theta_grid"),
+    (dict(seeds=0), "seeds=0"),
+    (dict(grid_seconds=12.0), "multiple of chunk_seconds"),
+    (dict(gradvar_batches=1), "gradvar_batches"),
+])
+def test_bad_spec(kw, needle):
+    with pytest.raises(ValueError, match=needle):
+        study.StudySpec(**kw).validate()
+
+
+def test_cli_bad_period(capsys):
+    with pytest.raises(SystemExit):
+        study.main(["--out", "/nonexistent/x", "--periods", "fast"])
+    assert "period 'fast' is invalid" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------ a whole (tiny) study
+
+TINY = study.StudySpec(dts=(0.02,), periods=(None, 0.04), beta_theta_grid=(1e-5, 3e-5), beta_v_grid=(5e-4,),
+                       grid_seconds=2.0, final_seconds=2.0, chunk_seconds=1.0, seeds=2, num_envs=4,
+                       checkpoint_every=1, gradvar_envs=4, gradvar_batches=2,
+                       base=TrainConfig(hidden_actor=8, hidden_critic=8))
+
+
+@pytest.fixture(scope="module")
+def tiny_study(tmp_path_factory):
+    out = tmp_path_factory.mktemp("study")
+    res = study.run_study(TINY, out, progress=False)
+    return out, res
+
+
+def test_grid_choice_follows_the_rule(tiny_study):
+    out, res = tiny_study
+    assert len(res["grid"]) == 4
+    for arm in ("stationary", "p0.04s"):
+        rows = [r for r in res["grid"] if r["arm"] == arm]
+        scores = {}
+        for r in rows:  # the rule, recomputed from the raw metrics: mean over the second half
+            name = f"{arm}_bt{float(r['beta_theta']):.1e}_bv{float(r['beta_v']):.1e}"
+            m = run.read_metrics(out / "grid" / "dt0.02" / "points" / name)
+            assert [x["step"] for x in m] == [50, 100]
+            scores[name] = np.mean([x["avg_reward"] for x in m[1:]])
+            assert float(r["score"]) == pytest.approx(scores[name])
+        chosen = [r for r in rows if r["chosen"] == "True"]
+        assert len(chosen) == 1
+        assert float(chosen[0]["score"]) == pytest.approx(max(scores.values()))
+        finals = [r for r in res["final"] if r["arm"] == arm]
+        assert sorted(int(r["seed"]) for r in finals) == [0, 1]
+        for r in finals:  # every seed runs at the chosen step sizes, the same simulated time
+            assert (r["beta_theta"], r["beta_v"]) == (chosen[0]["beta_theta"], chosen[0]["beta_v"])
+            assert float(r["seconds"]) == pytest.approx(2.0)
+            assert float(r["reward_per_s"]) == pytest.approx(float(r["avg_reward"]) / DELTA_0)
+
+
+def test_gradvar_rows_and_figures(tiny_study):
+    out, res = tiny_study
+    rows = res["gradvar"]
+    assert {r["policy"] for r in rows} == {"initial", "trained_stationary", "trained_p0.04s"}
+    for r in rows:
+        assert float(r["trcov"]) > 0 and int(r["periods"]) >= 2
+        # 4 envs x 2 batches x 1 s, one period per step (stationary) or per 2 steps (0.04 s), minus stops
+        per = 0.02 if r["arm"] == "stationary" else 0.04
+        assert 0.8 * 8 / per <= int(r["periods"]) <= 8 / per
+    assert (out / "timescale.png").stat().st_size > 20_000 and (out / "grid.png").stat().st_size > 10_000
+
+
+def test_rerun_is_a_no_op_and_other_settings_are_refused(tiny_study):
+    out, res = tiny_study
+    before = (out / "final.csv").read_text()
+    again = study.run_study(TINY, out, progress=False, phases=("grid", "final", "gradvar"))
+    assert again["final"] == res["final"] and (out / "final.csv").read_text() == before
+    with pytest.raises(study.StudyError, match="seeds"):
+        study.run_study(dataclasses.replace(TINY, seeds=3), out, progress=False)
+    assert json.loads((out / "study.json").read_text())["seeds"] == 2
