@@ -1,4 +1,4 @@
-"""Command line: ``nmrl train``, ``nmrl sweep``, ``nmrl eval``, ``nmrl bench``.
+"""Command line: ``nmrl train``, ``nmrl sweep``, ``nmrl eval``, ``nmrl study``, ``nmrl bench``.
 
 Every field of :class:`nmrl.learner.TrainConfig` is an option of ``train`` and ``sweep``
 (``--beta-theta 2e-6``, ``--num-envs 256``, ...). Bad values exit with status 2 and a message that
@@ -18,6 +18,7 @@ from nmrl.learner import PRESETS, TrainConfig
 #: Budget of a plain ``nmrl train`` (control steps per environment): a few minutes on 2 CPU cores.
 DEFAULT_STEPS = 4000
 _SWEEP_FIELDS = {"l", "seed"}  # given as lists to ``nmrl sweep``
+_NOT_OPTIONS = {"grad_stats"}  # diagnostics set by nmrl.gradvar, not training options
 
 
 def _field_type(f: dataclasses.Field) -> type:
@@ -29,7 +30,7 @@ def _field_type(f: dataclasses.Field) -> type:
 
 def add_config_options(p: argparse.ArgumentParser, skip: set[str] = frozenset()) -> None:
     for f in dataclasses.fields(TrainConfig):
-        if f.name in skip:
+        if f.name in skip or f.name in _NOT_OPTIONS:
             continue
         t = _field_type(f)
         doc = {"preset": f"step-size preset: {', '.join(sorted(PRESETS))}"}.get(f.name, "")
@@ -148,6 +149,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-render", action="store_true", help="skip the strobe PNG and the GIF")
     p.set_defaults(func=cmd_eval)
 
+    sub.add_parser("study", help="the finer-delta study: nmrl study --help (nmrl/study.py)", add_help=False)
+
     p = sub.add_parser("bench", help="run the benchmarks (python -m benchmarks)")
     p.add_argument("--quick", action="store_true")
     p.set_defaults(func=cmd_bench)
@@ -155,6 +158,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ["study"]:  # its own parser (argparse's REMAINDER would not pass --help on)
+        from nmrl import study
+
+        return study.main(argv[1:])
     args = build_parser().parse_args(argv)
     return args.func(args)
 

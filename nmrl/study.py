@@ -385,7 +385,7 @@ def _period(s: str) -> float | None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m nmrl.study", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="nmrl study", description=__doc__.split("\n\n")[0])
     d = StudySpec()
     ap.add_argument("--out", required=True, help="study directory (continued if it exists)")
     ap.add_argument("--dt", type=float, nargs="+", default=list(d.dts), help="control steps [s]")
@@ -412,7 +412,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         run_study(spec, a.out, phases=a.phases, progress=not a.quiet)
     except (ValueError, StudyError, sweep.SweepError, checkpoint.CheckpointError) as e:
-        print(f"error: {e}", file=sys.stderr)
+        print(f"nmrl study: error: {e}", file=sys.stderr)
         return 2
     return 0
 

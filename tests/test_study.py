@@ -92,6 +92,14 @@ def test_bad_spec(kw, needle):
         study.StudySpec(**kw).validate()
 
 
+def test_cli_bad_value_writes_nothing(tmp_path, capsys):
+    from nmrl import cli
+
+    assert cli.main(["study", "--out", str(tmp_path / "s"), "--seeds", "0"]) == 2
+    assert "seeds=0 is invalid" in capsys.readouterr().err
+    assert not (tmp_path / "s").exists()
+
+
 def test_cli_bad_period(capsys):
     with pytest.raises(SystemExit):
         study.main(["--out", "/nonexistent/x", "--periods", "fast"])
