@@ -24,7 +24,8 @@ Layout of ``OUT``::
     gradvar.csv                  tr Cov of the per-period actor gradient estimate (nmrl/gradvar.py)
     timescale.png, grid.png      the figures (nmrl/plots.py)
 
-Every phase resumes where it stopped: run the same command again.
+Every phase resumes where it stopped: run the same command again. A larger ``--final-seconds``
+(everything else the same) extends the final runs from their last checkpoints.
 """
 
 from __future__ import annotations
@@ -333,10 +334,17 @@ def run_study(spec: StudySpec, out: str | pathlib.Path, *, phases: Sequence[str]
     spec_path = out / SPEC_FILE
     if spec_path.exists():
         saved = StudySpec.from_json(json.loads(spec_path.read_text()))
-        if saved != spec:
-            diff = [f.name for f in dataclasses.fields(spec) if getattr(saved, f.name) != getattr(spec, f.name)]
-            raise StudyError(f"{out} holds a study with other settings ({', '.join(diff)}); "
-                             f"continue it with the same options or choose another --out")
+        diff = [f.name for f in dataclasses.fields(spec) if getattr(saved, f.name) != getattr(spec, f.name)]
+        if diff == ["final_seconds"] and spec.final_seconds > saved.final_seconds:
+            # a longer final budget continues the final runs; the gradient variance of the (now
+            # different) trained policies is measured again, the old table is kept beside it
+            old = out / "gradvar.csv"
+            if old.exists():
+                old.rename(out / f"gradvar_final{saved.final_seconds:g}s.csv")
+            run.atomic_write_text(spec_path, json.dumps(spec.to_json(), indent=2) + "\n")
+        elif diff:
+            raise StudyError(f"{out} holds a study with other settings ({', '.join(diff)}); continue it "
+                             f"with the same options (only a longer --final-seconds may be given) or choose another --out")
     else:
         out.mkdir(parents=True, exist_ok=True)
         run.atomic_write_text(spec_path, json.dumps(spec.to_json(), indent=2) + "\n")

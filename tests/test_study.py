@@ -163,4 +163,26 @@ def test_rerun_is_a_no_op_and_other_settings_are_refused(tiny_study):
     assert again["final"] == res["final"] and (out / "final.csv").read_text() == before
     with pytest.raises(study.StudyError, match="seeds"):
         study.run_study(dataclasses.replace(TINY, seeds=3), out, progress=False)
+    with pytest.raises(study.StudyError, match="final_seconds"):  # a shorter final budget
+        study.run_study(dataclasses.replace(TINY, final_seconds=1.0), out, progress=False)
     assert json.loads((out / "study.json").read_text())["seeds"] == 2
+
+
+def test_longer_final_budget_extends_the_final_runs(tiny_study, tmp_path):
+    import shutil
+
+    src, res = tiny_study
+    out = tmp_path / "ext"
+    shutil.copytree(src, out)
+    longer = dataclasses.replace(TINY, final_seconds=3.0)
+    ext = study.run_study(longer, out, progress=False, phases=("grid", "final"))
+    assert ext["grid"] == res["grid"]
+    assert {float(r["seconds"]) for r in ext["final"]} == {3.0}
+    for r in ext["final"]:
+        m = run.read_metrics(out / "final" / "dt0.02" / "points" / f"{r['arm']}_s{r['seed']}")
+        assert [x["step"] for x in m] == [50, 100, 150]
+        old = run.read_metrics(src / "final" / "dt0.02" / "points" / f"{r['arm']}_s{r['seed']}")
+        assert [{k: v for k, v in x.items() if k not in ("wall_s", "steps_per_s")} for x in m[:2]] == \
+            [{k: v for k, v in x.items() if k not in ("wall_s", "steps_per_s")} for x in old]
+    assert (out / "gradvar_final2s.csv").exists() and not (out / "gradvar.csv").exists()
+    assert json.loads((out / "study.json").read_text())["final_seconds"] == 3.0
