@@ -335,16 +335,22 @@ def run_study(spec: StudySpec, out: str | pathlib.Path, *, phases: Sequence[str]
     if spec_path.exists():
         saved = StudySpec.from_json(json.loads(spec_path.read_text()))
         diff = [f.name for f in dataclasses.fields(spec) if getattr(saved, f.name) != getattr(spec, f.name)]
-        if diff == ["final_seconds"] and spec.final_seconds > saved.final_seconds:
-            # a longer final budget continues the final runs; the gradient variance of the (now
-            # different) trained policies is measured again, the old table is kept beside it
+        gv_fields = {"gradvar_envs", "gradvar_batches"}
+        longer = "final_seconds" in diff and spec.final_seconds > saved.final_seconds
+        if diff and set(diff) <= gv_fields | ({"final_seconds"} if longer else set()):
             old = out / "gradvar.csv"
+            if set(diff) & gv_fields and old.exists() and not longer:
+                raise StudyError(f"{old} is already measured with gradvar_envs={saved.gradvar_envs}, "
+                                 f"gradvar_batches={saved.gradvar_batches}; move it away to measure again")
             if old.exists():
+                # a longer final budget continues the final runs; the gradient variance of the (now
+                # different) trained policies is measured again, the old table is kept beside it
                 old.rename(out / f"gradvar_final{saved.final_seconds:g}s.csv")
             run.atomic_write_text(spec_path, json.dumps(spec.to_json(), indent=2) + "\n")
         elif diff:
             raise StudyError(f"{out} holds a study with other settings ({', '.join(diff)}); continue it "
-                             f"with the same options (only a longer --final-seconds may be given) or choose another --out")
+                             f"with the same options (a longer --final-seconds, or other --gradvar-* before "
+                             f"gradvar.csv exists, may be given) or choose another --out")
     else:
         out.mkdir(parents=True, exist_ok=True)
         run.atomic_write_text(spec_path, json.dumps(spec.to_json(), indent=2) + "\n")

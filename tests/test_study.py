@@ -165,6 +165,8 @@ def test_rerun_is_a_no_op_and_other_settings_are_refused(tiny_study):
         study.run_study(dataclasses.replace(TINY, seeds=3), out, progress=False)
     with pytest.raises(study.StudyError, match="final_seconds"):  # a shorter final budget
         study.run_study(dataclasses.replace(TINY, final_seconds=1.0), out, progress=False)
+    with pytest.raises(study.StudyError, match="already measured"):  # gradvar.csv exists
+        study.run_study(dataclasses.replace(TINY, gradvar_envs=8), out, progress=False)
     assert json.loads((out / "study.json").read_text())["seeds"] == 2
 
 
