@@ -272,8 +272,10 @@ def _final_rows(out: pathlib.Path, spec: StudySpec, grid_rows: list[dict]) -> li
 
 def _policies(out: pathlib.Path, spec: StudySpec) -> list[tuple[str, object, object]]:
     """The fixed policies whose gradient variance is measured at every delta: the initial one (seed 0)
-    and the seed-0 final policies of the stationary arm and of the 0.2 s arm (or the first period arm)
-    learned at the paper's control step (the largest delta of the study)."""
+    and the final policies of the stationary arm and of the 0.2 s arm (or the first period arm)
+    learned at the paper's control step (the largest delta of the study), each from its seed with the
+    highest final average reward (a collapsed seed would say little about a working policy); the
+    names say which seed, e.g. ``trained_p0.2s_s1``."""
     dt0 = max(spec.dts)
     cfg0 = spec.arm_config(dt0, None)
     tr = make_train(dataclasses.replace(cfg0, num_envs=1, steps=1))
@@ -284,10 +286,13 @@ def _policies(out: pathlib.Path, spec: StudySpec) -> list[tuple[str, object, obj
     for p in [None] + ([pick] if pick is not None else []):
         if p not in spec.periods:
             continue
-        d = _dt_dir(out, "final", dt0) / "points" / f"{arm_name(p)}_s0"
+        scores = {s: sweep.final_avg(run.read_metrics(_dt_dir(out, "final", dt0) / "points" / f"{arm_name(p)}_s{s}"),
+                                     "avg_reward") for s in range(spec.seeds)}
+        best = max(scores, key=lambda s: scores[s])
+        d = _dt_dir(out, "final", dt0) / "points" / f"{arm_name(p)}_s{best}"
         cfg = checkpoint.load_config(d)
         ts = checkpoint.restore(d, make_train(cfg))
-        pols.append((f"trained_{arm_name(p)}", ts.theta, ts.v))
+        pols.append((f"trained_{arm_name(p)}_s{best}", ts.theta, ts.v))
     return pols
 
 
