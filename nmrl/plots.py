@@ -151,12 +151,16 @@ def timescale(out: str | os.PathLike, grid: list[dict], final: list[dict], gradv
                 xs.append(dt), ms.append(m), cs.append(c)
         if xs:
             ax.errorbar(xs, ms, yerr=cs, marker="o", capsize=4, color=colors[a], label=_arm_label(a))
+        for k, dt in enumerate(dts):  # every seed, slightly spread sideways per arm
+            v = [float(r["reward_per_s"]) for r in final if r["arm"] == a and float(r["dt"]) == dt]
+            shift = 1 + 0.04 * (arms.index(a) - (len(arms) - 1) / 2)
+            ax.scatter([dt * shift] * len(v), v, s=12, color=colors[a], alpha=0.5, marker="x")
     ax.set_xscale("log")
     ax.set_xticks(dts, [f"{d:g}" for d in dts])
     ax.minorticks_off()
     ax.invert_xaxis()
     ax.set_xlabel("control step δ [s]")
-    ax.set_ylabel("average reward per second (last tenth)")
+    ax.set_ylabel("average reward per second (last tenth; x = seeds)")
     ax.set_title("learning at finer δ (equal simulated time)")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
@@ -232,9 +236,10 @@ def _grid_figure(grid: list[dict], arms: list[str], dts: list[float], path: path
                         ax.add_patch(plt.Rectangle((bvs.index(float(r["beta_v"])) - 0.5, bts.index(float(r["beta_theta"])) - 0.5),
                                                    1, 1, fill=False, ec="red", lw=2))
             im = ax.imshow(z, origin="lower", cmap="viridis")
+            mid = np.nanmean([np.nanmin(z), np.nanmax(z)]) if np.isfinite(z).any() else 0.0
             for (bi, vi), val in np.ndenumerate(z):
                 ax.text(vi, bi, "div." if np.isnan(val) else f"{val:.0f}", ha="center", va="center", fontsize=7,
-                        color="w")
+                        color="k" if np.isfinite(val) and val > mid else "w")
             ax.set_xticks(range(len(bvs)), [f"{b:.0e}" for b in bvs], fontsize=7)
             ax.set_yticks(range(len(bts)), [f"{b:.0e}" for b in bts], fontsize=7)
             ax.set_title(f"δ={dt:g} s, {_arm_label(a)}", fontsize=8)
