@@ -11,7 +11,10 @@ Arms, per delta: the stationary policy (l = 1) and nm-periods of 0.1, 0.2 and 0.
 
 The rule for step sizes (the same for every arm): a grid beta^theta x beta^v (one seed, a shorter
 budget in simulated seconds) is run for every (delta, arm); the chosen pair is the one with the
-highest average reward over the second half of its grid run (diverged runs are never chosen).
+highest average reward over the second half of its grid run (diverged runs are never chosen), among
+the pairs with beta^theta <= ``beta_theta_cap`` if that is set. A study with a cap can reuse another
+study's grid/ (copy it: finished points are never rerun) and the final runs of arms whose choice
+does not change.
 Every arm then runs ``seeds`` seeds at its chosen pair for the same budget in simulated seconds.
 
 Layout of ``OUT``::
@@ -80,6 +83,8 @@ class StudySpec:
     gradvar_envs: int = 64
     gradvar_batches: int = 8
     base: TrainConfig = TrainConfig()  #: the paper's constants at delta_0 = 0.02 s
+    #: if set, the rule chooses only among grid pairs with beta^theta <= this (the same for every arm)
+    beta_theta_cap: float | None = None
 
     def validate(self) -> None:
         def bad(name, allowed):
@@ -101,6 +106,9 @@ class StudySpec:
             v = getattr(self, name)
             if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
                 raise bad(name, "must be an integer >= 1")
+        if self.beta_theta_cap is not None and not (
+                isinstance(self.beta_theta_cap, (int, float)) and self.beta_theta_cap >= min(self.beta_theta_grid)):
+            raise bad("beta_theta_cap", f"must be >= the smallest grid value {min(self.beta_theta_grid):g}")
         if self.gradvar_batches < 2:
             raise bad("gradvar_batches", "need >= 2 batches for an interval")
         for name in ("grid_seconds", "final_seconds", "chunk_seconds"):
@@ -189,10 +197,12 @@ def _point_done(d: pathlib.Path, steps: int) -> bool:
 def _run_phase(out: pathlib.Path, phase: str, dt: float, names: list[str], cfgs: list[TrainConfig],
                spec: StudySpec, progress: bool) -> None:
     d = _dt_dir(out, phase, dt)
-    dirs = [d / "points" / n for n in names]
     steps = cfgs[0].steps
-    if all(_point_done(p, steps) for p in dirs):
+    todo = [i for i, n in enumerate(names) if not _point_done(d / "points" / n, steps)]
+    if not todo:
         return
+    names, cfgs = [names[i] for i in todo], [cfgs[i] for i in todo]  # finished points stay as they are
+    dirs = [d / "points" / n for n in names]
     have = [run.existing_step(p) is not None for p in dirs]
     if any(have) and not all(have):
         raise StudyError(f"{d}: some points have checkpoints and some do not; remove {d} to rerun this phase")
@@ -239,7 +249,9 @@ def _grid_rows(out: pathlib.Path, spec: StudySpec) -> list[dict]:
             per_arm.setdefault(row["arm"], []).append(row)
             rows.append(row)
         for arm_rows in per_arm.values():
-            best = max(arm_rows, key=lambda r: r["score"])
+            cap = spec.beta_theta_cap
+            eligible = [r for r in arm_rows if cap is None or r["beta_theta"] <= cap * (1 + 1e-9)]
+            best = max(eligible, key=lambda r: r["score"])
             if best["score"] == float("-inf"):
                 raise StudyError(f"dt={dt:g}, arm {best['arm']}: every grid run diverged; extend the grid to smaller steps")
             best["chosen"] = True
@@ -420,6 +432,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--checkpoint-every", type=int, default=d.checkpoint_every)
     ap.add_argument("--gradvar-envs", type=int, default=d.gradvar_envs)
     ap.add_argument("--gradvar-batches", type=int, default=d.gradvar_batches)
+    ap.add_argument("--beta-theta-cap", type=float, default=None,
+                    help="choose only among grid pairs with beta_theta <= this (every arm)")
     ap.add_argument("--phases", nargs="+", default=list(PHASES), help=f"any of {list(PHASES)}")
     ap.add_argument("--quiet", action="store_true")
     a = ap.parse_args(argv)
@@ -427,7 +441,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                      beta_v_grid=tuple(a.beta_v), grid_seconds=a.grid_seconds, final_seconds=a.final_seconds,
                      chunk_seconds=a.chunk_seconds, seeds=a.seeds, num_envs=a.num_envs,
                      checkpoint_every=a.checkpoint_every, gradvar_envs=a.gradvar_envs,
-                     gradvar_batches=a.gradvar_batches)
+                     gradvar_batches=a.gradvar_batches, beta_theta_cap=a.beta_theta_cap)
     try:
         run_study(spec, a.out, phases=a.phases, progress=not a.quiet)
     except (ValueError, StudyError, sweep.SweepError, checkpoint.CheckpointError) as e:

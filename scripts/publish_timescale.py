@@ -47,7 +47,7 @@ def main(src: str, dst: str) -> None:
             g = [r for r in grid if r["arm"] == a and float(r["dt"]) == d and r["chosen"] == "True"][0]
             cells.append(f"{m:+.1f} ± {c:.1f} ({', '.join(f'{x:+.0f}' for x in v)})"
                          + (f" {div} div." if div else "")
-                         + f"<br>β = {float(g['beta_theta']):.0e}, {float(g['beta_v']):.0e}")
+                         + f"<br>β = {float(g['beta_theta']):.2g}, {float(g['beta_v']):.2g}")
             means.append(m)
         print(f"| {a} | " + " | ".join(cells) + f" | {means[-1] - means[0]:+.1f} |")
     gv = src_p / "gradvar.csv"

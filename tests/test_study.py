@@ -194,3 +194,25 @@ def test_longer_final_budget_extends_the_final_runs(tiny_study, tmp_path):
             [{k: v for k, v in x.items() if k not in ("wall_s", "steps_per_s")} for x in old]
     assert (out / "gradvar_final2s.csv").exists() and not (out / "gradvar.csv").exists()
     assert json.loads((out / "study.json").read_text())["final_seconds"] == 3.0
+
+
+def test_beta_theta_cap_reuses_the_grid(tiny_study, tmp_path):
+    import os
+    import shutil
+
+    src, res = tiny_study
+    out = tmp_path / "cap"
+    out.mkdir()
+    shutil.copytree(src / "grid", out / "grid")
+    stamps = {p: os.stat(p).st_mtime_ns for p in (out / "grid").rglob("metrics.jsonl")}
+    capped = dataclasses.replace(TINY, beta_theta_cap=1e-5)
+    got = study.run_study(capped, out, progress=False, phases=("grid", "final"))
+    assert {p: os.stat(p).st_mtime_ns for p in (out / "grid").rglob("metrics.jsonl")} == stamps  # not rerun
+    for arm in ("stationary", "p0.04s"):
+        rows = [r for r in got["grid"] if r["arm"] == arm]
+        chosen = [r for r in rows if r["chosen"] == "True"]
+        assert len(chosen) == 1 and float(chosen[0]["beta_theta"]) == 1e-5  # the only pair under the cap
+        assert {float(r["score"]) for r in rows} == {float(r["score"]) for r in res["grid"] if r["arm"] == arm}
+    assert {float(r["beta_theta"]) for r in got["final"]} == {1e-5}
+    with pytest.raises(ValueError, match="beta_theta_cap"):
+        dataclasses.replace(TINY, beta_theta_cap=1e-7).validate()
