@@ -55,7 +55,12 @@ SPEC_FILE = "study.json"
 GRID_COLUMNS = ("dt", "arm", "period_s", "l", "delta", "beta_theta", "beta_v", "steps", "seconds",
                 "trials", "score", "avg_reward", "diverged", "chosen")
 FINAL_COLUMNS = ("dt", "arm", "period_s", "l", "delta", "seed", "beta_theta", "beta_v", "steps", "seconds",
-                 "trials", "avg_reward", "reward_per_s", "forward_speed", "diverged")
+                 "trials", "avg_reward", "reward_per_s", "forward_speed", "diverged", "theta_norm_first",
+                 "theta_norm", "collapsed")
+#: a final run "collapsed" when its actor's parameter norm ended above this multiple of the norm after
+#: its first chunk (the failure seen in this study: the actor grows, the joints are driven into their
+#: limits and the penalty (10) dominates the reward; no stable run grew by more than a few percent)
+COLLAPSE_FACTOR = 1.5
 GRADVAR_COLUMNS = ("policy", "dt", "arm", "period_s", "l", "periods", "trcov", "trcov_ci", "mean_sq",
                    "mean_sq_ci", "snr_per_s")
 
@@ -278,7 +283,9 @@ def _final_rows(out: pathlib.Path, spec: StudySpec, grid_rows: list[dict]) -> li
                          "beta_v": c.beta_v, "steps": m[-1]["step"], "seconds": m[-1]["step"] * dt,
                          "trials": m[-1]["trials"], "avg_reward": avg, "reward_per_s": avg / DELTA_0,
                          "forward_speed": sweep.final_avg(m, "forward_speed"),
-                         "diverged": any(run.is_diverged(r) for r in m)})
+                         "diverged": any(run.is_diverged(r) for r in m),
+                         "theta_norm_first": m[0]["theta_norm"], "theta_norm": m[-1]["theta_norm"],
+                         "collapsed": m[-1]["theta_norm"] > COLLAPSE_FACTOR * m[0]["theta_norm"]})
     return rows
 
 

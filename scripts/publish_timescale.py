@@ -44,9 +44,10 @@ def main(src: str, dst: str) -> None:
             v = np.array([float(r["reward_per_s"]) for r in rows])
             m, c = mean_ci95(v)
             div = sum(r["diverged"] == "True" for r in rows)
+            col = sum(r.get("collapsed") == "True" for r in rows)
             g = [r for r in grid if r["arm"] == a and float(r["dt"]) == d and r["chosen"] == "True"][0]
             cells.append(f"{m:+.1f} ± {c:.1f} ({', '.join(f'{x:+.0f}' for x in v)})"
-                         + (f" {div} div." if div else "")
+                         + (f" {div} div." if div else "") + (f", {col} collapsed" if col else "")
                          + f"<br>β = {float(g['beta_theta']):.2g}, {float(g['beta_v']):.2g}")
             means.append(m)
         print(f"| {a} | " + " | ".join(cells) + f" | {means[-1] - means[0]:+.1f} |")

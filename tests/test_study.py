@@ -142,6 +142,8 @@ def test_grid_choice_follows_the_rule(tiny_study):
             assert (r["beta_theta"], r["beta_v"]) == (chosen[0]["beta_theta"], chosen[0]["beta_v"])
             assert float(r["seconds"]) == pytest.approx(2.0)
             assert float(r["reward_per_s"]) == pytest.approx(float(r["avg_reward"]) / DELTA_0)
+            collapsed = float(r["theta_norm"]) > study.COLLAPSE_FACTOR * float(r["theta_norm_first"])
+            assert r["collapsed"] == str(collapsed)
 
 
 def test_gradvar_rows_and_figures(tiny_study):
