@@ -186,7 +186,11 @@ def timescale(out: str | os.PathLike, grid: list[dict], final: list[dict], gradv
         ax.set_xlabel("control step δ [s]")
         ax.set_title(title, fontsize=10)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=6)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=6)
+        else:
+            ax.text(0.5, 0.5, "not measured in this study\n(see its gradvar phase)", ha="center",
+                    va="center", transform=ax.transAxes, fontsize=9, color="0.4")
     for j, dt in enumerate(dts[:3]):
         ax = axes[1, j]
         for a in arms:
