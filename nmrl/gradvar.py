@@ -33,6 +33,7 @@ import numpy as np
 
 from nmrl.learner import Hyper, TrainConfig, make_train
 from nmrl.plots import mean_ci95
+from nmrl.sweep import stack_trees
 
 
 def summarize(n: np.ndarray, g_sum: np.ndarray, g_sqnorm: np.ndarray, period_s: float) -> dict:
@@ -84,11 +85,10 @@ def measure(configs: Sequence[TrainConfig], policies: Sequence[tuple], *, batche
             .resolved() for c in configs]
     trainer = make_train(cfgs[0])
     keys = jnp.stack([jax.random.PRNGKey(seed + i) for i in range(len(cfgs))])
-    hypers = jax.tree.map(lambda *x: jnp.stack(x), *[Hyper.from_config(c) for c in cfgs])
-    ts = jax.jit(jax.vmap(trainer.init))(keys, hypers)
-    theta = jax.tree.map(lambda *x: jnp.stack([jnp.asarray(a, jnp.float32) for a in x]), *[p[0] for p in policies])
-    v = jax.tree.map(lambda *x: jnp.stack([jnp.asarray(a, jnp.float32) for a in x]), *[p[1] for p in policies])
-    ts = jax.device_put(ts.replace(theta=theta, v=v))
+    ts = jax.jit(jax.vmap(trainer.init))(keys, stack_trees([Hyper.from_config(c) for c in cfgs]))
+    f32 = lambda t: jax.tree.map(lambda a: jnp.asarray(a, jnp.float32), t)  # noqa: E731
+    ts = jax.device_put(ts.replace(theta=stack_trees([f32(p[0]) for p in policies]),
+                                   v=stack_trees([f32(p[1]) for p in policies])))
     chunk = jax.jit(jax.vmap(trainer.chunk))
     sums = [{"n": [], "g_sum": [], "g_sqnorm": []} for _ in cfgs]
     for b in range(warmup + batches):

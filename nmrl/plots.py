@@ -135,6 +135,8 @@ def timescale(out: str | os.PathLike, grid: list[dict], final: list[dict], gradv
     """The finer-delta study (nmrl/study.py): ``timescale.png`` (reward per second against delta,
     one line per period duration, 95% t-intervals over seeds; the per-period gradient variance and
     the signal-to-noise per second; learning curves per delta) and ``grid.png`` (the step-size grid)."""
+    from nmrl.run import read_metrics
+
     out = pathlib.Path(out)
     path = pathlib.Path(path) if path else out / "timescale.png"
     arms = _arm_order(grid)
@@ -199,7 +201,7 @@ def timescale(out: str | os.PathLike, grid: list[dict], final: list[dict], gradv
                 if r["arm"] != a or float(r["dt"]) != dt:
                     continue
                 d = out / "final" / f"dt{dt:g}" / "points" / f"{a}_s{r['seed']}"
-                m = _read_jsonl(d / "metrics.jsonl")
+                m = read_metrics(d)
                 curves.append(([x["step"] * dt for x in m], [x["avg_reward"] / 0.02 for x in m]))
             if not curves:
                 continue
@@ -216,12 +218,6 @@ def timescale(out: str | os.PathLike, grid: list[dict], final: list[dict], gradv
     _save(fig, path)
     _grid_figure(grid, arms, dts, out / "grid.png")
     return path
-
-
-def _read_jsonl(p: pathlib.Path) -> list[dict]:
-    import json
-
-    return [json.loads(x) for x in p.read_text().splitlines() if x.strip()] if p.exists() else []
 
 
 def _grid_figure(grid: list[dict], arms: list[str], dts: list[float], path: pathlib.Path) -> None:

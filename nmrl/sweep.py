@@ -85,7 +85,8 @@ def point_dir(out: pathlib.Path, l: int, seed: int) -> pathlib.Path:
     return out / "points" / f"l{l}_s{seed}"
 
 
-def _stack(trees):
+def stack_trees(trees):
+    """Stack pytrees of equal structure along a new leading axis (one entry per point)."""
     return jax.tree.map(lambda *x: jnp.stack(x), *trees)
 
 
@@ -193,7 +194,7 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[T
     else:
         init = jax.jit(jax.vmap(trainers[0].init))
         keys = jnp.stack([jax.random.PRNGKey(c.seed) for c in configs])
-        hypers = _stack([Hyper.from_config(c) for c in configs])
+        hypers = stack_trees([Hyper.from_config(c) for c in configs])
         ts = init(keys, hypers)
         states = [_unstack(ts, i) for i in range(len(names))]
         for d, c in zip(dirs, configs):
@@ -211,7 +212,7 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[T
         n_dev = 1
         place = jax.device_put
         program = jax.vmap(trainers[0].chunk)
-    ts = place(_stack(states))
+    ts = place(stack_trees(states))
     chunk, compile_s = run.compile_chunk(program, ts, donate=False)
     if progress:
         print(f"compiled the sweep chunk ({P} points on {n_dev} device(s)) in {compile_s:.1f} s",
