@@ -121,9 +121,9 @@ def learning_curve(run_dir: str | os.PathLike, path: str | os.PathLike | None = 
     return path
 
 
-def _arm_order(rows: list[dict]) -> list[str]:
-    arms = sorted({r["arm"] for r in rows}, key=lambda a: (a != "stationary", float(a[1:-1]) if a != "stationary" else 0))
-    return arms
+def arm_order(rows: list[dict]) -> list[str]:
+    """The study's arms in the rows: the stationary one first, then by period duration."""
+    return sorted({r["arm"] for r in rows}, key=lambda a: (a != "stationary", float(a[1:-1]) if a != "stationary" else 0))
 
 
 def _arm_label(arm: str) -> str:
@@ -139,7 +139,7 @@ def timescale(out: str | os.PathLike, grid: list[dict], final: list[dict], gradv
 
     out = pathlib.Path(out)
     path = pathlib.Path(path) if path else out / "timescale.png"
-    arms = _arm_order(grid)
+    arms = arm_order(grid)
     dts = sorted({float(r["dt"]) for r in grid}, reverse=True)
     colors = {a: f"C{i}" for i, a in enumerate(arms)}
     fig, axes = plt.subplots(2, 3, figsize=(15, 8.5))

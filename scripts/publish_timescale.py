@@ -16,7 +16,7 @@ import sys
 
 import numpy as np
 
-from nmrl.plots import mean_ci95
+from nmrl.plots import arm_order, mean_ci95
 from nmrl.study import read_csv
 
 
@@ -34,7 +34,7 @@ def main(src: str, dst: str) -> None:
     final = read_csv(src_p / "final.csv")
     grid = read_csv(src_p / "grid.csv")
     dts = sorted({float(r["dt"]) for r in final}, reverse=True)
-    arms = sorted({r["arm"] for r in final}, key=lambda a: (a != "stationary", float(a[1:-1]) if a != "stationary" else 0))
+    arms = arm_order(final)
     print("| arm | " + " | ".join(f"δ = {d:g} s" for d in dts) + " | change 0.02 → finest |")
     print("|---|" + "---|" * (len(dts) + 1))
     for a in arms:
