@@ -11,7 +11,8 @@ Benchmarks (each module has ``run(quick) -> dict``):
                  C with 1 and 2 threads (benchmarks/bench_env.py; MJX in subprocesses with a timeout);
 * ``learning``   training chunk vs environment-only scan, same batch (benchmarks/bench_learning.py);
 * ``likelihood`` tridiagonal vs dense likelihood ratio (benchmarks/bench_likelihood.py);
-* ``sweep``      one vmapped sweep program vs the same points one after another (bench_sweep.py);
+* ``sweep``      the paper's 24-point sweep with learning: the layout of ``nmrl sweep`` (points over
+                 every core, one at a time per core) vs one vmap on one device vs MuJoCo C (bench_sweep.py);
 * ``scaling``    training chunk on 1 vs 2 CPU devices, the sweep's shard_map path (bench_scaling.py).
 
 Every comparison is a ratio measured within one run, the contenders interleaved, so that a
@@ -180,8 +181,11 @@ def summary(res: dict) -> dict:
         s["learning_overhead"] = {str(r["batch"]): r["overhead"] for r in lr["results"]}
         s["learning_goal_met"] = lr.get("goal_met")
     sw = res.get("sweep")
-    if sw and "sweep_over_sequential" in sw:
-        s["sweep_over_sequential"] = sw["sweep_over_sequential"]
+    if sw and "sweep_ctrl_steps_per_s" in sw:
+        for k in ("sweep_ctrl_steps_per_s", "sweep_speedup_over_single_vmap", "sweep_over_mujoco_c",
+                  "hours_for_1e5_trials_x_24_points"):
+            s[k] = sw[k]
+        s["sweep_compile_s"] = sw["worker"]["new"]["compile_s"]
         s["sweep_goal_met"] = sw.get("goal_met")
     sc = res.get("scaling")
     if sc and "hung_or_failed" in sc:
@@ -243,14 +247,20 @@ def table(res: dict) -> str:
                                  f"{rb['median_s'] / ra['median_s']:.1f}× faster",
                                  f"{ra['compile_s']:.1f} / {rb['compile_s']:.1f}"))
     sw = res.get("sweep")
-    if sw and "sweep" in sw:
-        c = sw["config"]
-        rows.append(("sweep ctrl steps/s per point",
-                     f"{c['points']} points × {c['num_envs_per_point']} envs: vmapped vs sequential",
-                     _f(sw["sweep"]["per_point_control_steps_per_s"]),
-                     _f(sw["sequential"]["per_point_control_steps_per_s"]),
-                     _f(sw["sweep_over_sequential"], 2, "×"),
-                     f"{sw['compile_s']['sweep']:.1f} / {sw['compile_s']['sequential_one_point']:.1f}"))
+    if sw and "worker" in sw:
+        w = sw["worker"]
+        a, b = w["new"], w["single_vmap"]
+        rows.append(("sweep ctrl steps/s, whole machine",
+                     f"{w['points']} points with learning: {w['devices']} dev × lax.map, {a['num_envs_per_point']} "
+                     f"envs/point vs 1 vmap on 1 dev, {b['num_envs_per_point']} envs/point",
+                     _f(a["control_steps_per_s"]), _f(b["control_steps_per_s"]),
+                     _f(sw["sweep_speedup_over_single_vmap"], 2, "×"),
+                     f"{a['compile_s']:.1f} / {b['compile_s']:.1f}"))
+        rows.append(("sweep vs MuJoCo C, ctrl steps/s",
+                     f"the same (with learning) vs mujoco.rollout, {sw['mujoco_c']['nthreads']} threads, B=64 "
+                     f"(physics only); 10⁵ trials × 24 points: {sw['hours_for_1e5_trials_x_24_points']:.1f} h",
+                     _f(a["control_steps_per_s"]), _f(sw["mujoco_c"]["control_steps_per_s"]),
+                     _f(sw["sweep_over_mujoco_c"], 2, "×"), "–"))
     sc = res.get("scaling")
     if sc and "two_device_process" in sc:
         two = sc["two_device_process"]
@@ -302,11 +312,14 @@ def plot(res: dict, path: pathlib.Path) -> None:
         ax2.plot([x["batch"] for x in r], [x["env"]["control_steps_per_s"] for x in r], "C0o:",
                  mfc="none", label="env-only scan, same batch")
     sw = res.get("sweep")
-    if sw and "sweep" in sw:
-        n = sw["config"]["points"] * sw["config"]["num_envs_per_point"]
-        ax2.plot([n], [sw["sweep"]["control_steps_per_s"]], "C2D", label=f"sweep, {sw['config']['points']} points vmapped")
-        ax2.plot([n], [sw["sequential"]["control_steps_per_s"]], "C2D", mfc="none",
-                 label=f"same {sw['config']['points']} points sequential")
+    if sw and "worker" in sw:
+        w = sw["worker"]
+        for key, style, label in (("new", "C2D", "sweep (learning), points over cores, one at a time"),
+                                  ("single_vmap", "C2d", "sweep (learning), one vmap on one device")):
+            r = w[key]
+            ax2.plot([w["points"] * r["num_envs_per_point"]], [r["control_steps_per_s"]], style, label=label)
+        ax2.axhline(sw["mujoco_c"]["control_steps_per_s"], color="C3", ls="--", lw=0.8,
+                    label=f"MuJoCo C rollout, {sw['mujoco_c']['nthreads']} threads (no learning)")
     sc = res.get("scaling")
     if sc and "modes" in (sc.get("two_device_process") or {}):
         m = sc["two_device_process"]["modes"]

@@ -1,124 +1,138 @@
-"""One vmapped sweep program vs the same points run one after another (nmrl/sweep.py's claim).
+"""The paper's 24-point sweep with learning: the new layout vs one vmap on one device vs MuJoCo C.
 
-P = 4 points, l in {1, 10} x seeds {0, 1}, ``num_envs`` environments each, ``chunk_steps`` control
-steps per chunk:
+In one run (a worker subprocess with ``XLA_FLAGS=--xla_force_host_platform_device_count=<cores>``,
+the contenders interleaved round by round: a, b, a, b, ...):
 
-* ``sweep``: ``jax.vmap(trainer.chunk)`` over the stacked states of all P points, one call per
-  chunk (what ``nmrl sweep`` runs on one device);
-* ``sequential``: ``trainer.chunk`` of one point, called once per point (P calls per chunk, the same
-  total steps; what P separate ``nmrl train`` runs would do one after another). l is a traced value,
-  so one compiled single-point program serves every point (each separate run would compile its own,
-  the same, program: P x ``compile_s.sequential`` in total).
+* (a) ``new``: the layout of ``nmrl sweep`` (nmrl/sweep.py ``points_program``): the 24 points
+  (l in {1, 2, 3, 5, 10, 15, 20, 30} x 3 seeds) of ``NUM_ENVS`` environments each, split over every
+  device with ``shard_map``, stepped one after another on each device (``lax.map``), with learning;
+* (b) ``single_vmap``: the layout of results/fig3_fast: the same 24 points with 64 environments
+  each, ``jax.vmap`` over all points, on one device;
+* (c) ``mujoco_c``: MuJoCo C (``mujoco.rollout``, one thread per core) on the same model, open-loop
+  random controls, batch 64, as the physical reference (no learning).
 
-Compile time is reported apart; then the two are timed interleaved (sweep, P sequential calls,
-sweep, ...), medians of the per-round times. Per-point throughput = control steps of one point per
-second of wall time spent on all points / P, i.e. ``N * chunk_steps / (t / P)``; the goal is
-sweep >= sequential.
-
-``run(quick) -> dict``; ``python benchmarks/bench_sweep.py [--quick]`` prints it.
+All in control steps per second for the whole machine; compile time reported apart. ``--quick``:
+fewer steps per call and rounds. ``run(quick) -> dict``; ``python -m benchmarks --only sweep``.
 """
 
 from __future__ import annotations
 
+import json
 import os
-import pathlib
 import statistics
+import subprocess
 import sys
 import time
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
-os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.expanduser("~/.cache/nmrl/xla"))
-
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-
-from benchmarks.bench_learning import interleave, load_avg, timing  # noqa: E402
-
-LS = (1, 10)
-SEEDS = 2
-NUM_ENVS = 32  # per point; the same in quick and full mode (compile-cache reuse)
-CHUNK_STEPS = 32
+LS = (1, 2, 3, 5, 10, 15, 20, 30)
+SEEDS = 3
+NUM_ENVS = 32  # per point, the new layout (scripts/fig3_paper.sh)
+OLD_NUM_ENVS = 64  # per point, results/fig3_fast
+CHUNK_STEPS = {True: 10, False: 40}  # control steps per call, (a); (b) runs the same total work
 
 
-def run(quick: bool = False) -> dict:
+def _worker(quick: bool) -> dict:
+    import jax
+    import jax.numpy as jnp
+
+    from benchmarks.bench_learning import interleave, timing
+    from nmrl import sweep
     from nmrl.learner import Hyper, TrainConfig, make_train
-    from nmrl.run import compile_chunk
 
-    rounds = 2 if quick else 9
-    t_start = time.perf_counter()
-    base = TrainConfig(num_envs=NUM_ENVS, chunk_steps=CHUNK_STEPS)
-    configs = [TrainConfig(num_envs=NUM_ENVS, chunk_steps=CHUNK_STEPS, l=l, seed=s).resolved()
-               for l in LS for s in range(SEEDS)]
-    P = len(configs)
-    trainer = make_train(base)
-    init = jax.jit(jax.vmap(trainer.init))
-    keys = jnp.stack([jax.random.PRNGKey(c.seed) for c in configs])
-    hypers = jax.tree.map(lambda *x: jnp.stack(x), *[Hyper.from_config(c) for c in configs])
-    stacked = jax.block_until_ready(init(keys, hypers))
-    singles = [jax.tree.map(lambda x, i=i: x[i], stacked) for i in range(P)]
+    n_dev = len(jax.local_devices())
+    T = CHUNK_STEPS[quick]
+    rounds = 2 if quick else 5
 
-    sweep_fn, sweep_compile = compile_chunk(jax.vmap(trainer.chunk), stacked)
-    one_fn, one_compile = compile_chunk(trainer.chunk, singles[0])
-    box = {"sweep": stacked, "seq": singles}
+    def build(num_envs, chunk_steps):
+        cfgs = [TrainConfig(num_envs=num_envs, chunk_steps=chunk_steps, l=l, seed=s).resolved()
+                for l in LS for s in range(SEEDS)]
+        tr = make_train(cfgs[0])
+        keys = jnp.stack([jax.random.PRNGKey(c.seed) for c in cfgs])
+        hyp = sweep.stack_trees([Hyper.from_config(c) for c in cfgs])
+        return tr, jax.jit(jax.vmap(tr.init))(keys, hyp), len(cfgs)
+
+    # (a) the new layout
+    tr_a, ts_a, P = build(NUM_ENVS, T)
+    ts_a = sweep._place_points(ts_a, n_dev)
+    act = sweep._place_points(jnp.ones(P, bool), n_dev)
     t0 = time.perf_counter()
-    box["sweep"], m = sweep_fn(box["sweep"])
-    jax.block_until_ready((box["sweep"], m))
-    sweep_first = time.perf_counter() - t0
+    fa = jax.jit(sweep.points_program(tr_a.chunk, n_dev), donate_argnums=0).lower(ts_a, act).compile()
+    compile_a = time.perf_counter() - t0
+    # (b) one vmap over all points, on one device; the same control steps per call
+    T_b = max(1, T * NUM_ENVS // OLD_NUM_ENVS)
+    tr_b, ts_b, _ = build(OLD_NUM_ENVS, T_b)
+    ts_b = jax.device_put(ts_b, jax.local_devices()[0])
     t0 = time.perf_counter()
-    for i in range(P):
-        box["seq"][i], m = one_fn(box["seq"][i])
-        jax.block_until_ready((box["seq"][i], m))
-    seq_first = time.perf_counter() - t0
+    fb = jax.jit(jax.vmap(tr_b.chunk), donate_argnums=0).lower(ts_b).compile()
+    compile_b = time.perf_counter() - t0
+    box = {"a": ts_a, "b": ts_b}
 
-    def do_sweep():
-        box["sweep"], m = sweep_fn(box["sweep"])
-        jax.block_until_ready((box["sweep"], m))
+    def do_a():
+        box["a"], m = fa(box["a"], act)
+        jax.block_until_ready(m)
 
-    def do_seq():
-        for i in range(P):
-            box["seq"][i], m = one_fn(box["seq"][i])
-            jax.block_until_ready((box["seq"][i], m))
+    def do_b():
+        box["b"], m = fb(box["b"])
+        jax.block_until_ready(m)
 
-    times = interleave({"sweep": do_sweep, "sequential": do_seq}, rounds)
-    work = P * NUM_ENVS * CHUNK_STEPS  # control steps per round, all points
-    sw, sq = timing(times["sweep"], work), timing(times["sequential"], work)
-    for t in (sw, sq):
-        t["per_point_control_steps_per_s"] = t["control_steps_per_s"] / P
-    ratio = statistics.median([q / s for s, q in zip(times["sweep"], times["sequential"])])
-    # the two compute the same thing; with the paper's network sizes XLA may pick different dot
-    # kernels for the batched (vmapped) and the single program, so compare up to the last bits
-    diffs = [float(jnp.max(jnp.abs(a[i] - b)))
-             for i in range(P)
-             for a, b in zip(jax.tree.leaves((box["sweep"].theta, box["sweep"].v)),
-                             jax.tree.leaves((box["seq"][i].theta, box["seq"][i].v)))]
-    same = max(diffs) == 0.0
+    do_a(), do_b()  # warm-up
+    times = interleave({"new": do_a, "single_vmap": do_b}, rounds)
+    work_a, work_b = P * NUM_ENVS * T, P * OLD_NUM_ENVS * T_b
+    ta, tb = timing(times["new"], work_a), timing(times["single_vmap"], work_b)
+    ratios = [(work_a / a) / (work_b / b) for a, b in zip(times["new"], times["single_vmap"])]
+    return {"devices": n_dev, "points": P, "new": {**ta, "num_envs_per_point": NUM_ENVS, "chunk_steps": T,
+                                                   "compile_s": compile_a},
+            "single_vmap": {**tb, "num_envs_per_point": OLD_NUM_ENVS, "chunk_steps": T_b, "compile_s": compile_b},
+            "speedup_per_round": ratios, "speedup": statistics.median(ratios), "rounds": rounds}
+
+
+def run(quick: bool = False, timeout: float = 1800) -> dict:
+    from benchmarks.bench_env import c_rollout
+    from benchmarks.bench_learning import load_avg
+    from nmrl.devices import cpu_cores
+
+    t0 = time.perf_counter()
+    ncpu = cpu_cores()
+    load = [load_avg()]
+    c_before = c_rollout([64], 4096, [ncpu], repeats=2 if quick else 3)[0]
+    env = dict(os.environ)
+    flags = " ".join(f for f in env.get("XLA_FLAGS", "").split()
+                     if not f.startswith("--xla_force_host_platform_device_count"))
+    env["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={ncpu}".strip()
+    p = subprocess.run([sys.executable, "-m", "benchmarks.bench_sweep", "--worker"] + (["--quick"] if quick else []),
+                       env=env, capture_output=True, text=True, timeout=timeout)
+    if p.returncode != 0:
+        raise RuntimeError(f"bench_sweep worker failed (rc {p.returncode}): {p.stderr[-2000:]}")
+    w = json.loads(p.stdout.strip().splitlines()[-1])
+    load.append(load_avg())
+    c_after = c_rollout([64], 4096, [ncpu], repeats=2 if quick else 3)[0]
+    c_ctrl = statistics.mean([c_before["control_steps_per_s"], c_after["control_steps_per_s"]])
+    a = w["new"]["control_steps_per_s"]
+    hours = 24 * 1e5 * 250 / a / 3600
     res = {
-        "benchmark": "vmapped sweep chunk vs the same points one after another, interleaved",
+        "benchmark": "24-point sweep with learning, control steps/s of the whole machine: new layout vs "
+                     "single vmap on one device vs MuJoCo C",
         "quick": quick,
-        "config": {"ls": list(LS), "seeds": SEEDS, "points": P, "num_envs_per_point": NUM_ENVS,
-                   "chunk_steps": CHUNK_STEPS, "rounds": rounds,
-                   "statistic": "median over rounds of the per-round ratio t_sequential/t_sweep"},
-        "compile_s": {"sweep": sweep_compile, "sequential_one_point": one_compile,
-                      "sequential_total_if_separate_runs": P * one_compile},
-        "first_call_s": {"sweep": sweep_first, "sequential": seq_first},
-        "sweep": sw, "sequential": sq,
-        "sweep_over_sequential": ratio,
-        "sweep_over_sequential_of_medians": sw["control_steps_per_s"] / sq["control_steps_per_s"],
-        "results_identical": same,
-        "params_max_abs_diff": max(diffs),
-        "steps_per_point_compared": int(box["sweep"].step[0]),
-        "goal": "sweep >= sequential per point",
-        "goal_met": ratio >= 1.0,
-        "load_avg": load_avg(),
-        "wall_s": time.perf_counter() - t_start,
+        "worker": w,
+        "mujoco_c": {"nthreads": ncpu, "batch": 64, "control_steps_per_s": c_ctrl, "runs": [c_before, c_after]},
+        "sweep_ctrl_steps_per_s": a,
+        "sweep_speedup_over_single_vmap": w["speedup"],
+        "sweep_over_mujoco_c": a / c_ctrl,
+        "hours_for_1e5_trials_x_24_points": hours,
+        "goal": "(a) >= 20,000 control steps/s and >= 4x (b); compile <= 60 s",
+        "goal_met": bool(a >= 20_000 and w["speedup"] >= 4 and w["new"]["compile_s"] <= 60),
+        "load_avg": load,
+        "wall_s": time.perf_counter() - t0,
     }
-    print(f"sweep: {P} points x {NUM_ENVS} envs: sweep {sw['per_point_control_steps_per_s']:,.0f}, sequential "
-          f"{sq['per_point_control_steps_per_s']:,.0f} ctrl steps/s per point; ratio {ratio:.2f} "
-          f"(compile sweep {sweep_compile:.1f} s, one point {one_compile:.1f} s)", file=sys.stderr, flush=True)
+    print(f"sweep: new {a:,.0f} ctrl steps/s ({w['devices']} dev), single vmap "
+          f"{w['single_vmap']['control_steps_per_s']:,.0f}, speedup {w['speedup']:.2f}x, MuJoCo C {c_ctrl:,.0f}; "
+          f"compile {w['new']['compile_s']:.1f} s; 10^5 trials x 24 points: {hours:.1f} h",
+          file=sys.stderr, flush=True)
     return res
 
 
 if __name__ == "__main__":
-    import json
-
-    print(json.dumps(run("--quick" in sys.argv), indent=1))
+    if "--worker" in sys.argv:
+        print(json.dumps(_worker("--quick" in sys.argv)))
+    else:
+        print(json.dumps(run("--quick" in sys.argv), indent=1))

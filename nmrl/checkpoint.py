@@ -65,6 +65,10 @@ __all__ = [
     "restore_policy",
     "checkpoint_dir",
     "SCHEMA_VERSION",
+    "save_compact",
+    "load_compact",
+    "restore_compact",
+    "has_compact",
 ]
 
 #: Version of the on-disk layout below; bump when it changes incompatibly.
@@ -516,3 +520,99 @@ if __name__ == "__main__":  # pragma: no cover - `python -m nmrl.checkpoint RUN`
     m = load_metadata(sys.argv[1], int(sys.argv[2]) if len(sys.argv) > 2 else None)
     m.pop("state_layout", None)
     print(json.dumps(m, indent=2))
+
+
+# ------------------------------------------------------------------ compact continuation state
+
+COMPACT_FILE = "compact.npz"
+COMPACT_FORMAT = "nmrl-compact"
+COMPACT_SCHEMA = 1
+
+
+def compact_path(run_dir: str | os.PathLike) -> pathlib.Path:
+    return pathlib.Path(run_dir) / COMPACT_FILE
+
+
+def has_compact(run_dir: str | os.PathLike) -> bool:
+    return compact_path(run_dir).is_file()
+
+
+def save_compact(run_dir: str | os.PathLike, ts: TrainState, config: TrainConfig) -> pathlib.Path:
+    """Write the compact continuation state of a run: actor and critic parameters, counters, PRNG key.
+
+    About 42 kB at the paper's network sizes (no traces, no environment or noise state): small
+    enough to commit for every point of a sweep, so that a sweep can continue on a fresh clone
+    (:func:`restore_compact`). Written atomically (a temporary file renamed into place).
+    """
+    run_dir = pathlib.Path(run_dir)
+    arrays = {}
+    for part in ("theta", "v"):
+        names, leaves, _ = _flatten(getattr(ts, part))
+        arrays.update({f"{part}{_SEP}{n}": np.asarray(x) for n, x in zip(names, leaves)})
+    arrays["key"] = np.asarray(jax.random.key_data(ts.key) if jnp.issubdtype(ts.key.dtype, jax.dtypes.prng_key)
+                               else ts.key)
+    for k in ("step", "trials", "periods", "diverged"):
+        arrays[k] = np.asarray(getattr(ts, k))
+    meta = {"format": COMPACT_FORMAT, "schema": COMPACT_SCHEMA, "config": dataclasses.asdict(config),
+            "model_sha256": _sha256_file(MODEL_PATH), "versions": _versions(),
+            "digest": _digest(arrays)}
+    arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
+    path = compact_path(run_dir)
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "wb") as f:
+        np.savez(f, **arrays)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+    return path
+
+
+def load_compact(run_dir: str | os.PathLike) -> tuple[dict, dict[str, np.ndarray]]:
+    """(metadata, arrays) of a compact state; CheckpointError if missing, corrupted or foreign."""
+    path = compact_path(run_dir)
+    if not path.is_file():
+        raise CheckpointError(f"{path}: no compact continuation state")
+    try:
+        with np.load(path) as z:
+            arrays = {k: z[k] for k in z.files}
+        meta = json.loads(arrays.pop("meta").tobytes().decode())
+    except Exception as e:  # noqa: BLE001
+        raise _err(path, "cannot read the compact state (truncated or corrupted?)", e) from e
+    if meta.get("format") != COMPACT_FORMAT or meta.get("schema") != COMPACT_SCHEMA:
+        raise CheckpointError(f"{path}: not an nmrl compact state of schema {COMPACT_SCHEMA}")
+    if _digest(arrays) != meta.get("digest"):
+        raise CheckpointError(f"{path}: the compact state does not match its digest (corrupted)")
+    meta["path"] = str(path)
+    return meta, arrays
+
+
+def restore_compact(run_dir: str | os.PathLike, trainer: Trainer) -> TrainState:
+    """Continue a run from its compact state: the saved parameters, counters and key; every
+    environment starts a new trial (reset state, traces z, y = 0, a new nm-period), as at any
+    trial start. Statistically, not bitwise, equal to resuming from the full checkpoint.
+
+    The new environment states are drawn from the saved key: ``k_init, key = split(saved key)``,
+    ``ts = trainer.init(k_init)`` with theta, v, the counters and ``key`` replaced.
+    """
+    meta, arrays = load_compact(run_dir)
+    _check_model(meta)
+    _check_config(meta, trainer.config)
+    key = jnp.asarray(arrays["key"])
+    k_init, key = jax.random.split(key)
+    ts = trainer.init(k_init)
+    parts = {}
+    for part in ("theta", "v"):
+        names, leaves, treedef = _flatten(getattr(ts, part))
+        try:
+            got = [arrays[f"{part}{_SEP}{n}"] for n in names]
+        except KeyError as e:
+            raise CheckpointError(f"{meta['path']}: the compact state lacks {e.args[0]!r}") from e
+        for n, a, t in zip(names, got, leaves):
+            if a.shape != tuple(t.shape) or a.dtype != np.dtype(t.dtype):
+                raise CheckpointError(f"{meta['path']}: {part}.{n} has {a.shape} {a.dtype}, expected "
+                                      f"{tuple(t.shape)} {t.dtype}")
+        parts[part] = jax.tree_util.tree_unflatten(treedef, [jnp.asarray(a) for a in got])
+    return ts.replace(theta=parts["theta"], v=parts["v"], key=key,
+                      step=jnp.asarray(arrays["step"], jnp.int32), trials=jnp.asarray(arrays["trials"], jnp.int32),
+                      periods=jnp.asarray(arrays["periods"], jnp.int32),
+                      diverged=jnp.asarray(arrays["diverged"], bool))

@@ -13,8 +13,10 @@ import json
 import sys
 import typing
 
-from nmrl.learner import PRESETS, TrainConfig
+from nmrl import devices as _devices
 
+# nmrl.learner (and with it JAX) is imported only after nmrl.devices.configure has set the host
+# device count (main()).
 #: Budget of a plain ``nmrl train`` (control steps per environment): a few minutes on 2 CPU cores.
 DEFAULT_STEPS = 4000
 _SWEEP_FIELDS = {"l", "seed"}  # given as lists to ``nmrl sweep``
@@ -22,6 +24,8 @@ _NOT_OPTIONS = {"grad_stats"}  # diagnostics set by nmrl.gradvar, not training o
 
 
 def _field_type(f: dataclasses.Field) -> type:
+    from nmrl.learner import TrainConfig
+
     hints = typing.get_type_hints(TrainConfig)
     t = hints[f.name]
     args = [a for a in typing.get_args(t) if a is not type(None)]
@@ -29,6 +33,8 @@ def _field_type(f: dataclasses.Field) -> type:
 
 
 def add_config_options(p: argparse.ArgumentParser, skip: set[str] = frozenset()) -> None:
+    from nmrl.learner import PRESETS, TrainConfig
+
     for f in dataclasses.fields(TrainConfig):
         if f.name in skip or f.name in _NOT_OPTIONS:
             continue
@@ -38,7 +44,9 @@ def add_config_options(p: argparse.ArgumentParser, skip: set[str] = frozenset())
                        help=f"{doc} (default: {f.default})".strip())
 
 
-def config_from_args(args: argparse.Namespace, skip: set[str] = frozenset()) -> TrainConfig:
+def config_from_args(args: argparse.Namespace, skip: set[str] = frozenset()):
+    from nmrl.learner import TrainConfig
+
     kw = {f.name: getattr(args, f.name) for f in dataclasses.fields(TrainConfig)
           if f.name not in skip and getattr(args, f.name, None) is not None}
     return TrainConfig(**kw)
@@ -60,7 +68,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     except (ValueError, TypeError) as e:
         return _fail(str(e))
     try:
-        rows = run.train(cfg, args.out, resume=args.resume, progress=not args.quiet)
+        rows = run.train(cfg, args.out, resume=args.resume, progress=not args.quiet,
+                         devices=_devices.parse(args.devices))
     except run.RunError as e:
         return _fail(str(e))
     except run.Diverged as e:
@@ -93,16 +102,20 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
     try:
         base = config_from_args(args, skip=_SWEEP_FIELDS)
-        spec = sweep.SweepSpec(ls=tuple(args.l), seeds=args.seeds, base=base)
+        spec = sweep.SweepSpec(ls=tuple(args.l), seeds=args.seeds, base=base,
+                               first=tuple(args.first or ()))
         spec.validate()
         if args.checkpoint_every < 1:
             raise ValueError(f"--checkpoint-every={args.checkpoint_every} is invalid: must be >= 1")
+        if args.group < 1:
+            raise ValueError(f"--group={args.group} is invalid: points vmapped together must be >= 1")
+        n_dev = _devices.parse(args.devices)
     except (ValueError, TypeError) as e:
         return _fail(str(e))
     try:
         sweep.run_sweep(spec, args.out, resume=args.resume, progress=not args.quiet,
-                        checkpoint_every=args.checkpoint_every)
-    except sweep.SweepError as e:
+                        checkpoint_every=args.checkpoint_every, group=args.group, devices=n_dev)
+    except (sweep.SweepError, ValueError) as e:
         return _fail(str(e))
     return 0
 
@@ -128,6 +141,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_config_options(p)
     p.add_argument("--out", required=True, help="run directory (config, metrics.jsonl, checkpoints)")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
+    p.add_argument("--devices", default=_devices.AUTO,
+                   help="host (CPU) devices to split the work over: 'auto' = every core (default), 1 = off")
     p.add_argument("--quiet", action="store_true", help="no progress display")
     p.set_defaults(func=cmd_train)
 
@@ -136,6 +151,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--l", type=int, nargs="+", required=True, help="period lengths, e.g. 1 2 3 5 10 15 20 30")
     p.add_argument("--seeds", type=int, default=3, help="seeds per l (0..seeds-1)")
     p.add_argument("--checkpoint-every", type=int, default=1, help="checkpoint the points every K chunks")
+    p.add_argument("--first", type=int, nargs="+", default=None,
+                   help="l values whose points (all seeds) run to the budget before the others start")
+    p.add_argument("--group", type=int, default=1,
+                   help="points vmapped together on one device (default 1: one after another)")
+    p.add_argument("--devices", default=_devices.AUTO,
+                   help="host (CPU) devices to split the work over: 'auto' = every core (default), 1 = off")
     p.add_argument("--out", required=True)
     p.add_argument("--resume", action="store_true")
     p.add_argument("--quiet", action="store_true")
@@ -159,6 +180,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] in (["train"], ["sweep"]):
+        try:
+            _devices.configure(_devices.requested(argv))  # before JAX is imported
+        except ValueError as e:
+            return _fail(str(e))
     if argv[:1] == ["study"]:  # its own parser (argparse's REMAINDER would not pass --help on)
         from nmrl import study
 

@@ -81,14 +81,20 @@ def existing_step(run_dir: pathlib.Path) -> int | None:
         return None
 
 
-def _num_shards(cfg: TrainConfig) -> int:
-    """Local devices the environment batch is split over (1 when N is not divisible by them)."""
-    n = len(jax.local_devices())
-    return n if n > 1 and cfg.num_envs % n == 0 else 1
+def _num_shards(cfg: TrainConfig, devices: int | None = None) -> int:
+    """Local devices the environment batch is split over: ``devices`` (default: all local devices),
+    lowered to the largest count that divides N."""
+    avail = len(jax.local_devices())
+    if devices is not None and not (isinstance(devices, int) and 1 <= devices <= avail):
+        raise RunError(f"devices={devices!r} is invalid: this process has {avail} local device(s)")
+    n = avail if devices is None else devices
+    while cfg.num_envs % n:
+        n -= 1
+    return n
 
 
-def _sharded_trainer(cfg: TrainConfig, trainer):
-    n = _num_shards(cfg)
+def _sharded_trainer(cfg: TrainConfig, trainer, devices: int | None = None):
+    n = _num_shards(cfg, devices)
     if n == 1:
         return trainer
     return make_train(cfg, env=trainer.env, axis_name=sharding.AXIS, num_shards=n)
@@ -156,8 +162,12 @@ class _Progress:
 
 
 def train(cfg: TrainConfig, out: str | os.PathLike, *, resume: bool = False, progress: bool = True,
-          keep: int = 3, max_chunks: int | None = None) -> list[dict]:
+          keep: int = 3, max_chunks: int | None = None, devices: int | None = None) -> list[dict]:
     """Run (or resume) training into ``out``; returns the metrics rows written in this call.
+
+    The N environments are split over ``devices`` local devices (default: every one; on a CPU
+    nmrl.devices exposes one per core), each stepping its N/D environments; the summed update is
+    ``psum``-ed (equal to the 1-device run up to float rounding, tests/test_sharding.py).
 
     ``max_chunks`` stops after that many chunks (used by tests to interrupt a run).
     """
@@ -172,7 +182,7 @@ def train(cfg: TrainConfig, out: str | os.PathLike, *, resume: bool = False, pro
         cfg = cfg.resolved()
         trainer = make_train(cfg)
         ts = checkpoint.restore(out, trainer)
-        trainer = _sharded_trainer(cfg, trainer)
+        trainer = _sharded_trainer(cfg, trainer, devices)
         truncate_metrics(out, int(ts.step))
     else:
         cfg = cfg.resolved()
@@ -183,10 +193,15 @@ def train(cfg: TrainConfig, out: str | os.PathLike, *, resume: bool = False, pro
         atomic_write_text(out / CONFIG_FILE, json.dumps(dataclasses.asdict(cfg), indent=2) + "\n")
         (out / METRICS_FILE).unlink(missing_ok=True)
         ts = jax.jit(trainer.init)(jax.random.PRNGKey(cfg.seed))
-        trainer = _sharded_trainer(cfg, trainer)
-    n_dev = _num_shards(cfg)
+        trainer = _sharded_trainer(cfg, trainer, devices)
+    n_dev = _num_shards(cfg, devices)
+    if progress:
+        print(f"train: {cfg.num_envs} environments on {n_dev} device(s), {cfg.num_envs // n_dev} per device "
+              f"({len(jax.local_devices())} local {jax.local_devices()[0].platform} device(s))",
+              file=sys.stderr, flush=True)
     if n_dev > 1:
-        program, place = sharding.shard_train_chunk(trainer.chunk, ts, sharding.make_mesh())
+        program, place = sharding.shard_train_chunk(trainer.chunk, ts,
+                                                    sharding.make_mesh(jax.local_devices()[:n_dev]))
     else:
         program, place = trainer.chunk, jax.device_put
     ts = place(ts)  # committed inputs: no second, hidden compile of the chunk

@@ -49,6 +49,20 @@ def test_results_file_and_figure(swept):
     assert (out / "fig3.png").stat().st_size > 10_000
 
 
+def _assert_rows_close(a, b, what):
+    """Integer and boolean fields exactly, floats to float32 rounding: the sweep's program (lax.map
+    over points under lax.cond) and a single run's program are compiled apart, and XLA fuses the
+    physics differently in the two (largest relative difference seen: ~2e-7)."""
+    assert len(a) == len(b), what
+    for ra, rb in zip(a, b):
+        assert ra.keys() == rb.keys(), what
+        for k in ra:
+            if isinstance(ra[k], float):
+                np.testing.assert_allclose(ra[k], rb[k], rtol=1e-5, atol=1e-6, err_msg=f"{what} {k}")
+            else:
+                assert ra[k] == rb[k], (what, k)
+
+
 def test_every_point_equals_a_separate_train_run(swept, tmp_path):
     out, _ = swept
     for l in LS:
@@ -56,9 +70,9 @@ def test_every_point_equals_a_separate_train_run(swept, tmp_path):
             d = tmp_path / f"l{l}_s{seed}"
             run.train(dataclasses.replace(BASE, l=l, seed=seed), d, progress=False)
             p = sweep.point_dir(out, l, seed)
-            assert _rows(d) == _rows(p), (l, seed)
+            _assert_rows_close(_rows(d), _rows(p), (l, seed))
             for a, b in zip(jax_leaves(_theta(d)), jax_leaves(_theta(p))):
-                np.testing.assert_array_equal(a, b)
+                np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-6)
 
 
 def jax_leaves(t):
@@ -77,7 +91,7 @@ def test_resume_equals_uninterrupted(swept, tmp_path):
         sweep.run_sweep(spec, part, progress=False, plot=False)
     sweep.run_sweep(sweep.SweepSpec(ls=(99,), seeds=1, base=TrainConfig()), part, resume=True,
                     progress=False, plot=False)
-    assert sweep.load_results(part) == sweep.load_results(out) or _same_results(part, out)
+    assert sweep.load_results(part) == sweep.load_results(out)
     for l in LS:
         for seed in (0, 1):
             assert _rows(sweep.point_dir(part, l, seed)) == _rows(sweep.point_dir(out, l, seed))
@@ -108,12 +122,6 @@ def test_resume_keeps_a_diverged_point_frozen(swept, tmp_path):
             rows = _rows(sweep.point_dir(part, l, seed))
             assert [x["step"] for x in rows] == [25, 50, 75], (l, seed)
             assert rows[:2] == _rows(sweep.point_dir(out, l, seed))
-
-
-def _same_results(a, b):
-    ra, rb = sweep.load_results(a), sweep.load_results(b)
-    return [{k: v for k, v in r.items() if k != "checkpoint"} for r in ra] == \
-        [{k: v for k, v in r.items() if k != "checkpoint"} for r in rb]
 
 
 @pytest.mark.parametrize("argv,needle", [
