@@ -1,0 +1,183 @@
+"""Publish the paper-scale Fig. 3 sweep as it grows: results/fig3_paper/ (committed every session).
+
+    .venv/bin/python scripts/publish_fig3_paper.py [--src runs/fig3_paper] [--dest results/fig3_paper]
+
+Writes into ``dest`` (each file atomically):
+
+* ``sweep.json``, ``results.csv`` (the columns of ``nmrl sweep``), ``fig3.png``;
+* ``points/l{l}_s{seed}/{config.json, metrics.jsonl, compact.npz}``: everything a fresh clone needs
+  to continue the sweep (``scripts/fig3_paper.sh`` seeds ``runs/fig3_paper`` from it when the full
+  checkpoints are gone; nmrl.checkpoint.restore_compact);
+* ``learning_curves.png``: average reward per step during learning against trials, every l (mean
+  over seeds, thin lines per seed), the paper's 3.28 (l = 1) and 4.59 (l = 10) marked;
+* ``progress.json`` and ``progress.md``: per l, the average reward per step during learning at
+  10^4, 3*10^4 and 10^5 trials (mean over the chunks whose trial count lies in (0.9 M, M], i.e. the
+  last tenth before the milestone M), mean +- 95% CI over the seeds and each seed; the share of the
+  budget every point has; divergences (point, trials); the measured rate (control steps/s of the
+  whole machine over the last chunks, from metrics ``wall_s``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pathlib
+import shutil
+
+import numpy as np
+
+from nmrl import plots, run, sweep
+from nmrl.learner import TrainConfig
+
+MILESTONES = (10_000, 30_000, 100_000)
+
+
+def _atomic_copy(src: pathlib.Path, dst: pathlib.Path) -> None:
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    tmp = dst.with_name(dst.name + ".tmp")
+    shutil.copy2(src, tmp)
+    os.replace(tmp, dst)
+
+
+def at_milestone(rows: list[dict], m: int) -> float | None:
+    """Mean avg_reward of the chunks with trials in (0.9 m, m]; None when the point is not there yet."""
+    if not rows or rows[-1]["trials"] < m:
+        return None
+    sel = [r["avg_reward"] for r in rows if 0.9 * m < r["trials"] <= m]
+    if not sel:  # a chunk longer than a tenth of m: the last chunk at or before m
+        before = [r for r in rows if r["trials"] <= m]
+        sel = [before[-1]["avg_reward"]] if before else []
+    return float(np.mean(sel)) if sel else None
+
+
+def progress(src: pathlib.Path, spec: sweep.SweepSpec) -> dict:
+    budget = spec.base.trials
+    out = {"budget_trials": budget, "milestones": list(MILESTONES), "by_l": {}, "points": {}, "diverged": []}
+    rates = []
+    for l in spec.ls:
+        per = {str(m): [] for m in MILESTONES}
+        for s in range(spec.seeds):
+            rows = run.read_metrics(sweep.point_dir(src, l, s))
+            name = f"l{l}_s{s}"
+            last = rows[-1] if rows else {"trials": 0, "step": 0}
+            div = next((r for r in rows if run.is_diverged(r)), None)
+            if div is not None:
+                out["diverged"].append({"point": name, "trials": div["trials"], "step": div["step"]})
+            out["points"][name] = {"trials": last["trials"], "steps": last["step"],
+                                   "budget_share": last["trials"] / budget if budget else None,
+                                   "final_avg_reward": sweep.final_avg(rows, "avg_reward"),
+                                   "diverged": div is not None}
+            for m in MILESTONES:
+                per[str(m)].append(at_milestone(rows, m))
+            rates += [(r["wall_s"], r) for r in rows[-5:]]
+        out["by_l"][str(l)] = {}
+        for m, vals in per.items():
+            got = [v for v in vals if v is not None]
+            mean, half = plots.mean_ci95(np.array(got)) if len(got) == spec.seeds else (None, None)
+            out["by_l"][str(l)][m] = {"mean": mean, "ci95": half, "seeds": vals}
+    # rate: the newest chunk of every point ran in the same wall time; steps_per_s already counts
+    # every point active in that chunk (nmrl.run.metrics_row(points=...))
+    newest = {}
+    for l in spec.ls:
+        for s in range(spec.seeds):
+            rows = run.read_metrics(sweep.point_dir(src, l, s))
+            for r in rows[-20:]:
+                newest.setdefault(r["step"], []).append(r["steps_per_s"])
+    recent = sorted(newest.items())[-10:]
+    out["rate_ctrl_steps_per_s"] = float(np.median([v[0] for _, v in recent])) if recent else None
+    return out
+
+
+def progress_md(p: dict) -> str:
+    def f(x, nd=2):
+        return "–" if x is None else f"{x:+.{nd}f}"
+
+    lines = ["| l | " + " | ".join(f"{m:,} trials: mean ± 95% CI (seeds)" for m in p["milestones"]) +
+             " | trials per seed (share of 10⁵) |", "|---|" + "---|" * (len(p["milestones"]) + 1)]
+    for l, by in p["by_l"].items():
+        cells = []
+        for m in p["milestones"]:
+            e = by[str(m)]
+            seeds = ", ".join(f(v) for v in e["seeds"])
+            cells.append(f"{f(e['mean'])} ± {e['ci95']:.2f} ({seeds})" if e["mean"] is not None
+                         else f"– ({seeds})")
+        pts = [v for k, v in p["points"].items() if k.startswith(f"l{l}_")]
+        share = ", ".join(f"{v['trials']:,} ({100 * v['budget_share']:.1f}%)" for v in pts)
+        lines.append(f"| {l} | " + " | ".join(cells) + f" | {share} |")
+    lines.append("")
+    lines.append(f"Rate (median of the last chunks, whole machine): {p['rate_ctrl_steps_per_s']:,.0f} control steps/s."
+                 if p["rate_ctrl_steps_per_s"] else "Rate: no chunks yet.")
+    lines.append("Diverged: " + (", ".join(f"{d['point']} at {d['trials']:,} trials" for d in p["diverged"])
+                                 or "none") + ".")
+    return "\n".join(lines) + "\n"
+
+
+def learning_curves(src: pathlib.Path, spec: sweep.SweepSpec, path: pathlib.Path) -> None:
+    import matplotlib.pyplot as plt
+
+    cmap = plt.get_cmap("viridis")
+    fig, ax = plt.subplots(figsize=(9, 5))
+    for j, l in enumerate(spec.ls):
+        color = cmap(j / max(1, len(spec.ls) - 1))
+        curves = []
+        for s in range(spec.seeds):
+            rows = run.read_metrics(sweep.point_dir(src, l, s))
+            if not rows:
+                continue
+            t = np.array([r["trials"] for r in rows])
+            y = plots.smooth(np.array([r["avg_reward"] for r in rows]))
+            ax.plot(t, y, color=color, lw=0.5, alpha=0.35)
+            curves.append((t, y))
+            div = next((r for r in rows if run.is_diverged(r)), None)
+            if div is not None:
+                ax.plot([div["trials"]], [y[-1]], "x", color="tab:red")
+        if curves:
+            n = min(len(c[0]) for c in curves)
+            ax.plot(np.mean([c[0][:n] for c in curves], 0), np.mean([c[1][:n] for c in curves], 0),
+                    color=color, lw=1.8, label=f"l={l}")
+    for l, v in plots.PAPER_FIG3.items():
+        ax.axhline(v, color="tab:orange", ls="--", lw=1)
+        ax.annotate(f"paper, l={l}: {v}", (0.01, v), xycoords=("axes fraction", "data"), va="bottom",
+                    color="tab:orange", fontsize=8)
+    ax.set_xlabel("trials (per point)")
+    ax.set_ylabel("average reward per step during learning\n(running mean of 5 chunks)")
+    ax.set_title("Fig. 3 at the paper's budget and step sizes: learning curves (x: diverged)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, ncol=4)
+    tmp = path.with_name(path.stem + ".tmp.png")
+    fig.savefig(tmp, dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    os.replace(tmp, path)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--src", default="runs/fig3_paper")
+    ap.add_argument("--dest", default="results/fig3_paper")
+    args = ap.parse_args()
+    src, dest = pathlib.Path(args.src), pathlib.Path(args.dest)
+    if not (src / sweep.SPEC_FILE).is_file():
+        raise SystemExit(f"publish_fig3_paper: error: {src / sweep.SPEC_FILE} not found; is {src} a sweep directory?")
+    s = json.loads((src / sweep.SPEC_FILE).read_text())
+    spec = sweep.SweepSpec(ls=tuple(s["ls"]), seeds=s["seeds"], base=TrainConfig(**s["base"]),
+                           first=tuple(s.get("first", ())))
+    dest.mkdir(parents=True, exist_ok=True)
+    results = sweep.write_results(src, spec)
+    _atomic_copy(src / sweep.SPEC_FILE, dest / sweep.SPEC_FILE)
+    _atomic_copy(src / sweep.RESULTS_FILE, dest / sweep.RESULTS_FILE)
+    for l, seed in spec.points():
+        p = sweep.point_dir(src, l, seed)
+        for name in ("config.json", "metrics.jsonl", "compact.npz"):
+            if (p / name).is_file():
+                _atomic_copy(p / name, sweep.point_dir(dest, l, seed) / name)
+    plots.fig3(src, results, dest / "fig3.png")
+    learning_curves(src, spec, dest / "learning_curves.png")
+    p = progress(src, spec)
+    run.atomic_write_text(dest / "progress.json", json.dumps(p, indent=1) + "\n")
+    run.atomic_write_text(dest / "progress.md", progress_md(p))
+    print(progress_md(p))
+
+
+if __name__ == "__main__":
+    main()
