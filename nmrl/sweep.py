@@ -39,6 +39,7 @@ import io
 import json
 import os
 import pathlib
+import signal
 import sys
 import time
 from typing import Callable, Sequence
@@ -61,6 +62,14 @@ RESULT_COLUMNS = ("l", "seed", "trials", "steps", "avg_reward", "forward_speed",
 
 class SweepError(Exception):
     """The sweep cannot start or resume (message says why)."""
+
+
+class Stopped(Exception):
+    """The sweep was stopped by a signal after saving every active point (``signum``)."""
+
+    def __init__(self, signum: int):
+        super().__init__(f"stopped by signal {signum}")
+        self.signum = signum
 
 
 @dataclasses.dataclass(frozen=True)
@@ -223,7 +232,7 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[T
                resume: bool = False, progress: bool = True, keep: int = 2, max_chunks: int | None = None,
                checkpoint_every: int = 1, on_chunk: Callable[[], None] | None = None,
                table: bool = True, priority: Sequence[int] | None = None, group: int = 1,
-               devices: int | None = None) -> None:
+               devices: int | None = None) -> int | None:
     """Train every config as one compiled program; point ``names[i]`` lives in ``out/points/<name>/``.
 
     The configs may differ only in the traced :class:`Hyper` fields and the seed (one program).
@@ -238,7 +247,8 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[T
     checkpoints continues from its compact state (statistically, not bitwise, equal: every
     environment starts a new trial). A diverged point stays frozen at its last good checkpoint.
     ``on_chunk()`` runs after every chunk; ``progress`` prints the layout, the compile time and
-    (with ``table``) every point's latest metrics.
+    (with ``table``) every point's latest metrics. SIGINT/SIGTERM stop the sweep after the chunk in
+    flight, with every active point checkpointed; the signal number is returned (None otherwise).
     """
     if not (isinstance(checkpoint_every, int) and checkpoint_every >= 1):
         raise ValueError(f"checkpoint_every={checkpoint_every!r} is invalid: must be an integer >= 1")
@@ -329,40 +339,69 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[T
     last_rows: dict = {}
     t_start = time.time()
     n_chunks = 0
-    while not done.all():
-        stage = next(st for st in stages if not all(done[i] for i in st))
-        active = np.zeros(P_, bool)
-        active[[i for i in stage if not done[i]]] = True
-        act_slots = np.array([i >= 0 and active[i] for i in slots])
-        t0 = time.time()
-        ts, m = chunk(ts, _place_points(jnp.asarray(act_slots), n_dev))
-        m = jax.device_get(m)
-        wall = time.time() - t0
-        n_active = int(active.sum())
-        for i, (name, d, c) in enumerate(zip(names, dirs, configs)):
-            if not active[i]:
-                continue
-            j = slot_of[i]
-            row = run.metrics_row(c, run.to_python({k: v[j] for k, v in m.items()}), wall, points=n_active)
-            run.append_metrics(d, row)
-            last_rows[name] = row
-            if run.is_diverged(row):
-                done[i] = True  # keep its last good checkpoint; frozen from now on
-                continue
-            finished = run.budget_done(c, row["step"], row["trials"])
-            if finished or (n_chunks + 1) % checkpoint_every == 0:
-                one = _unstack(ts, j)
-                checkpoint.save(d, one, c, keep=keep)
-                checkpoint.save_compact(d, one, c)
-            if finished:
-                done[i] = True
-        if on_chunk is not None:
-            on_chunk()
-        if progress and table:
-            print(_progress_table(names, last_rows, time.time() - t_start), file=sys.stderr, flush=True)
-        n_chunks += 1
-        if max_chunks is not None and n_chunks >= max_chunks:
-            break
+    stop = {"signal": None}
+
+    def on_signal(signum, _frame):
+        if stop["signal"] is not None:
+            raise KeyboardInterrupt
+        stop["signal"] = signum
+        print(f"\nsignal {signum}: stopping after the chunk in flight is saved (again to stop now)",
+              file=sys.stderr, flush=True)
+
+    unsaved: set[int] = set()  # points whose newest metrics row has no checkpoint yet
+
+    def save(i: int) -> None:
+        one = _unstack(ts, slot_of[i])
+        checkpoint.save(dirs[i], one, configs[i], keep=keep)
+        checkpoint.save_compact(dirs[i], one, configs[i])
+        unsaved.discard(i)
+
+    old_handlers = {sg: signal.signal(sg, on_signal) for sg in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        while not done.all():
+            stage = next(st for st in stages if not all(done[i] for i in st))
+            active = np.zeros(P_, bool)
+            active[[i for i in stage if not done[i]]] = True
+            act_slots = np.array([i >= 0 and active[i] for i in slots])
+            t0 = time.time()
+            ts, m = chunk(ts, _place_points(jnp.asarray(act_slots), n_dev))
+            m = jax.device_get(m)
+            wall = time.time() - t0
+            n_active = int(active.sum())
+            for i, (name, d, c) in enumerate(zip(names, dirs, configs)):
+                if not active[i]:
+                    continue
+                j = slot_of[i]
+                row = run.metrics_row(c, run.to_python({k: v[j] for k, v in m.items()}), wall, points=n_active)
+                run.append_metrics(d, row)
+                last_rows[name] = row
+                if run.is_diverged(row):
+                    done[i] = True  # keep its last good checkpoint; frozen from now on
+                    continue
+                finished = run.budget_done(c, row["step"], row["trials"])
+                if finished or (n_chunks + 1) % checkpoint_every == 0 or stop["signal"] is not None:
+                    save(i)
+                else:
+                    unsaved.add(i)
+                if finished:
+                    done[i] = True
+            if on_chunk is not None:
+                on_chunk()
+            if progress and table:
+                print(_progress_table(names, last_rows, time.time() - t_start), file=sys.stderr, flush=True)
+            n_chunks += 1
+            if stop["signal"] is not None:
+                for i in sorted(unsaved):  # the signal came after this chunk's saves
+                    save(i)
+                print(f"stopped by signal {stop['signal']} after saving every active point; continue with "
+                      f"--resume", file=sys.stderr, flush=True)
+                break
+            if max_chunks is not None and n_chunks >= max_chunks:
+                break
+    finally:
+        for sg, h in old_handlers.items():
+            signal.signal(sg, h)
+    return stop["signal"]
 
 
 def _stages(priority, num_points: int) -> list[list[int]]:
@@ -416,15 +455,17 @@ def run_sweep(spec: SweepSpec, out: str | os.PathLike, *, resume: bool = False, 
 
     names = [point_dir(out, l, s).name for l, s in spec.points()]
     try:
-        run_points(out, names, spec.point_configs(), resume=resume, progress=progress, keep=keep,
-                   max_chunks=max_chunks, checkpoint_every=checkpoint_every, on_chunk=on_chunk,
-                   priority=spec.stages(), group=group, devices=devices)
+        signum = run_points(out, names, spec.point_configs(), resume=resume, progress=progress, keep=keep,
+                            max_chunks=max_chunks, checkpoint_every=checkpoint_every, on_chunk=on_chunk,
+                            priority=spec.stages(), group=group, devices=devices)
     finally:
         results = write_results(out, spec)
         if plot and (out / "points").is_dir():
             from nmrl import plots
 
             plots.fig3(out, results)
+    if signum is not None:
+        raise Stopped(signum)
     return results
 
 
@@ -433,4 +474,4 @@ def load_results(out: str | os.PathLike) -> list[dict]:
         return list(csv.DictReader(f))
 
 
-__all__: Sequence[str] = ("SweepSpec", "SweepError", "run_sweep", "run_points", "load_results", "point_dir", "final_avg")
+__all__: Sequence[str] = ("SweepSpec", "SweepError", "Stopped", "run_sweep", "run_points", "load_results", "point_dir", "final_avg")

@@ -141,3 +141,34 @@ def test_compact_state_refuses_corruption_and_other_configs(tmp_path):
     (d / "compact.npz").write_bytes(bytes(raw))
     with pytest.raises(checkpoint.CheckpointError, match="compact"):
         checkpoint.restore_compact(d, make_train(checkpoint.load_config(d)))
+
+
+def test_sigterm_saves_every_active_point_and_exits_143(tmp_path):
+    """SIGTERM during a sweep: the chunk in flight finishes, every active point is checkpointed
+    (full and compact) at its newest metrics row, the exit status is 128 + 15, and --resume goes on."""
+    import signal
+    import time
+
+    out = tmp_path / "sig"
+    cmd = [sys.executable, "-m", "nmrl.cli", "sweep", "--l", "1", "3", "--seeds", "1", "--num-envs", "8",
+           "--chunk-steps", "25", "--steps", "100000", "--hidden-actor", "8", "--hidden-critic", "8",
+           "--beta-theta", "1e-3", "--beta-v", "1e-3", "--checkpoint-every", "1000", "--devices", "1",
+           "--out", str(out)]
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    metrics = sweep.point_dir(out, 1, 0) / "metrics.jsonl"
+    deadline = time.time() + 300
+    while time.time() < deadline and not (metrics.exists() and metrics.read_text().count("\n") >= 2):
+        time.sleep(0.2)
+    p.send_signal(signal.SIGTERM)
+    _, err = p.communicate(timeout=300)
+    assert p.returncode == 143, err[-2000:]
+    assert "every active point was saved" in err
+    for l in (1, 3):
+        d = sweep.point_dir(out, l, 0)
+        last = run.read_metrics(d)[-1]["step"]
+        assert checkpoint.latest_step(d) == last  # saved although --checkpoint-every 1000
+        assert checkpoint.load_compact(d)[1]["step"] == last
+    p = subprocess.run(cmd[:4] + ["--resume", "--steps", str(last + 25), "--devices", "1", "--out", str(out)],
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr[-2000:]
+    assert run.read_metrics(sweep.point_dir(out, 1, 0))[-1]["step"] == last + 25
