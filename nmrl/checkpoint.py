@@ -26,11 +26,21 @@ when complete (local file systems); unfinished tmp directories are ignored by re
 synchronous (async checkpointing off) and fsyncs the files before returning.
 
 Every failure a caller can meet (missing run, no checkpoints, unknown step, corrupted or truncated
-files, another model, an incompatible config) raises :class:`CheckpointError` naming the path.
+files, another model, an incompatible config) raises :class:`CheckpointError` naming the path; a
+checkpoint that cannot be read (or does not match its digest) raises the subclass
+:class:`CorruptCheckpoint` (an older checkpoint may still be good: :func:`newest_good`), one of
+another run (config or model) the subclass :class:`ForeignCheckpoint`.
+
+Identity. A run directory has one identity: the config it was created with (``config.json``,
+every field but the budget ``steps``/``trials``) and the model file's sha256. Every checkpoint
+records its config and model hash (and, from this version on, their digest ``identity``;
+checkpoints without it are checked through their config and model hash alone);
+:func:`check_identity` refuses a checkpoint whose identity differs from its run's, naming both.
 """
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import dataclasses
 import hashlib
@@ -69,6 +79,14 @@ __all__ = [
     "load_compact",
     "restore_compact",
     "has_compact",
+    "CorruptCheckpoint",
+    "ForeignCheckpoint",
+    "RUN_CONFIG",
+    "load_run_config",
+    "identity_config",
+    "identity_digest",
+    "check_identity",
+    "newest_good",
 ]
 
 #: Version of the on-disk layout below; bump when it changes incompatibly.
@@ -76,14 +94,25 @@ SCHEMA_VERSION = 1
 FORMAT = "nmrl-checkpoint"
 CHECKPOINTS = "checkpoints"
 ITEMS = ("state", "policy", "meta")
-#: Config fields that may differ between a checkpoint and the trainer that resumes it.
+#: Config fields that may differ between a checkpoint and the trainer that resumes it (the budget);
+#: every other field is part of the run's identity.
 RESUMABLE_FIELDS = ("steps", "trials")
+#: The run's config, written when the run is created (nmrl/run.py); the reference of its identity.
+RUN_CONFIG = "config.json"
 
 _SEP = "."
 
 
 class CheckpointError(Exception):
     """A checkpoint cannot be written, found, read or used; the message names the path and why."""
+
+
+class CorruptCheckpoint(CheckpointError):
+    """The checkpoint's files cannot be read, are truncated, or do not match their digest."""
+
+
+class ForeignCheckpoint(CheckpointError):
+    """The checkpoint belongs to another run: its config or model differs from the run's."""
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -101,16 +130,58 @@ def _ocp():
     return ocp
 
 
+def _run_drained(coro: Any) -> Any:
+    """orbax's ``_run_sync_via_new_loop`` that lets the loop finish every task before closing it.
+
+    When one read of a damaged checkpoint fails, orbax closes its event loop while tensorstore
+    still completes the other reads; their callbacks then hit the closed loop and print hundreds of
+    lines of ``RuntimeError: Event loop is closed`` tracebacks to stderr, after the restore has
+    already returned. Draining the loop first delivers them to an open loop (and retrieves their
+    exceptions, so asyncio does not log "Task exception was never retrieved" either).
+    """
+    loop = asyncio.new_event_loop()
+    try:
+        asyncio.set_event_loop(loop)
+        return loop.run_until_complete(coro)
+    finally:
+        try:
+            pending = [t for t in asyncio.all_tasks(loop) if not t.done()]
+            if pending:
+                loop.run_until_complete(asyncio.wait(pending, timeout=120))
+            for t in pending:
+                if t.done() and not t.cancelled():
+                    t.exception()
+        except Exception:  # noqa: BLE001 - never mask the restore's own result or error
+            pass
+        finally:
+            asyncio.set_event_loop(None)
+            loop.close()
+
+
 @contextlib.contextmanager
 def _quiet_absl() -> Iterator[None]:
-    """orbax logs expected failures (and a line per save) at ERROR/INFO through absl; keep them out."""
-    loggers = [logging.getLogger("absl"), logging.getLogger("orbax")]
+    """Keep library noise off stderr while orbax runs.
+
+    orbax logs expected failures (and a line per save) at ERROR/INFO through absl; and a failed
+    read of a damaged checkpoint makes tensorstore print "Event loop is closed" tracebacks later
+    (see :func:`_run_drained`, swapped in for orbax's loop runner while this context is active).
+    """
+    loggers = [logging.getLogger("absl"), logging.getLogger("orbax"), logging.getLogger("asyncio")]
     old = [lg.level for lg in loggers]
     for lg in loggers:
         lg.setLevel(logging.CRITICAL)
     try:
+        from orbax.checkpoint._src import asyncio_utils as _au
+    except ImportError:  # pragma: no cover - another orbax layout: only the logging is quieted
+        _au = None
+    runner = getattr(_au, "_run_sync_via_new_loop", None)
+    if runner is not None:
+        _au._run_sync_via_new_loop = _run_drained
+    try:
         yield
     finally:
+        if runner is not None:
+            _au._run_sync_via_new_loop = runner
         for lg, lv in zip(loggers, old):
             lg.setLevel(lv)
 
@@ -232,12 +303,14 @@ def _abstract(tree: Any) -> Any:
     return jax.tree.map(lambda s: jax.ShapeDtypeStruct(s.shape, s.dtype, sharding=sharding), tree)
 
 
-def _err(path: pathlib.Path, what: str, exc: BaseException | None = None) -> CheckpointError:
+def _err(path: pathlib.Path, what: str, exc: BaseException | None = None,
+         cls: type[CheckpointError] = CheckpointError) -> CheckpointError:
+    """A one-line error naming ``path`` (and the first line of ``exc``, cut to 300 characters)."""
     msg = f"{path}: {what}"
     if exc is not None:
         detail = str(exc).strip().splitlines()
         msg += f" ({type(exc).__name__}: {detail[0][:300] if detail else ''})"
-    return CheckpointError(msg)
+    return cls(msg)
 
 
 # ----------------------------------------------------------------------------- listing
@@ -317,6 +390,11 @@ def save(
     state_item = {n: a for n, a in state_host.items() if a.size > 0}
     policy_item = {"theta": jax.tree.map(np.asarray, ts.theta), "v": jax.tree.map(np.asarray, ts.v)}
     pnames, pleaves, _ = _flatten(policy_item)
+    model_sha = _sha256_file(MODEL_PATH)
+    try:
+        ident = identity_digest(config, model_sha)
+    except (ValueError, TypeError):  # a config that does not resolve: saved as it is, checked on restore
+        ident = None
 
     meta = {
         "format": FORMAT,
@@ -329,7 +407,8 @@ def save(
         "versions": _versions(),
         "git_commit": _git_commit(),
         "model_file": str(MODEL_PATH.relative_to(MODEL_PATH.parents[1])),
-        "model_sha256": _sha256_file(MODEL_PATH),
+        "model_sha256": model_sha,
+        "identity": ident,
         "saved_unix_time": time.time(),
         "state_layout": layout,
         "state_digest": _digest(state_item),
@@ -371,7 +450,8 @@ def _restore_items(d: pathlib.Path, step: int, **args: Any) -> Any:
             return m.restore(step, args=ocp.args.Composite(**args))
     except Exception as e:  # noqa: BLE001
         items = ", ".join(args)
-        raise _err(path, f"cannot read checkpoint item(s) {items} (truncated or corrupted?)", e) from e
+        raise _err(path, f"cannot read checkpoint item(s) {items} (truncated or corrupted?)", e,
+                   CorruptCheckpoint) from e
 
 
 def load_metadata(run_dir: str | os.PathLike, step: int | None = None) -> dict:
@@ -380,7 +460,7 @@ def load_metadata(run_dir: str | os.PathLike, step: int | None = None) -> dict:
     path = d / str(step)
     meta = _restore_items(d, step, meta=_ocp().args.JsonRestore()).meta
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-        raise CheckpointError(f"{path}: not an nmrl checkpoint (metadata has no format={FORMAT!r})")
+        raise CorruptCheckpoint(f"{path}: not an nmrl checkpoint (metadata has no format={FORMAT!r})")
     if meta.get("schema") != SCHEMA_VERSION:
         raise CheckpointError(
             f"{path}: checkpoint schema {meta.get('schema')!r} is not supported (this nmrl reads "
@@ -388,9 +468,15 @@ def load_metadata(run_dir: str | os.PathLike, step: int | None = None) -> dict:
         )
     for k in ("config", "state_layout", "state_digest", "policy_digest", "model_sha256", "step"):
         if k not in meta:
-            raise CheckpointError(f"{path}: checkpoint metadata lacks the field {k!r}")
-    if int(meta["step"]) != step:
-        raise CheckpointError(f"{path}: metadata says step {meta['step']} but the directory is step {step}")
+            raise CorruptCheckpoint(f"{path}: checkpoint metadata lacks the field {k!r}")
+    if not isinstance(meta["config"], dict):
+        raise CorruptCheckpoint(f"{path}: the checkpoint metadata's config is not an object")
+    try:
+        saved_step = int(meta["step"])
+    except (TypeError, ValueError):
+        saved_step = None
+    if saved_step != step:
+        raise CorruptCheckpoint(f"{path}: metadata says step {meta['step']!r} but the directory is step {step}")
     meta["path"] = str(path)
     return meta
 
@@ -405,7 +491,7 @@ def _config_from_meta(meta: dict) -> TrainConfig:
     try:
         return TrainConfig(**cfg)
     except TypeError as e:
-        raise _err(pathlib.Path(path), "the saved config is invalid", e) from e
+        raise _err(pathlib.Path(path), "the saved config is invalid", e, CorruptCheckpoint) from e
 
 
 def load_config(run_dir: str | os.PathLike, step: int | None = None) -> TrainConfig:
@@ -416,7 +502,7 @@ def load_config(run_dir: str | os.PathLike, step: int | None = None) -> TrainCon
 def _check_model(meta: dict) -> None:
     now = _sha256_file(MODEL_PATH)
     if meta["model_sha256"] != now:
-        raise CheckpointError(
+        raise ForeignCheckpoint(
             f"{meta['path']}: checkpoint of another model: {meta.get('model_file')} had sha256 "
             f"{meta['model_sha256']}, {MODEL_PATH} now has {now}"
         )
@@ -432,7 +518,7 @@ def _check_config(meta: dict, config: TrainConfig) -> None:
     diff = [f"{k}: checkpoint {a[k]!r} != trainer {b[k]!r}" for k in a if k not in RESUMABLE_FIELDS
             and a[k] != b[k]]
     if diff:
-        raise CheckpointError(f"{meta['path']}: config incompatible with the trainer: " + "; ".join(diff))
+        raise ForeignCheckpoint(f"{meta['path']}: config incompatible with the trainer: " + "; ".join(diff))
 
 
 def _to_device(x: np.ndarray) -> jax.Array:
@@ -472,13 +558,13 @@ def restore(run_dir: str | os.PathLike, trainer: Trainer, step: int | None = Non
     for n, t in nonempty.items():
         a = restored.get(n) if isinstance(restored, dict) else None
         if a is None:
-            raise CheckpointError(f"{path}: the state item lacks the array {n!r}")
+            raise CorruptCheckpoint(f"{path}: the state item lacks the array {n!r}")
         a = np.asarray(a)
         if a.shape != tuple(t.shape) or a.dtype != np.dtype(t.dtype):
-            raise CheckpointError(f"{path}: array {n!r} has {a.shape} {a.dtype}, expected {t.shape} {t.dtype}")
+            raise CorruptCheckpoint(f"{path}: array {n!r} has {a.shape} {a.dtype}, expected {t.shape} {t.dtype}")
         host[n] = a
     if _digest(host) != meta["state_digest"]:
-        raise CheckpointError(f"{path}: the state data does not match its digest (corrupted checkpoint)")
+        raise CorruptCheckpoint(f"{path}: the state data does not match its digest (corrupted checkpoint)")
     leaves = [
         _to_device(host[n]) if n in host else jax.device_put(jnp.zeros(t.shape, t.dtype), jax.devices()[0])
         for n, t in zip(names, tleaves)
@@ -506,14 +592,103 @@ def restore_policy(
         pnames, pleaves, _ = _flatten({"theta": restored["theta"], "v": restored["v"]})
         tnames, tleaves, _ = _flatten(template)
     except (KeyError, TypeError) as e:
-        raise _err(path, "the policy item has an unexpected structure", e) from e
+        raise _err(path, "the policy item has an unexpected structure", e, CorruptCheckpoint) from e
     if pnames != tnames or any(tuple(a.shape) != tuple(t.shape) for a, t in zip(pleaves, tleaves)):
-        raise CheckpointError(f"{path}: the policy item does not fit the saved config's network sizes")
+        raise CorruptCheckpoint(f"{path}: the policy item does not fit the saved config's network sizes")
     host = {n: np.asarray(a) for n, a in zip(pnames, pleaves)}
     if _digest(host) != meta["policy_digest"]:
-        raise CheckpointError(f"{path}: the policy data does not match its digest (corrupted checkpoint)")
+        raise CorruptCheckpoint(f"{path}: the policy data does not match its digest (corrupted checkpoint)")
     to_dev = lambda t: jax.tree.map(_to_device, jax.tree.map(np.asarray, t))  # noqa: E731
     return config, to_dev(restored["theta"]), to_dev(restored["v"])
+
+
+# ----------------------------------------------------------------------------- identity
+
+
+def identity_config(config: TrainConfig) -> dict:
+    """The fields of a run's identity: the resolved config without the budget (``RESUMABLE_FIELDS``)."""
+    d = dataclasses.asdict(config.resolved())
+    return {k: v for k, v in d.items() if k not in RESUMABLE_FIELDS}
+
+
+def identity_digest(config: TrainConfig, model_sha256: str | None) -> str:
+    """sha256 of a run's identity (:func:`identity_config` and the model file's sha256)."""
+    text = json.dumps({"config": identity_config(config), "model_sha256": model_sha256}, sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def load_run_config(run_dir: str | os.PathLike) -> TrainConfig | None:
+    """The config ``RUN_DIR/config.json`` the run was created with; None if the run has none."""
+    path = pathlib.Path(run_dir) / RUN_CONFIG
+    if not path.is_file():
+        return None
+    try:
+        d = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise _err(path, "cannot read the run's config", e) from e
+    known = {f.name for f in dataclasses.fields(TrainConfig)}
+    if not isinstance(d, dict) or set(d) - known:
+        extra = sorted(set(d) - known) if isinstance(d, dict) else None
+        raise CheckpointError(f"{path}: not a run config" + (f" (unknown fields {extra})" if extra else ""))
+    try:
+        cfg = TrainConfig(**d)
+        cfg.resolved()
+    except (TypeError, ValueError) as e:
+        raise _err(path, "the run's config is invalid", e) from e
+    return cfg
+
+
+def check_identity(meta: dict, run_config: TrainConfig | None, source: str = "the run's config") -> None:
+    """Refuse a checkpoint (``meta`` from :func:`load_metadata`) that is not of the run ``run_config``.
+
+    The checkpoint's own config and model hash must agree with its recorded ``identity`` (when it
+    has one: older checkpoints do not) -- else :class:`CorruptCheckpoint`; its model hash must be
+    the model file's now, and every identity field of its config must equal ``run_config``'s (the
+    run's ``config.json``, named ``source`` in the message) -- else :class:`ForeignCheckpoint`
+    naming the fields with both values. ``run_config`` None checks the checkpoint alone.
+    """
+    path = pathlib.Path(meta["path"])
+    saved = _config_from_meta(meta)
+    try:
+        mine = identity_config(saved)
+        digest = identity_digest(saved, meta["model_sha256"])
+    except (ValueError, TypeError) as e:
+        raise _err(path, "the saved config is invalid", e, CorruptCheckpoint) from e
+    recorded = meta.get("identity")
+    if recorded is not None and recorded != digest:
+        raise CorruptCheckpoint(f"{path}: the metadata's identity {str(recorded)[:16]}... does not match its "
+                                f"own config and model hash (edited or corrupted metadata)")
+    if run_config is not None:
+        theirs = identity_config(run_config)
+        diff = [f"{k}={mine.get(k)!r} in the checkpoint but {theirs[k]!r} in {source}" for k in theirs
+                if mine.get(k) != theirs[k]]
+        if diff:
+            raise ForeignCheckpoint(f"{path}: checkpoint of another run: " + "; ".join(diff))
+    _check_model(meta)
+
+
+def newest_good(run_dir: str | os.PathLike, load: Any, step: int | None = None
+                ) -> tuple[int, Any, list[CorruptCheckpoint]]:
+    """``(step, load(step), skipped)``: ``load`` applied to the checkpoint ``step`` or, if None, to the
+    newest one that is not corrupted.
+
+    With ``step`` given every error propagates. Without, a :class:`CorruptCheckpoint` raised by
+    ``load`` moves on to the next older checkpoint; ``skipped`` lists those errors, newest first
+    (each names its path). Any other CheckpointError (another run, another model) propagates, and
+    so does the newest error when no checkpoint is readable. Nothing on disk is changed.
+    """
+    d, newest = _resolve_step(run_dir, step)
+    if step is not None:
+        return newest, load(newest), []
+    skipped: list[CorruptCheckpoint] = []
+    for s in reversed(all_steps(run_dir)):
+        try:
+            return s, load(s), skipped
+        except CorruptCheckpoint as e:
+            skipped.append(e)
+    if len(skipped) == 1:
+        raise skipped[0]
+    raise CorruptCheckpoint(f"{d}: none of the {len(skipped)} checkpoints is readable; the newest: {skipped[0]}")
 
 
 if __name__ == "__main__":  # pragma: no cover - `python -m nmrl.checkpoint RUN` prints the metadata

@@ -3,6 +3,10 @@
 Every field of :class:`nmrl.learner.TrainConfig` is an option of ``train`` and ``sweep``
 (``--beta-theta 2e-6``, ``--num-envs 256``, ...). Bad values exit with status 2 and a message that
 names the value, before anything is written.
+
+Exit status: 0 done, 2 bad input (one line ``nmrl: error: ...`` on stderr, nothing written),
+3 diverged (the last good checkpoint is kept), 128 + the signal when SIGINT (130) or SIGTERM (143)
+stopped ``train`` (after the chunk in flight was saved; ``--resume`` continues it).
 """
 
 from __future__ import annotations
@@ -10,6 +14,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import sys
 import typing
 
@@ -21,6 +26,9 @@ from nmrl import devices as _devices
 DEFAULT_STEPS = 4000
 _SWEEP_FIELDS = {"l", "seed"}  # given as lists to ``nmrl sweep``
 _NOT_OPTIONS = {"grad_stats"}  # diagnostics set by nmrl.gradvar, not training options
+#: Longest ``nmrl eval --seconds`` (the GIF keeps every frame in memory: 25 per simulated second).
+MAX_EVAL_SECONDS = 600.0
+SEED_MAX = 2**32 - 1  # = nmrl.run.SEED_MAX (not imported here: nmrl.run imports JAX)
 
 
 def _field_type(f: dataclasses.Field) -> type:
@@ -44,12 +52,18 @@ def add_config_options(p: argparse.ArgumentParser, skip: set[str] = frozenset())
                        help=f"{doc} (default: {f.default})".strip())
 
 
+def given_options(args: argparse.Namespace, skip: set[str] = frozenset()) -> dict:
+    """The TrainConfig fields given on the command line (name -> value)."""
+    from nmrl.learner import TrainConfig
+
+    return {f.name: getattr(args, f.name) for f in dataclasses.fields(TrainConfig)
+            if f.name not in skip and getattr(args, f.name, None) is not None}
+
+
 def config_from_args(args: argparse.Namespace, skip: set[str] = frozenset()):
     from nmrl.learner import TrainConfig
 
-    kw = {f.name: getattr(args, f.name) for f in dataclasses.fields(TrainConfig)
-          if f.name not in skip and getattr(args, f.name, None) is not None}
-    return TrainConfig(**kw)
+    return TrainConfig(**given_options(args, skip))
 
 
 def _fail(msg: str) -> int:
@@ -58,39 +72,58 @@ def _fail(msg: str) -> int:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from nmrl import run
+    from nmrl import checkpoint, run
 
     try:
+        given = given_options(args)
         cfg = config_from_args(args)
         if not args.resume and cfg.steps is None and cfg.trials is None:
             cfg = dataclasses.replace(cfg, steps=DEFAULT_STEPS)
-        cfg.validate()
+        run.check_config(cfg)
+        if args.step is not None and args.step < 0:
+            raise ValueError(f"--step={args.step} is invalid: a checkpoint step is >= 0")
+        n_dev = _devices.parse(args.devices)
     except (ValueError, TypeError) as e:
         return _fail(str(e))
+    status = 0
     try:
-        rows = run.train(cfg, args.out, resume=args.resume, progress=not args.quiet,
-                         devices=_devices.parse(args.devices))
-    except run.RunError as e:
+        run.train(cfg, args.out, resume=args.resume, progress=not args.quiet, devices=n_dev,
+                  given=given if args.resume else None, step=args.step)
+    except (run.RunError, checkpoint.CheckpointError) as e:
         return _fail(str(e))
     except run.Diverged as e:
         print(f"nmrl: {e}", file=sys.stderr)
         return 3
+    except run.Stopped as e:
+        status = e.exit_status
+    except KeyboardInterrupt:  # a second signal: stopped at once, inside a chunk or a save
+        print(f"nmrl: stopped at once; the newest checkpoint in {args.out} is intact (saves are atomic); "
+              f"continue with: nmrl train --resume --out {args.out}", file=sys.stderr)
+        return 130
+    rows = run.read_metrics(args.out)  # the run's, not only this session's
     if rows:
         first, last = rows[0], rows[-1]
         print(json.dumps({"out": args.out, "step": last["step"], "trials": last["trials"],
                           "avg_reward_first_chunk": first["avg_reward"], "avg_reward": last["avg_reward"],
                           "forward_speed": last["forward_speed"]}))
-    return 0
+    return status
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
+    s = args.seconds
+    if not (math.isfinite(s) and 0 < s <= MAX_EVAL_SECONDS):
+        return _fail(f"--seconds={s!r} is invalid: must be a finite number of simulated seconds in "
+                     f"(0, {MAX_EVAL_SECONDS:g}]")
+    if not 0 <= args.seed <= SEED_MAX:
+        return _fail(f"--seed={args.seed} is invalid: must be an integer in [0, {SEED_MAX}]")
+    if args.step is not None and args.step < 0:
+        return _fail(f"--step={args.step} is invalid: a checkpoint step is >= 0")
     from nmrl import checkpoint, evaluate
 
-    if args.seconds <= 0:
-        return _fail(f"--seconds must be > 0, got {args.seconds}")
     try:
         result = evaluate.evaluate(args.run, step=args.step, seconds=args.seconds, seed=args.seed,
-                                   render=not args.no_render)
+                                   render=not args.no_render,
+                                   warn=lambda m: print(f"nmrl: warning: {m}", file=sys.stderr, flush=True))
     except checkpoint.CheckpointError as e:
         return _fail(str(e))
     print(json.dumps(result, indent=2))
@@ -102,7 +135,9 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
     try:
         base = config_from_args(args, skip=_SWEEP_FIELDS)
-        spec = sweep.SweepSpec(ls=tuple(args.l), seeds=args.seeds, base=base,
+        if args.l is None and not args.resume:
+            raise ValueError("--l is required (the period lengths, e.g. --l 1 2 3 5 10 15 20 30)")
+        spec = sweep.SweepSpec(ls=tuple(args.l or (1,)), seeds=args.seeds, base=base,
                                first=tuple(args.first or ()))
         spec.validate()
         if args.checkpoint_every < 1:
@@ -117,6 +152,10 @@ def cmd_sweep(args: argparse.Namespace) -> int:
                         checkpoint_every=args.checkpoint_every, group=args.group, devices=n_dev)
     except (sweep.SweepError, ValueError) as e:
         return _fail(str(e))
+    except sweep.Stopped as e:
+        print(f"nmrl: sweep {e}; every active point was saved. Continue with: nmrl sweep --resume --l 1 "
+              f"--out {args.out}", file=sys.stderr)
+        return 128 + e.signum
     return 0
 
 
@@ -140,7 +179,11 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("train", help="train one (l, seed) point (Table II)")
     add_config_options(p)
     p.add_argument("--out", required=True, help="run directory (config, metrics.jsonl, checkpoints)")
-    p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the run in --out from its newest checkpoint with its own config "
+                        "(only --steps/--trials may change)")
+    p.add_argument("--step", type=int, default=None,
+                   help="with --resume: the checkpoint step to continue from (default: the newest)")
     p.add_argument("--devices", default=_devices.AUTO,
                    help="host (CPU) devices to split the work over: 'auto' = every core (default), 1 = off")
     p.add_argument("--quiet", action="store_true", help="no progress display")
@@ -148,7 +191,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("sweep", help="the sweep over l and seeds as one vmapped program (Fig. 3)")
     add_config_options(p, skip=_SWEEP_FIELDS)
-    p.add_argument("--l", type=int, nargs="+", required=True, help="period lengths, e.g. 1 2 3 5 10 15 20 30")
+    p.add_argument("--l", type=int, nargs="+", default=None,
+                   help="period lengths, e.g. 1 2 3 5 10 15 20 30 (with --resume: the saved ones)")
     p.add_argument("--seeds", type=int, default=3, help="seeds per l (0..seeds-1)")
     p.add_argument("--checkpoint-every", type=int, default=1, help="checkpoint the points every K chunks")
     p.add_argument("--first", type=int, nargs="+", default=None,
@@ -164,8 +208,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("eval", help="restore a policy, roll it out, print JSON, render the gait")
     p.add_argument("run", help="run directory written by nmrl train")
-    p.add_argument("--step", type=int, default=None, help="checkpoint step (default: latest)")
-    p.add_argument("--seconds", type=float, default=10.0, help="simulated seconds per rollout")
+    p.add_argument("--step", type=int, default=None,
+                   help="checkpoint step (default: the newest; a corrupted newest one is skipped with a warning)")
+    p.add_argument("--seconds", type=float, default=10.0,
+                   help=f"simulated seconds per rollout (at most {MAX_EVAL_SECONDS:g})")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-render", action="store_true", help="skip the strobe PNG and the GIF")
     p.set_defaults(func=cmd_eval)

@@ -12,6 +12,10 @@ JSON-able dict (see :func:`evaluate`) written to ``RUN_DIR/eval/eval.json``; wit
 deterministic rollout is drawn as a Fig.-4-like strobe (``strobe.png``) and an animation
 (``gait.gif``, real time, camera following the trunk). Pictures use matplotlib's Agg backend only.
 Same checkpoint and seed give the identical JSON.
+
+The checkpoint must be of the run (its identity, ``RUN_DIR/config.json``: nmrl/checkpoint.py);
+without ``step`` a corrupted newest checkpoint is skipped with a warning naming it, and the newest
+good one is evaluated. Nothing in the run directory but ``eval/`` is written.
 """
 
 from __future__ import annotations
@@ -21,7 +25,8 @@ import json
 import math
 import os
 import pathlib
-from typing import Any
+import sys
+from typing import Any, Callable
 
 import jax
 import jax.numpy as jnp
@@ -129,8 +134,9 @@ def evaluate(
     *,
     render: bool = True,
     out_dir: str | os.PathLike | None = None,
+    warn: Callable[[str], None] | None = None,
 ) -> dict:
-    """Evaluate a checkpoint (newest if ``step`` is None); returns the JSON-able summary.
+    """Evaluate a checkpoint (newest good one if ``step`` is None); returns the JSON-able summary.
 
     Keys: ``run_dir, step, trials, seconds, steps, seed, control_dt, l, alpha, sigma`` and, under
     ``deterministic`` and ``exploring``: ``avg_reward`` (per control step), ``forward_speed`` (m/s,
@@ -138,12 +144,16 @@ def evaluate(
     ``ground_share`` {heel, knee, head} (share of steps with that joint on the ground),
     ``nonfinite`` (steps whose physics failed). With ``render`` also ``files`` {strobe, gif}.
     The JSON is also written to ``OUT_DIR/eval.json`` (``OUT_DIR`` = ``RUN_DIR/eval``).
-    Raises CheckpointError for a missing/bad checkpoint, ValueError for bad ``seconds``.
+    Raises CheckpointError for a missing/bad checkpoint or one of another run (ForeignCheckpoint),
+    ValueError for bad ``seconds``. A corrupted newest checkpoint skipped (``step`` None) is
+    reported through ``warn`` (default: a line on stderr), one call per checkpoint naming its path.
     """
     run = pathlib.Path(run_dir)
-    meta = checkpoint.load_metadata(run, step)
-    step = int(meta["step"])
-    config, theta, _v = checkpoint.restore_policy(run, step)
+    _num_steps(seconds, 1.0)  # a bad ``seconds`` fails before anything is read
+    step, (meta, (config, theta, _v)), skipped = select_policy(run, step)
+    warn = warn or (lambda m: print(f"warning: {m}", file=sys.stderr, flush=True))
+    for e in skipped:
+        warn(f"{e}; evaluating the newest good checkpoint, step {step}, instead")
     n_steps = _num_steps(seconds, config.control_dt)
     det = rollout(config, theta, seconds=seconds, seed=seed, exploring=False)
     exp = rollout(config, theta, seconds=seconds, seed=seed, exploring=True)
@@ -172,6 +182,20 @@ def evaluate(
     return result
 
 
+def select_policy(run: pathlib.Path, step: int | None = None):
+    """``(step, (meta, (config, theta, v)), skipped)`` of the checkpoint ``step`` of ``run``, or of its newest
+    good one (skipping corrupted ones: ``skipped``); refuses a checkpoint of another run."""
+    run_cfg = checkpoint.load_run_config(run)
+    source = str(run / checkpoint.RUN_CONFIG)
+
+    def load(s: int):
+        meta = checkpoint.load_metadata(run, s)
+        checkpoint.check_identity(meta, run_cfg, source)
+        return meta, checkpoint.restore_policy(run, s)
+
+    return checkpoint.newest_good(run, load, step)
+
+
 def render(
     run_dir: str | os.PathLike,
     step: int | None = None,
@@ -182,8 +206,7 @@ def render(
 ) -> dict[str, str]:
     """Draw only the pictures of the deterministic policy; returns {strobe, gif} paths."""
     run = pathlib.Path(run_dir)
-    config, theta, _v = checkpoint.restore_policy(run, step)
-    step = int(checkpoint.load_metadata(run, step)["step"])
+    step, (_meta, (config, theta, _v)), _ = select_policy(run, step)
     det = rollout(config, theta, seconds=seconds, seed=seed, exploring=False)
     out_dir = pathlib.Path(out_dir) if out_dir is not None else run / EVAL_DIR
     out_dir.mkdir(parents=True, exist_ok=True)
