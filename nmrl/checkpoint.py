@@ -25,6 +25,16 @@ Atomicity: orbax writes the step into ``<step>.orbax-checkpoint-tmp*`` and renam
 when complete (local file systems); unfinished tmp directories are ignored by readers. ``save`` is
 synchronous (async checkpointing off) and fsyncs the files before returning.
 
+Checkpoints written before the update went through optax (issue 16) have the same schema but
+their state lacks the optimizer states ``opt_theta.*`` and ``opt_v.*``. ``restore`` accepts such a
+checkpoint when nothing else is missing or different and gives it fresh optimizer states
+(``trainer.init_opt`` of the restored theta, v and hyperparameters). That is exact: those runs used
+the paper's rule theta += beta^theta sum_e d_e z_e (Table II), now ``optax.sgd`` under
+``optax.inject_hyperparams``, whose state is only a count that sgd never reads and the step size,
+which the learner takes from the restored ``Hyper`` at every step anyway; and their config (which
+the restore checks against the trainer) can only name that rule. A resumed old run continues bit
+for bit as it would have (tests/test_checkpoint.py, tests/data/schema1_sgd_run/).
+
 Every failure a caller can meet (missing run, no checkpoints, unknown step, corrupted or truncated
 files, another model, an incompatible config) raises :class:`CheckpointError` naming the path; a
 checkpoint that cannot be read (or does not match its digest) raises the subclass
@@ -62,7 +72,7 @@ import numpy as np
 import nmrl
 from nmrl import networks
 from nmrl.env import MODEL_PATH, OBS_DIM, ACT_DIM
-from nmrl.learner import Params, TrainConfig, TrainState, Trainer
+from nmrl.learner import OPT_FIELDS, Params, TrainConfig, TrainState, Trainer
 
 __all__ = [
     "CheckpointError",
@@ -531,6 +541,8 @@ def restore(run_dir: str | os.PathLike, trainer: Trainer, step: int | None = Non
     Checks the model file's sha256 and the config (every field but the budget) against the
     trainer, the saved layout against ``jax.eval_shape(trainer.init, key)``, and the data digest.
     The arrays come back with the template's shapes and dtypes, committed to the default device.
+    A checkpoint saved before the optimizer state was part of the training state gets fresh
+    optimizer states (exact for the paper's sgd rule; see the module docstring).
     """
     meta = load_metadata(run_dir, step)
     path = pathlib.Path(meta["path"])
@@ -541,6 +553,10 @@ def restore(run_dir: str | os.PathLike, trainer: Trainer, step: int | None = Non
     names, tleaves, treedef = _flatten(template)
     want = _layout(names, tleaves)
     have = meta["state_layout"]
+    opt_names = {n for n in want if n.split(_SEP, 1)[0] in OPT_FIELDS}
+    migrate = not any(n in have for n in opt_names)  # an old checkpoint: no optimizer state saved
+    if migrate:
+        want = {n: w for n, w in want.items() if n not in opt_names}
     if want != have:
         missing = sorted(set(want) - set(have))
         unexpected = sorted(set(have) - set(want))
@@ -550,7 +566,7 @@ def restore(run_dir: str | os.PathLike, trainer: Trainer, step: int | None = Non
             f"{path}: the saved training state does not fit this trainer: missing {missing[:5]}, "
             f"unexpected {unexpected[:5]}, changed {changed[:5]}"
         )
-    nonempty = {n: t for n, t in zip(names, tleaves) if int(np.prod(t.shape)) > 0}
+    nonempty = {n: t for n, t in zip(names, tleaves) if int(np.prod(t.shape)) > 0 and n in want}
     ocp = _ocp()
     restored = _restore_items(path.parent, int(meta["step"]),
                               state=ocp.args.StandardRestore(_abstract(nonempty))).state
@@ -569,7 +585,11 @@ def restore(run_dir: str | os.PathLike, trainer: Trainer, step: int | None = Non
         _to_device(host[n]) if n in host else jax.device_put(jnp.zeros(t.shape, t.dtype), jax.devices()[0])
         for n, t in zip(names, tleaves)
     ]
-    return jax.tree_util.tree_unflatten(treedef, leaves)
+    ts = jax.tree_util.tree_unflatten(treedef, leaves)
+    if migrate and opt_names:
+        opt_theta, opt_v = jax.device_put(trainer.init_opt(ts.theta, ts.v, ts.hyper), jax.devices()[0])
+        ts = ts.replace(opt_theta=opt_theta, opt_v=opt_v)
+    return ts
 
 
 def restore_policy(
@@ -767,7 +787,9 @@ def restore_compact(run_dir: str | os.PathLike, trainer: Trainer) -> TrainState:
     trial start. Statistically, not bitwise, equal to resuming from the full checkpoint.
 
     The new environment states are drawn from the saved key: ``k_init, key = split(saved key)``,
-    ``ts = trainer.init(k_init)`` with theta, v, the counters and ``key`` replaced.
+    ``ts = trainer.init(k_init)`` with theta, v, the counters and ``key`` replaced. The optimizer
+    states are not saved in the compact state: they start fresh (for the paper's sgd rule that
+    loses nothing, its state holds no statistics; see the module docstring).
     """
     meta, arrays = load_compact(run_dir)
     _check_model(meta)

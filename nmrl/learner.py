@@ -24,6 +24,31 @@ the parameters by exactly the step the sequential algorithm would take for it, a
 paper's sequential algorithm. (Averaging instead of summing would divide the step per sample by N.)
 With N > 1 the parameters change within a period of one environment (other environments update);
 the likelihood ratio of each sample is evaluated at the parameters that generated it (u = xi).
+
+The update goes through optax. The parameter steps of Table II (4., 5.) are plain gradient
+*ascent* along the pseudo-gradients sum_e d_e z_e and sum_e d_e y_e; optax minimises, so each
+control step hands it the negated pseudo-gradients
+
+    g^theta = -sum_e d_e z_e,    g^v = -sum_e d_e y_e        (summed over the environments, psum-ed
+                                                              over shards, before the optimizer)
+
+and applies its updates: with ``optax.sgd(beta)`` that is u = -beta g = beta sum_e d_e z_e and
+theta := theta + u, the paper's rule. The step sizes are not baked into the program:
+each optimizer is wrapped in ``optax.inject_hyperparams`` and its ``learning_rate`` is overwritten
+at every control step from the traced :class:`Hyper` (``beta_theta`` for the actor, ``beta_v`` for
+the critic), so a sweep over beta (or l, ...) is still one compiled program and ``Hyper`` stays the
+one source of the step sizes (the copy inside the optimizer state only records the last one used).
+The optimizer states ``opt_theta`` and ``opt_v`` are part of :class:`TrainState` (and so of the
+checkpoints). The optimizer takes a step only at a control step at which at least one
+environment's period ended (the update instants of Table II; with N = 1 one step per learned
+period); at other steps the parameters and the optimizer states stay as they are. For sgd this
+changes nothing (the summed update is zero there); a stateful optimizer does not see zero
+gradients in between.
+
+Bit identity with the hand-written update ``theta + beta * sum_e d_e z_e`` of the code before
+issue 16 (measured by scripts/check_optax_update.py: Half-Cheetah, the paper's networks and
+preset, N = 1 and 8, and the tiny test environment): the parameters after every chunk are equal
+bit for bit. (The float operations are the same: -beta * -S == beta * S exactly.)
 """
 
 from __future__ import annotations
@@ -35,12 +60,18 @@ from typing import Any, Callable, NamedTuple
 import jax
 import jax.flatten_util
 import jax.numpy as jnp
+import optax
 from flax import struct
 
 from nmrl import networks, noise
 from nmrl.env import EnvConfig, HalfCheetah, State
 
 Params = Any
+OptState = Any
+
+#: The TrainState fields that hold the optimizer states (a checkpoint written before issue 16 lacks
+#: them; nmrl/checkpoint.py restores it with fresh ones, see :func:`make_train`'s ``init_opt``).
+OPT_FIELDS = ("opt_theta", "opt_v")
 
 #: Named step-size presets. "paper" is Sec. V-C. "fast" is for the budgets this 2-core machine
 #: allows (10^3-10^4 trials instead of the paper's 10^5): with the paper's step sizes and 16-64
@@ -191,6 +222,10 @@ class TrainState:
     trials: jax.Array  #: trials finished, summed over environments
     periods: jax.Array  #: periods that took part in learning, summed over environments
     diverged: jax.Array  #: True once an update made the parameters non-finite or too large
+    #: optax state of the actor's optimizer (``optax.inject_hyperparams`` state: count,
+    #: hyperparams {"learning_rate"}, inner state; see the module docstring)
+    opt_theta: OptState
+    opt_v: OptState  #: optax state of the critic's optimizer
 
 
 class Trainer(NamedTuple):
@@ -199,6 +234,25 @@ class Trainer(NamedTuple):
     init: Callable[..., TrainState]
     chunk: Callable[[TrainState], tuple[TrainState, dict]]
     train: Callable[[jax.Array], tuple[TrainState, dict]]
+    #: ``init_opt(theta, v, hyper) -> (opt_theta, opt_v)``: fresh optimizer states (as ``init`` makes)
+    init_opt: Callable[[Params, Params, Hyper], tuple[OptState, OptState]]
+
+
+def sgd_rule(learning_rate: jax.Array) -> optax.GradientTransformation:
+    """The paper's update (Table II, steps 4 and 5): p := p - beta g on the negated pseudo-gradient
+    g = -sum_e d_e z_e (actor) or -sum_e d_e y_e (critic), i.e. p := p + beta sum_e d_e z_e."""
+    return optax.sgd(learning_rate)
+
+
+def injected(rule: Callable[[jax.Array], optax.GradientTransformation], learning_rate: jax.Array
+             ) -> optax.GradientTransformation:
+    """``rule`` with its step size as a traced hyperparameter (``optax.inject_hyperparams``)."""
+    return optax.inject_hyperparams(lambda learning_rate: rule(learning_rate))(learning_rate=learning_rate)
+
+
+def _with_learning_rate(state: OptState, learning_rate: jax.Array) -> OptState:
+    """The injected-hyperparameter state with its ``learning_rate`` replaced (traced per point)."""
+    return state._replace(hyperparams={**state.hyperparams, "learning_rate": learning_rate})
 
 
 def _tree_where(c, a, b):
@@ -231,6 +285,14 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
     critic = networks.make_critic(cfg.hidden_critic)
     N = cfg.num_envs
     N_local = N // num_shards
+    # The update rules of actor and critic (the paper's: sgd). Only the structure of these
+    # transformations is used; the step size comes from the state, i.e. from Hyper.
+    rule_theta, rule_v = sgd_rule, sgd_rule
+    tx_theta, tx_v = injected(rule_theta, 0.0), injected(rule_v, 0.0)
+
+    def init_opt(theta: Params, v: Params, hyper: Hyper) -> tuple[OptState, OptState]:
+        return (injected(rule_theta, hyper.beta_theta).init(theta),
+                injected(rule_v, hyper.beta_v).init(v))
 
     def psum(x):
         return jax.lax.psum(x, axis_name) if num_shards > 1 else x
@@ -257,8 +319,9 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
             gpow=jnp.ones((N,), jnp.float32),
         )
         z32 = jnp.zeros((), jnp.int32)
+        opt_theta, opt_v = init_opt(theta, v, hyper)
         return TrainState(theta=theta, v=v, slots=slots, key=key, hyper=hyper, step=z32, trials=z32,
-                          periods=z32, diverged=jnp.zeros((), bool))
+                          periods=z32, diverged=jnp.zeros((), bool), opt_theta=opt_theta, opt_v=opt_v)
 
     def slot_step(theta, v, slot: EnvSlot, eps, h: Hyper):
         """One control step of one environment; returns the slot and its (d, completed) and stats."""
@@ -302,17 +365,27 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
             eps = jax.lax.dynamic_slice_in_dim(eps, jax.lax.axis_index(axis_name) * N_local, N_local)
         slots, d, completed, stopped, es = jax.vmap(slot_step, in_axes=(None, None, 0, 0, None))(
             ts.theta, ts.v, ts.slots, eps, h)
-        theta = jax.tree.map(lambda p, z: p + h.beta_theta * psum(jnp.tensordot(d, z, axes=1)), ts.theta, slots.z)
-        v = jax.tree.map(lambda p, y: p + h.beta_v * psum(jnp.tensordot(d, y, axes=1)), ts.v, slots.y)
-        ok = (networks.global_norm(theta) < cfg.max_param_norm) & (networks.global_norm(v) < cfg.max_param_norm)
-        ok = ok & ~ts.diverged  # a diverged point stays frozen at its last good parameters
-        theta = _tree_where(ok, theta, ts.theta)
-        v = _tree_where(ok, v, ts.v)
         n_done = psum(jnp.sum(stopped.astype(jnp.int32)))
         n_learn = psum(jnp.sum(completed.astype(jnp.int32)))
+        # Table II steps 4, 5 summed over the environments: optax gets the negated pseudo-gradients
+        # -sum_e d_e z_e and -sum_e d_e y_e (d_e = 0 where no period ended) and the traced step sizes.
+        g_theta = jax.tree.map(lambda z: -psum(jnp.tensordot(d, z, axes=1)), slots.z)
+        g_v = jax.tree.map(lambda y: -psum(jnp.tensordot(d, y, axes=1)), slots.y)
+        u_theta, opt_theta = tx_theta.update(g_theta, _with_learning_rate(ts.opt_theta, h.beta_theta), ts.theta)
+        u_v, opt_v = tx_v.update(g_v, _with_learning_rate(ts.opt_v, h.beta_v), ts.v)
+        theta = optax.apply_updates(ts.theta, u_theta)
+        v = optax.apply_updates(ts.v, u_v)
+        learn = n_learn > 0  # an update instant: some environment's period ended at this step
+        ok = (networks.global_norm(theta) < cfg.max_param_norm) & (networks.global_norm(v) < cfg.max_param_norm)
+        ok = (ok | ~learn) & ~ts.diverged  # a diverged point stays frozen at its last good parameters
+        take = ok & learn
+        theta = _tree_where(take, theta, ts.theta)
+        v = _tree_where(take, v, ts.v)
+        opt_theta = _tree_where(take, opt_theta, ts.opt_theta)
+        opt_v = _tree_where(take, opt_v, ts.opt_v)
         new = ts.replace(theta=theta, v=v, slots=slots, key=key, step=ts.step + 1,
                          trials=ts.trials + n_done, periods=ts.periods + n_learn,
-                         diverged=ts.diverged | ~ok)
+                         diverged=ts.diverged | ~ok, opt_theta=opt_theta, opt_v=opt_v)
         stats = {
             "reward": psum(jnp.sum(es.reward)) / N,
             **{k: psum(jnp.sum(es.metrics[k])) / N for k in REWARD_TERMS},
@@ -362,4 +435,4 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
         ts = init(key, hyper)
         return jax.lax.scan(lambda t, _: chunk(t), ts, None, length=cfg.num_chunks())
 
-    return Trainer(config=cfg, env=env, init=init, chunk=chunk, train=train)
+    return Trainer(config=cfg, env=env, init=init, chunk=chunk, train=train, init_opt=init_opt)

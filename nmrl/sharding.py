@@ -66,7 +66,7 @@ def shard_map_batch(f: Callable, mesh: Mesh | None = None, jit: bool = True) -> 
 
 def train_state_specs(ts: Any) -> Any:
     """PartitionSpecs for a learner ``TrainState``: its per-environment ``slots`` split over ``"b"``,
-    everything else (parameters, key, hyperparameters, counters) replicated."""
+    everything else (parameters, optimizer states, key, hyperparameters, counters) replicated."""
     def spec(path, _x):
         return P(AXIS) if getattr(path[0], "name", None) == "slots" else P()
 

@@ -156,6 +156,63 @@ def test_keep_last_k(ref, tmp_path):
     assert checkpoint.load_metadata(run, 4)["step"] == 4
 
 
+def test_optimizer_state_is_saved(good_run, ref):
+    """The optax states of actor and critic are part of the saved TrainState and come back exactly."""
+    layout = checkpoint.load_metadata(good_run)["state_layout"]
+    for part in ("opt_theta", "opt_v"):
+        assert f"{part}.count" in layout and f"{part}.hyperparams.learning_rate" in layout
+    ts = checkpoint.restore(good_run, ref.trainer)
+    assert _same(ts.opt_theta, ref.state(1).opt_theta) and _same(ts.opt_v, ref.state(1).opt_v)
+
+
+# ------------------------------------------------- checkpoints written before the optimizer state
+
+OLD_RUN = REPO / "tests" / "data" / "schema1_sgd_run"
+
+
+def test_restore_checkpoint_without_optimizer_state(tmp_path):
+    """A checkpoint of the hand-written update (before issue 16; tests/data/schema1_sgd_run, made by
+    tests/data/make_schema1_sgd_checkpoint.py at a849a9d) has no optimizer state. It restores with
+    fresh optimizer states, and one chunk from its step 5 reproduces the old code's own step 10."""
+    run = _copy_run(OLD_RUN, tmp_path / "old")
+    layout = checkpoint.load_metadata(run, 5)["state_layout"]
+    assert not any(n.startswith("opt_") for n in layout)  # really the old layout
+    cfg = checkpoint.load_config(run)
+    trainer = make_train(cfg)
+    ts5 = checkpoint.restore(run, trainer, step=5)
+    ts10 = checkpoint.restore(run, trainer, step=10)
+    fresh = trainer.init_opt(ts5.theta, ts5.v, ts5.hyper)
+    assert _same((ts5.opt_theta, ts5.opt_v), fresh)
+    assert int(ts5.opt_theta.count) == 0 and int(ts5.step) == 5
+    assert float(ts5.opt_theta.hyperparams["learning_rate"]) == np.float32(cfg.beta_theta)
+    assert float(ts5.opt_v.hyperparams["learning_rate"]) == np.float32(cfg.beta_v)
+    leaf = jax.tree_util.tree_leaves(ts5.opt_theta)[0]
+    assert leaf.committed and leaf.devices() == {jax.devices()[0]}
+    out, m = jax.jit(trainer.chunk)(ts5)
+    assert int(out.step) == 10 and int(m["periods_in_chunk"]) > 0
+    # bit for bit on the machine that made the fixture; elsewhere (another CPU's XLA) to float rounding
+    if not (_same(out.theta, ts10.theta) and _same(out.v, ts10.v) and _same(out.slots, ts10.slots)):
+        for part in ("theta", "v"):
+            got, want, start = (np.concatenate([np.ravel(x) for x in jax.tree.leaves(getattr(t, part))])
+                                for t in (out, ts10, ts5))
+            assert np.max(np.abs(want - start)) > 1e-2, part  # the parameters moved in that chunk
+            assert np.max(np.abs(got - want)) <= 1e-4 * np.max(np.abs(want - start)), part
+    # the old compact continuation state (step 5) restores too, with fresh optimizer states
+    cts = checkpoint.restore_compact(run, trainer)
+    assert int(cts.step) == 5 and _same(cts.theta, ts5.theta) and _same(cts.v, ts5.v)
+    assert int(cts.opt_v.count) == 0
+
+
+def test_partial_optimizer_state_is_rejected(good_run, ref, tmp_path):
+    """Only a checkpoint with no optimizer state at all is migrated; a partial one is an error."""
+    run = _copy_run(good_run, tmp_path / "run")
+    meta = checkpoint.load_metadata(run)
+    layout = {k: v for k, v in meta["state_layout"].items() if not k.startswith("opt_v.")}
+    _edit_meta(run, state_layout=layout)
+    msg = _raises(lambda: checkpoint.restore(run, ref.trainer), run / "checkpoints" / "5", "does not fit")
+    assert "opt_v" in msg
+
+
 # ----------------------------------------------------------------------------- bad checkpoints
 
 

@@ -17,6 +17,12 @@ replicated: init splits the key into (actor, critic, env, carry); each control s
 ``key, k_eps = split(key)``, eps = normal(k_eps, (N, act_dim)); the env draws its stop decision from
 its own key) and the initial network parameters (flax ``networks.init_params`` with the actor/critic
 keys). The MLP a~(s) = W2 arctan(W1 s + b1) + b2 is re-implemented here.
+
+Since issue 16 the learner's update goes through optax (``optax.sgd`` on the negated
+pseudo-gradient, step sizes injected from Hyper). The references above keep the paper's
+hand-written rule theta += beta^theta sum_e d_e z_e; ``hand_written_update`` (section 9) recomputes
+that rule in float32 around every control step of a chunk and checks the optax update against it
+to float rounding, at N = 1 and N = 8.
 """
 
 from __future__ import annotations
@@ -437,6 +443,83 @@ def test_vmap_over_l_and_seed_matches_separate_runs():
         np.testing.assert_allclose(pt(ts.v), flat(hist[-1][0].v), rtol=1e-5, atol=1e-6)
     # the two points really differ in l: period counts per chunk differ
     assert vm[0]["periods_in_chunk"][0] != vm[0]["periods_in_chunk"][1]
+
+
+# --------------------------------------------------------------------------- 9. the update through optax
+
+
+def hand_written_update(before, after, cfg: TrainConfig):
+    """The update of the code before issue 16, recomputed from the states around one control step:
+    theta + beta^theta sum_e d_e z_e and v + beta^v sum_e d_e y_e (float32), with
+    d_e = r_bar + gamma^l V(s_next; v) - V(s_start; v) for every environment whose period ended at
+    that step (in-period index back to 0, not stopped) and d_e = 0 otherwise; z_e, y_e are the
+    traces after the step (they already hold this period's term). Returns (theta, v, learned)."""
+    sl = after.slots
+    completed = (np.asarray(sl.ar.i) == 0) & (np.asarray(sl.env.done) == 0)
+    value = lambda s: mlp(before.v, s)[..., 0]  # noqa: E731  (the critic at the parameters of the step)
+    d = sl.rbar + sl.gpow * value(sl.env.obs) - value(sl.s_start)
+    d = jnp.where(jnp.asarray(completed), d, 0.0).astype(jnp.float32)
+    step = lambda p, tr, beta: jax.tree.map(  # noqa: E731
+        lambda x, t: x + jnp.float32(beta) * jnp.tensordot(d, t, axes=1), p, tr)
+    return step(before.theta, sl.z, cfg.beta_theta), step(before.v, sl.y, cfg.beta_v), int(completed.sum())
+
+
+@pytest.mark.parametrize("num_envs", [1, 8], ids=["N1", "N8"])
+def test_optax_update_equals_hand_written_update(num_envs):
+    """optax.sgd on -sum_e d_e z_e (-sum_e d_e y_e) with the injected step sizes moves theta (v)
+    exactly as the hand-written theta += beta^theta sum_e d_e z_e did, at every control step of a
+    25-step chunk (to float rounding); the optimizer state counts the update instants, carries
+    the step sizes of Hyper, and a 25-step chunk equals 25 one-step chunks."""
+    env = TinyEnv(stop_prob=0.1)
+    cfg = tiny_config(l=3, delta=1, num_envs=num_envs, chunk_steps=1, steps=25)
+    trainer = make_train(cfg, env)
+    chunk = jax.jit(trainer.chunk)
+    ts = jax.jit(trainer.init)(jax.random.key(4))
+    theta0, v0 = flat(ts.theta), flat(ts.v)
+    instants = learned = 0
+    eps = np.finfo(np.float32).eps
+    for t in range(25):
+        before = ts
+        ts, _ = chunk(ts)
+        theta, v, n = hand_written_update(before, ts, trainer.config)
+        instants += n > 0
+        learned += n
+        for what, got, want, old in (("theta", ts.theta, theta, before.theta), ("v", ts.v, v, before.v)):
+            got, want, old = flat(got), flat(want), flat(old)
+            tol = 4 * eps * np.max(np.abs(old)) + 1e-5 * np.max(np.abs(want - old))
+            assert np.max(np.abs(got - want)) <= tol, f"{what} at step {t}: {np.max(np.abs(got - want)):.3g} > {tol:.3g}"
+            if n == 0:  # no period ended: no update
+                np.testing.assert_array_equal(got, old, err_msg=f"{what} at step {t}")
+    assert learned >= 5 and instants >= 4, (learned, instants)
+    assert np.max(np.abs(flat(ts.theta) - theta0)) > 1e-3 and np.max(np.abs(flat(ts.v) - v0)) > 1e-3
+    for opt, beta in ((ts.opt_theta, cfg.beta_theta), (ts.opt_v, cfg.beta_v)):
+        assert int(opt.count) == instants  # the optimizer steps only where some period ended
+        assert float(opt.hyperparams["learning_rate"]) == np.float32(beta)
+    # the same 25 control steps as one chunk of the scan
+    _, hist = run_learner(dataclasses.replace(cfg, chunk_steps=25), env, seed=4, n_chunks=1)
+    whole = hist[-1][0]
+    np.testing.assert_allclose(flat(whole.theta), flat(ts.theta), rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(flat(whole.v), flat(ts.v), rtol=1e-6, atol=1e-7)
+    assert int(whole.opt_theta.count) == instants and int(whole.step) == 25
+
+
+def test_step_sizes_are_traced_from_hyper():
+    """The step sizes come from the traced Hyper at every step (not from the config or the value
+    the optimizer state was created with): beta^theta = 0 in Hyper freezes theta, a new beta^v
+    changes v's steps, and neither recompiles the chunk."""
+    env = TinyEnv(stop_prob=0.1)
+    cfg = tiny_config(l=2, num_envs=2, chunk_steps=20)
+    trainer = make_train(cfg, env)
+    chunk = jax.jit(trainer.chunk)
+    ts0 = jax.jit(trainer.init)(jax.random.key(2))
+    ref, _ = chunk(ts0)
+    h = ts0.hyper._replace(beta_theta=jnp.float32(0.0), beta_v=jnp.float32(2 * cfg.beta_v))
+    ts, _ = chunk(ts0.replace(hyper=h))
+    assert chunk._cache_size() == 1
+    np.testing.assert_array_equal(flat(ts.theta), flat(ts0.theta))
+    assert not np.allclose(flat(ts.v), flat(ref.v))
+    assert float(ts.opt_v.hyperparams["learning_rate"]) == np.float32(2 * cfg.beta_v)
+    assert int(ts.periods) > 0 and not np.allclose(flat(ref.theta), flat(ts0.theta))
 
 
 # --------------------------------------------------------------------------- 4. outcome on HalfCheetah
