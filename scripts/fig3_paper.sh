@@ -24,7 +24,9 @@ if [ ! -f "$OUT/sweep.json" ] && [ -f "$PUBLISHED/sweep.json" ] && [ -d "$PUBLIS
   cp "$PUBLISHED/sweep.json" "$OUT/"
   for p in "$PUBLISHED"/points/*/; do
     d="$OUT/points/$(basename "$p")"; mkdir -p "$d"
-    cp "$p/config.json" "$p/metrics.jsonl" "$p/compact.npz" "$d/"
+    for f in config.json metrics.jsonl compact.npz; do  # a point that never ran has only its config
+      if [ -f "$p/$f" ]; then cp "$p/$f" "$d/"; fi
+    done
   done
 fi
 if [ -f "$OUT/sweep.json" ]; then
