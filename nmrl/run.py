@@ -26,6 +26,7 @@ import pathlib
 import signal
 import sys
 import time
+from typing import Callable
 import jax
 import numpy as np
 
@@ -190,6 +191,28 @@ def _sharded_trainer(cfg: TrainConfig, trainer, devices: int | None = None):
     if n == 1:
         return trainer
     return make_train(cfg, env=trainer.env, axis_name=sharding.AXIS, num_shards=n)
+
+
+def stop_on_signals() -> tuple[dict, Callable[[], None]]:
+    """Install SIGINT/SIGTERM handlers for a chunk loop: a first signal sets ``stop["signal"]`` (the
+    loop stops after the chunk in flight is saved), a second stops at once (KeyboardInterrupt).
+    Returns ``(stop, restore)``; call ``restore()`` when the loop ends."""
+    stop: dict = {"signal": None}
+
+    def on_signal(signum, _frame):
+        if stop["signal"] is not None:
+            raise KeyboardInterrupt
+        stop["signal"] = signum
+        print(f"\nsignal {signum}: stopping after the chunk in flight is saved (again to stop now)",
+              file=sys.stderr, flush=True)
+
+    old = {sg: signal.signal(sg, on_signal) for sg in (signal.SIGINT, signal.SIGTERM)}
+
+    def restore() -> None:
+        for sg, h in old.items():
+            signal.signal(sg, h)
+
+    return stop, restore
 
 
 def compile_chunk(fn, ts, donate: bool = True):
@@ -432,16 +455,7 @@ def train(cfg: TrainConfig, out: str | os.PathLike, *, resume: bool = False, pro
         print(f"compiled the training chunk ({cfg.num_envs} environments on {n_dev} device(s)) in "
               f"{compile_s:.1f} s", file=sys.stderr, flush=True)
 
-    stop = {"signal": None}
-
-    def on_signal(signum, _frame):
-        if stop["signal"] is not None:
-            raise KeyboardInterrupt
-        stop["signal"] = signum
-        print(f"\nsignal {signum}: stopping after the chunk in flight is saved (again to stop now)",
-              file=sys.stderr, flush=True)
-
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    stop, restore_signals = stop_on_signals()
     bar = _Progress(cfg, progress, int(ts.step) if cfg.steps is not None else int(ts.trials))
     rows: list[dict] = []
     n_chunks = 0
@@ -472,7 +486,6 @@ def train(cfg: TrainConfig, out: str | os.PathLike, *, resume: bool = False, pro
                 break
     finally:
         bar.close()
-        for s, h in old.items():
-            signal.signal(s, h)
+        restore_signals()
     return rows
 

@@ -39,7 +39,6 @@ import io
 import json
 import os
 import pathlib
-import signal
 import sys
 import time
 from typing import Callable, Sequence
@@ -339,15 +338,6 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[T
     last_rows: dict = {}
     t_start = time.time()
     n_chunks = 0
-    stop = {"signal": None}
-
-    def on_signal(signum, _frame):
-        if stop["signal"] is not None:
-            raise KeyboardInterrupt
-        stop["signal"] = signum
-        print(f"\nsignal {signum}: stopping after the chunk in flight is saved (again to stop now)",
-              file=sys.stderr, flush=True)
-
     unsaved: set[int] = set()  # points whose newest metrics row has no checkpoint yet
 
     def save(i: int) -> None:
@@ -356,7 +346,7 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[T
         checkpoint.save_compact(dirs[i], one, configs[i])
         unsaved.discard(i)
 
-    old_handlers = {sg: signal.signal(sg, on_signal) for sg in (signal.SIGINT, signal.SIGTERM)}
+    stop, restore_signals = run.stop_on_signals()
     try:
         while not done.all():
             stage = next(st for st in stages if not all(done[i] for i in st))
@@ -399,8 +389,7 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[T
             if max_chunks is not None and n_chunks >= max_chunks:
                 break
     finally:
-        for sg, h in old_handlers.items():
-            signal.signal(sg, h)
+        restore_signals()
     return stop["signal"]
 
 
