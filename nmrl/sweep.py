@@ -292,8 +292,7 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[T
         for i, (d, tr, st, f) in enumerate(zip(dirs, trainers, steps, frozen)):
             if fresh[i]:
                 states[i] = jax.jit(tr.init)(jax.random.PRNGKey(tr.config.seed), Hyper.from_config(tr.config))
-                d.mkdir(parents=True, exist_ok=True)
-                run.atomic_write_text(d / run.CONFIG_FILE, json.dumps(dataclasses.asdict(tr.config), indent=2) + "\n")
+                _write_point_config(d, tr.config)
             elif st is None:  # no full checkpoint (e.g. a fresh clone of published results)
                 states[i] = checkpoint.restore_compact(d, tr)
                 run.truncate_metrics(d, int(states[i].step))
@@ -308,8 +307,7 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[T
         ts = init(keys, hypers)
         states = [_unstack(ts, i) for i in range(P_)]
         for d, c in zip(dirs, configs):
-            d.mkdir(parents=True, exist_ok=True)
-            run.atomic_write_text(d / run.CONFIG_FILE, json.dumps(dataclasses.asdict(c), indent=2) + "\n")
+            _write_point_config(d, c)
             (d / run.METRICS_FILE).unlink(missing_ok=True)
     slots = slot_order(P_, n_dev, [i for st in stages for i in st])
     slot_of = {i: j for j, i in enumerate(slots) if i >= 0}
@@ -391,6 +389,23 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[T
     finally:
         restore_signals()
     return stop["signal"]
+
+
+def _write_point_config(d: pathlib.Path, cfg: TrainConfig) -> None:
+    d.mkdir(parents=True, exist_ok=True)
+    run.atomic_write_text(d / run.CONFIG_FILE, json.dumps(dataclasses.asdict(cfg), indent=2) + "\n")
+
+
+def at_milestone(rows: list[dict], m: int) -> float | None:
+    """Mean avg_reward of the chunks whose trial count lies in (0.9 m, m] (the last tenth before the
+    milestone m); None when the run has not reached m trials."""
+    if not rows or rows[-1]["trials"] < m:
+        return None
+    sel = [r["avg_reward"] for r in rows if 0.9 * m < r["trials"] <= m]
+    if not sel:  # a chunk longer than a tenth of m: the last chunk at or before m
+        before = [r for r in rows if r["trials"] <= m]
+        sel = [before[-1]["avg_reward"]] if before else []
+    return float(np.mean(sel)) if sel else None
 
 
 def _stages(priority, num_points: int) -> list[list[int]]:

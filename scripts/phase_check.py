@@ -125,16 +125,12 @@ def summarize(args, names, out: pathlib.Path) -> int:
 
     from nmrl import plots, run, sweep
 
-    def at(rows, M):
-        sel = [r["avg_reward"] for r in rows if 0.9 * M < r["trials"] <= M]
-        return float(np.mean(sel)) if sel and rows[-1]["trials"] >= M else None
-
     res = {"what": __doc__.split("\n")[0], "args": vars(args), "milestones": list(MILESTONES), "by_l": {}}
     for l in args.ls:
         e = {}
         for M in MILESTONES:
-            mixed = [at(_read(out / f"l{l}_s{s}.jsonl"), M) for s in range(args.seeds)]
-            inph = [at(run.read_metrics(sweep.point_dir(pathlib.Path(args.sweep), l, s)), M) for s in range(args.seeds)]
+            mixed = [sweep.at_milestone(_read(out / f"l{l}_s{s}.jsonl"), M) for s in range(args.seeds)]
+            inph = [sweep.at_milestone(run.read_metrics(sweep.point_dir(pathlib.Path(args.sweep), l, s)), M) for s in range(args.seeds)]
             diff = [a - b for a, b in zip(mixed, inph) if a is not None and b is not None]
             # a paired comparison: the same initial networks (PRNGKey(seed)), different phases and noise
             mm = plots.mean_ci95(np.array([x for x in mixed if x is not None])) if None not in mixed else (None, None)

@@ -40,21 +40,10 @@ def _atomic_copy(src: pathlib.Path, dst: pathlib.Path) -> None:
     os.replace(tmp, dst)
 
 
-def at_milestone(rows: list[dict], m: int) -> float | None:
-    """Mean avg_reward of the chunks with trials in (0.9 m, m]; None when the point is not there yet."""
-    if not rows or rows[-1]["trials"] < m:
-        return None
-    sel = [r["avg_reward"] for r in rows if 0.9 * m < r["trials"] <= m]
-    if not sel:  # a chunk longer than a tenth of m: the last chunk at or before m
-        before = [r for r in rows if r["trials"] <= m]
-        sel = [before[-1]["avg_reward"]] if before else []
-    return float(np.mean(sel)) if sel else None
-
-
 def progress(src: pathlib.Path, spec: sweep.SweepSpec) -> dict:
     budget = spec.base.trials
     out = {"budget_trials": budget, "milestones": list(MILESTONES), "by_l": {}, "points": {}, "diverged": []}
-    rates = []
+    newest: dict[int, list[float]] = {}  # step -> steps_per_s of the points' chunks ending there
     for l in spec.ls:
         per = {str(m): [] for m in MILESTONES}
         for s in range(spec.seeds):
@@ -69,21 +58,16 @@ def progress(src: pathlib.Path, spec: sweep.SweepSpec) -> dict:
                                    "final_avg_reward": sweep.final_avg(rows, "avg_reward"),
                                    "diverged": div is not None}
             for m in MILESTONES:
-                per[str(m)].append(at_milestone(rows, m))
-            rates += [(r["wall_s"], r) for r in rows[-5:]]
+                per[str(m)].append(sweep.at_milestone(rows, m))
+            for r in rows[-20:]:
+                newest.setdefault(r["step"], []).append(r["steps_per_s"])
         out["by_l"][str(l)] = {}
         for m, vals in per.items():
             got = [v for v in vals if v is not None]
             mean, half = plots.mean_ci95(np.array(got)) if len(got) == spec.seeds else (None, None)
             out["by_l"][str(l)][m] = {"mean": mean, "ci95": half, "seeds": vals}
-    # rate: the newest chunk of every point ran in the same wall time; steps_per_s already counts
-    # every point active in that chunk (nmrl.run.metrics_row(points=...))
-    newest = {}
-    for l in spec.ls:
-        for s in range(spec.seeds):
-            rows = run.read_metrics(sweep.point_dir(src, l, s))
-            for r in rows[-20:]:
-                newest.setdefault(r["step"], []).append(r["steps_per_s"])
+    # rate: the points active in a chunk share its wall time, and steps_per_s already counts every
+    # one of them (nmrl.run.metrics_row(points=...))
     recent = sorted(newest.items())[-10:]
     out["rate_ctrl_steps_per_s"] = float(np.median([v[0] for _, v in recent])) if recent else None
     return out
