@@ -37,8 +37,8 @@ def _mjx_worker(batch_sizes, mode: str, steps_per_call: int, repeats: int, itera
     import numpy as np
     from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 
-    from nmrl.env import EnvConfig, HalfCheetah
-    from nmrl.sharding import shard_batch
+    from nmrl.paper.env import EnvConfig, HalfCheetah
+    from nmrl.runs.sharding import shard_batch
 
     t0 = time.perf_counter()
     env = HalfCheetah(EnvConfig(solver_iterations=iterations, ls_iterations=iterations))
@@ -74,7 +74,7 @@ def _mjx_worker(batch_sizes, mode: str, steps_per_call: int, repeats: int, itera
             f = jax.jit(jax.shard_map(lambda s, k: local_rollout(s, k, T), mesh=mesh,
                                       in_specs=(P("b"), P("b")), out_specs=(P("b"), P("b"), P("b")),
                                       check_vma=False))
-        elif mode == "shard_map":  # nmrl.sharding: zero-size leaves replicated up front
+        elif mode == "shard_map":  # nmrl.runs.sharding: zero-size leaves replicated up front
             states, akeys = shard_batch((states, akeys), mesh)
             f = jax.jit(jax.shard_map(lambda s, k: local_rollout(s, k, T), mesh=mesh,
                                       in_specs=(P("b"), P("b")), out_specs=(P("b"), P("b"), P("b")),
@@ -143,7 +143,7 @@ def c_rollout(batch_sizes, nstep_control: int, nthreads, repeats: int = 3) -> li
     import numpy as np
     from mujoco import rollout
 
-    from nmrl.env import MODEL_PATH, EnvConfig
+    from nmrl.paper.env import MODEL_PATH, EnvConfig
 
     m = mujoco.MjModel.from_xml_path(str(MODEL_PATH))
     n_sub = int(round(EnvConfig().control_dt / m.opt.timestep))
@@ -222,7 +222,7 @@ def physics_options_study(n_seeds: int = 8, seconds: float = 2.0) -> dict:
     import mujoco
     import numpy as np
 
-    from nmrl.env import MODEL_PATH
+    from nmrl.paper.env import MODEL_PATH
 
     T = int(round(seconds / 0.02))
     rng = np.random.default_rng(0)

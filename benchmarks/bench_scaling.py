@@ -5,8 +5,8 @@ points (l = 10, seeds 0 and 1, ``num_envs`` environments each) and times, interl
 1dev, ...; medians of the per-round ratio):
 
 * ``1dev``: ``jit(vmap(trainer.chunk))`` with the stacked state on device 0 only;
-* ``2dev``: ``nmrl.sharding.shard_map_batch(vmap(trainer.chunk))`` with the points split over the
-  two devices by ``nmrl.sharding.shard_batch`` -- exactly what ``nmrl sweep`` runs with 2 devices.
+* ``2dev``: ``nmrl.runs.sharding.shard_map_batch(vmap(trainer.chunk))`` with the points split over the
+  two devices by ``nmrl.runs.sharding.shard_batch`` -- exactly what ``nmrl sweep`` runs with 2 devices.
 
 In full mode a second worker without the flag (a plain 1-device process) times ``1dev`` alone, as a
 check that forcing 2 host devices does not slow the 1-device program (not interleaved: a separate
@@ -15,7 +15,7 @@ process, so only roughly comparable).
 Splitting a *single* run's environment batch over devices needs a psum of the summed update and is
 not implemented (README, "Many devices and hosts"), so only the points axis is measured.
 
-Every worker runs with a timeout: a 2-device shard_map run has hung before (nmrl/sharding.py), and
+Every worker runs with a timeout: a 2-device shard_map run has hung before (nmrl/runs/sharding.py), and
 a hang is reported as ``{"error": "timeout ..."}`` with whatever the worker printed, instead of
 blocking the harness.
 
@@ -46,9 +46,9 @@ def _worker(modes: list[str], rounds: int) -> dict:
     import jax.numpy as jnp
 
     from benchmarks.bench_learning import interleave, timing
-    from nmrl import sharding
-    from nmrl.learner import Hyper, TrainConfig, make_train
-    from nmrl.run import compile_chunk
+    from nmrl.runs import sharding
+    from nmrl.paper.learner import Hyper, TrainConfig, make_train
+    from nmrl.runs.driver import compile_chunk
 
     devs = jax.local_devices()
     configs = [TrainConfig(num_envs=NUM_ENVS, chunk_steps=CHUNK_STEPS, l=L, seed=s).resolved()
@@ -134,7 +134,7 @@ def run(quick: bool = False) -> dict:
     timeout = 150 if quick else 420
     t0 = time.perf_counter()
     out = {
-        "benchmark": "training chunk (sweep points) on 1 vs 2 CPU devices via nmrl.sharding shard_map",
+        "benchmark": "training chunk (sweep points) on 1 vs 2 CPU devices via nmrl.runs.sharding shard_map",
         "quick": quick,
         "config": {"points": POINTS, "l": L, "num_envs_per_point": NUM_ENVS, "chunk_steps": CHUNK_STEPS,
                    "rounds": rounds, "timeout_s": timeout, "split": "points (sweep axis)",

@@ -3,7 +3,7 @@
 In one run (a worker subprocess with ``XLA_FLAGS=--xla_force_host_platform_device_count=<cores>``,
 the contenders interleaved round by round: a, b, a, b, ...):
 
-* (a) ``new``: the layout of ``nmrl sweep`` (nmrl/sweep.py ``points_program``): the 24 points
+* (a) ``new``: the layout of ``nmrl sweep`` (nmrl/experiments/sweep.py ``points_program``): the 24 points
   (l in {1, 2, 3, 5, 10, 15, 20, 30} x 3 seeds) of ``NUM_ENVS`` environments each, split over every
   device with ``shard_map``, stepped one after another on each device (``lax.map``), with learning;
 * (b) ``single_vmap``: the layout of results/fig3_fast: the same 24 points with 64 environments
@@ -36,8 +36,8 @@ def _worker(quick: bool) -> dict:
     import jax.numpy as jnp
 
     from benchmarks.bench_learning import interleave, timing
-    from nmrl import sweep
-    from nmrl.learner import Hyper, TrainConfig, make_train
+    from nmrl.experiments import sweep
+    from nmrl.paper.learner import Hyper, TrainConfig, make_train
 
     n_dev = len(jax.local_devices())
     T = CHUNK_STEPS[quick]
@@ -89,7 +89,7 @@ def _worker(quick: bool) -> dict:
 def run(quick: bool = False, timeout: float = 1800) -> dict:
     from benchmarks.bench_env import c_rollout
     from benchmarks.bench_learning import load_avg
-    from nmrl.devices import cpu_cores
+    from nmrl.runs.devices import cpu_cores
 
     t0 = time.perf_counter()
     ncpu = cpu_cores()

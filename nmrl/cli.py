@@ -1,6 +1,6 @@
 """Command line: ``nmrl train``, ``nmrl sweep``, ``nmrl eval``, ``nmrl study``, ``nmrl bench``.
 
-Every field of :class:`nmrl.learner.TrainConfig` is an option of ``train`` and ``sweep``
+Every field of :class:`nmrl.paper.learner.TrainConfig` is an option of ``train`` and ``sweep``
 (``--beta-theta 2e-6``, ``--num-envs 256``, ...). Bad values exit with status 2 and a message that
 names the value, before anything is written.
 
@@ -18,21 +18,21 @@ import math
 import sys
 import typing
 
-from nmrl import devices as _devices
+from nmrl.runs import devices as _devices
 
-# nmrl.learner (and with it JAX) is imported only after nmrl.devices.configure has set the host
+# nmrl.paper.learner (and with it JAX) is imported only after nmrl.runs.devices.configure has set the host
 # device count (main()).
 #: Budget of a plain ``nmrl train`` (control steps per environment): a few minutes on 2 CPU cores.
 DEFAULT_STEPS = 4000
 _SWEEP_FIELDS = {"l", "seed"}  # given as lists to ``nmrl sweep``
-_NOT_OPTIONS = {"grad_stats"}  # diagnostics set by nmrl.gradvar, not training options
+_NOT_OPTIONS = {"grad_stats"}  # diagnostics set by nmrl.experiments.gradvar, not training options
 #: Longest ``nmrl eval --seconds`` (the GIF keeps every frame in memory: 25 per simulated second).
 MAX_EVAL_SECONDS = 600.0
-SEED_MAX = 2**32 - 1  # = nmrl.run.SEED_MAX (not imported here: nmrl.run imports JAX)
+SEED_MAX = 2**32 - 1  # = nmrl.runs.driver.SEED_MAX (not imported here: nmrl.runs.driver imports JAX)
 
 
 def _field_type(f: dataclasses.Field) -> type:
-    from nmrl.learner import TrainConfig
+    from nmrl.paper.learner import TrainConfig
 
     hints = typing.get_type_hints(TrainConfig)
     t = hints[f.name]
@@ -41,7 +41,7 @@ def _field_type(f: dataclasses.Field) -> type:
 
 
 def add_config_options(p: argparse.ArgumentParser, skip: set[str] = frozenset()) -> None:
-    from nmrl.learner import PRESETS, TrainConfig
+    from nmrl.paper.learner import PRESETS, TrainConfig
 
     for f in dataclasses.fields(TrainConfig):
         if f.name in skip or f.name in _NOT_OPTIONS:
@@ -54,14 +54,14 @@ def add_config_options(p: argparse.ArgumentParser, skip: set[str] = frozenset())
 
 def given_options(args: argparse.Namespace, skip: set[str] = frozenset()) -> dict:
     """The TrainConfig fields given on the command line (name -> value)."""
-    from nmrl.learner import TrainConfig
+    from nmrl.paper.learner import TrainConfig
 
     return {f.name: getattr(args, f.name) for f in dataclasses.fields(TrainConfig)
             if f.name not in skip and getattr(args, f.name, None) is not None}
 
 
 def config_from_args(args: argparse.Namespace, skip: set[str] = frozenset()):
-    from nmrl.learner import TrainConfig
+    from nmrl.paper.learner import TrainConfig
 
     return TrainConfig(**given_options(args, skip))
 
@@ -72,7 +72,7 @@ def _fail(msg: str) -> int:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from nmrl import checkpoint, run
+    from nmrl.runs import checkpoint, driver as run
 
     try:
         given = given_options(args)
@@ -118,7 +118,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
         return _fail(f"--seed={args.seed} is invalid: must be an integer in [0, {SEED_MAX}]")
     if args.step is not None and args.step < 0:
         return _fail(f"--step={args.step} is invalid: a checkpoint step is >= 0")
-    from nmrl import checkpoint, evaluate
+    from nmrl.runs import checkpoint
+    from nmrl.analysis import evaluate
 
     try:
         result = evaluate.evaluate(args.run, step=args.step, seconds=args.seconds, seed=args.seed,
@@ -131,7 +132,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
-    from nmrl import sweep
+    from nmrl.experiments import sweep
 
     try:
         base = config_from_args(args, skip=_SWEEP_FIELDS)
@@ -216,7 +217,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-render", action="store_true", help="skip the strobe PNG and the GIF")
     p.set_defaults(func=cmd_eval)
 
-    sub.add_parser("study", help="the finer-delta study: nmrl study --help (nmrl/study.py)", add_help=False)
+    sub.add_parser("study", help="the finer-delta study: nmrl study --help (nmrl/experiments/study.py)", add_help=False)
 
     p = sub.add_parser("bench", help="run the benchmarks (python -m benchmarks)")
     p.add_argument("--quick", action="store_true")
@@ -232,7 +233,7 @@ def main(argv: list[str] | None = None) -> int:
         except ValueError as e:
             return _fail(str(e))
     if argv[:1] == ["study"]:  # its own parser (argparse's REMAINDER would not pass --help on)
-        from nmrl import study
+        from nmrl.experiments import study
 
         return study.main(argv[1:])
     args = build_parser().parse_args(argv)

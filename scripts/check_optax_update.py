@@ -1,7 +1,7 @@
 """Is the optax update (issue 16) bit-identical to the hand-written one it replaced?
 
-Loads nmrl/learner.py as of the commit before the change (``--old``, default a849a9d: theta +=
-beta^theta * sum_e d_e z_e written by hand) next to the current nmrl.learner, runs both on the same
+Loads nmrl/paper/learner.py as of the commit before the change (``--old``, default a849a9d: theta +=
+beta^theta * sum_e d_e z_e written by hand) next to the current nmrl.paper.learner, runs both on the same
 configs and seeds, and compares theta, v and the per-environment state after every chunk, bit for
 bit. Prints one line per case and exits 1 if any case differs.
 
@@ -30,12 +30,12 @@ sys.path.insert(0, str(ROOT / "tests"))
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
-from nmrl import learner  # noqa: E402
+from nmrl.paper import learner  # noqa: E402
 from tiny_env import TinyEnv  # noqa: E402
 
 
 def load_old(commit: str):
-    src = subprocess.run(["git", "show", f"{commit}:nmrl/learner.py"], cwd=ROOT, check=True,
+    src = subprocess.run(["git", "show", f"{commit}:nmrl/paper/learner.py"], cwd=ROOT, check=True,
                          capture_output=True, text=True).stdout
     path = pathlib.Path(tempfile.mkdtemp()) / "learner_old.py"
     path.write_text(src)

@@ -21,7 +21,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from nmrl.noise import piecewise_ar  # noqa: E402
+from nmrl.paper.noise import piecewise_ar  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -10,7 +10,7 @@
 # continues from the compact states (statistically, not bitwise, equal: every environment starts
 # a new trial). Publish the progress with: .venv/bin/python scripts/publish_fig3.py --paper
 #
-# PRESET=fast uses the "fast" step sizes (nmrl/learner.py) instead of the paper's.
+# PRESET=fast uses the "fast" step sizes (nmrl/paper/learner.py) instead of the paper's.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PRESET=${PRESET:-paper}

@@ -51,7 +51,7 @@ def main(argv=None) -> int:
     if args.warmup % args.chunk_steps:
         ap.error(f"--warmup={args.warmup} must be a multiple of --chunk-steps={args.chunk_steps}")
 
-    from nmrl import devices
+    from nmrl.runs import devices
 
     devices.configure(None)
     if args.summarize:
@@ -61,8 +61,10 @@ def main(argv=None) -> int:
     import jax.numpy as jnp
     import numpy as np
 
-    from nmrl import plots, run, sweep
-    from nmrl.learner import Hyper, TrainConfig, make_train
+    from nmrl.runs import driver as run
+    from nmrl.experiments import sweep
+    from nmrl.analysis import plots
+    from nmrl.paper.learner import Hyper, TrainConfig, make_train
 
     cfgs = [TrainConfig(l=l, seed=s, num_envs=args.num_envs, chunk_steps=args.chunk_steps,
                         trials=args.trials).resolved() for l in args.ls for s in range(args.seeds)]
@@ -123,7 +125,9 @@ def _read(path: pathlib.Path) -> list[dict]:
 def summarize(args, names, out: pathlib.Path) -> int:
     import numpy as np
 
-    from nmrl import plots, run, sweep
+    from nmrl.runs import driver as run
+    from nmrl.experiments import sweep
+    from nmrl.analysis import plots
 
     res = {"what": __doc__.split("\n")[0], "args": vars(args), "milestones": list(MILESTONES), "by_l": {}}
     for l in args.ls:

@@ -47,8 +47,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nmrl import checkpoint, networks, noise
-from nmrl.env import ACT_DIM, EnvConfig, HalfCheetah, kinematics, observation
+from nmrl.paper import networks, noise
+from nmrl.runs import checkpoint
+from nmrl.paper.env import ACT_DIM, EnvConfig, HalfCheetah, kinematics, observation
 
 CANDIDATES = {
     "A: iter 2": {"solver_iterations": 2},

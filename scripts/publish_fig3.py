@@ -5,7 +5,7 @@
 Copies results.csv, sweep.json, fig3.png and every point's metrics.jsonl; for each l in --ls takes
 the seed with the highest avg_reward, copies its newest checkpoint's *policy* (actor and critic
 parameters plus metadata, small: ``nmrl eval`` restores it; the full training state stays in the
-sweep directory) and evaluates it with ``nmrl.evaluate`` (JSON, strobe PNG, GIF).
+sweep directory) and evaluates it with ``nmrl.analysis.evaluate`` (JSON, strobe PNG, GIF).
 """
 
 from __future__ import annotations
@@ -18,7 +18,9 @@ import sys
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
 
-from nmrl import checkpoint, evaluate, plots, sweep  # noqa: E402
+from nmrl.runs import checkpoint  # noqa: E402
+from nmrl.experiments import sweep  # noqa: E402
+from nmrl.analysis import evaluate, plots  # noqa: E402
 
 
 def copy_policy(point: pathlib.Path, dest: pathlib.Path) -> pathlib.Path:
@@ -68,7 +70,7 @@ def main() -> None:
 
 
 def _spec(src: pathlib.Path) -> dict:
-    from nmrl.learner import TrainConfig
+    from nmrl.paper.learner import TrainConfig
 
     s = json.loads((src / sweep.SPEC_FILE).read_text())
     return {"ls": tuple(s["ls"]), "seeds": s["seeds"], "base": TrainConfig(**s["base"])}

@@ -7,7 +7,7 @@ Writes into ``dest`` (each file atomically):
 * ``sweep.json``, ``results.csv`` (the columns of ``nmrl sweep``), ``fig3.png``;
 * ``points/l{l}_s{seed}/{config.json, metrics.jsonl, compact.npz}``: everything a fresh clone needs
   to continue the sweep (``scripts/fig3_paper.sh`` seeds ``runs/fig3_paper`` from it when the full
-  checkpoints are gone; nmrl.checkpoint.restore_compact);
+  checkpoints are gone; nmrl.runs.checkpoint.restore_compact);
 * ``learning_curves.png``: average reward per step during learning against trials, every l (mean
   over seeds, thin lines per seed), the paper's 3.28 (l = 1) and 4.59 (l = 10) marked;
 * ``progress.json`` and ``progress.md``: per l, the average reward per step during learning at
@@ -27,8 +27,10 @@ import shutil
 
 import numpy as np
 
-from nmrl import plots, run, sweep
-from nmrl.learner import TrainConfig
+from nmrl.runs import driver as run
+from nmrl.experiments import sweep
+from nmrl.analysis import plots
+from nmrl.paper.learner import TrainConfig
 
 MILESTONES = (10_000, 30_000, 100_000)
 
@@ -67,7 +69,7 @@ def progress(src: pathlib.Path, spec: sweep.SweepSpec) -> dict:
             mean, half = plots.mean_ci95(np.array(got)) if len(got) == spec.seeds else (None, None)
             out["by_l"][str(l)][m] = {"mean": mean, "ci95": half, "seeds": vals}
     # rate: the points active in a chunk share its wall time, and steps_per_s already counts every
-    # one of them (nmrl.run.metrics_row(points=...))
+    # one of them (nmrl.runs.driver.metrics_row(points=...))
     recent = sorted(newest.items())[-10:]
     out["rate_ctrl_steps_per_s"] = float(np.median([v[0] for _, v in recent])) if recent else None
     return out

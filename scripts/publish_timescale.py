@@ -1,4 +1,4 @@
-"""Copy a finished finer-delta study (nmrl/study.py) into results/ and print its tables as Markdown.
+"""Copy a finished finer-delta study (nmrl/experiments/study.py) into results/ and print its tables as Markdown.
 
     python scripts/publish_timescale.py runs/timescale results/timescale
 
@@ -16,8 +16,8 @@ import sys
 
 import numpy as np
 
-from nmrl.plots import arm_order, mean_ci95
-from nmrl.study import read_csv
+from nmrl.analysis.plots import arm_order, mean_ci95
+from nmrl.experiments.study import read_csv
 
 
 def main(src: str, dst: str) -> None:

@@ -7,7 +7,7 @@ reports the Monte Carlo variance of
 * the same estimator with piecewise AR noise (4) in nm-periods of a fixed duration
   (``--duration`` s, l = duration/delta_t steps; per-step alpha = rho**(delta_t/tau) so the
   correlation per second is fixed) and the nm-period likelihood ratio, against the
-  closed form of ``nmrl.toy.nm_variance``.
+  closed form of ``nmrl.paper.toy.nm_variance``.
 
 The stationary variance grows like 1/delta_t; the nm-period one stays bounded.
 Writes scripts/out/toy_variance.png and scripts/out/toy_variance.md.
@@ -31,7 +31,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from nmrl import toy  # noqa: E402
+from nmrl.paper import toy  # noqa: E402
 
 DELTAS = (0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001)
 

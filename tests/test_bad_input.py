@@ -24,8 +24,10 @@ import jax
 import jax.numpy as jnp
 import pytest
 
-from nmrl import checkpoint, cli, evaluate, run
-from nmrl.learner import TrainConfig, make_train
+from nmrl import cli
+from nmrl.runs import checkpoint, driver as run
+from nmrl.analysis import evaluate
+from nmrl.paper.learner import TrainConfig, make_train
 
 TINY = ["--num-envs", "8", "--chunk-steps", "25", "--hidden-actor", "8", "--hidden-critic", "8", "--quiet"]
 EVAL = ["--seconds", "1", "--no-render"]

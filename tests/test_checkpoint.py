@@ -1,4 +1,4 @@
-"""Checkpoints (nmrl.checkpoint): exact resume, bad checkpoints, keep, policy-only restore, killed saves.
+"""Checkpoints (nmrl.runs.checkpoint): exact resume, bad checkpoints, keep, policy-only restore, killed saves.
 
 One tiny trainer (4 environments, 5 steps a chunk, 8 hidden units) is compiled once per module; the
 compiled chunk goes into a persistent JAX compilation cache that the killed-process subprocesses
@@ -21,9 +21,9 @@ import jax
 import numpy as np
 import pytest
 
-from nmrl import checkpoint
-from nmrl.checkpoint import CheckpointError
-from nmrl.learner import TrainConfig, make_train
+from nmrl.runs import checkpoint
+from nmrl.runs.checkpoint import CheckpointError
+from nmrl.paper.learner import TrainConfig, make_train
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 # orbax leaves an asyncio callback behind when a restore fails ("Event loop is closed"); harmless.
@@ -337,8 +337,8 @@ def test_budget_may_change(good_run, ref):
 _SCRIPT = r"""
 import json, sys
 import jax
-from nmrl import checkpoint
-from nmrl.learner import TrainConfig, make_train
+from nmrl.runs import checkpoint
+from nmrl.paper.learner import TrainConfig, make_train
 cfg = TrainConfig(**json.loads(sys.argv[2]))
 tr = make_train(cfg)
 ts = jax.device_put(jax.jit(tr.init)(jax.random.PRNGKey(cfg.seed)))

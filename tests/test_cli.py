@@ -6,7 +6,8 @@ import json
 
 import pytest
 
-from nmrl import cli, run
+from nmrl import cli
+from nmrl.runs import driver as run
 
 TINY = ["--num-envs", "4", "--chunk-steps", "5", "--hidden-actor", "8", "--hidden-critic", "8", "--quiet"]
 

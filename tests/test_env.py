@@ -1,7 +1,7 @@
-"""Tests of nmrl.env (the paper's Half-Cheetah, Sec. V-A/V-B) against independent computations.
+"""Tests of nmrl.paper.env (the paper's Half-Cheetah, Sec. V-A/V-B) against independent computations.
 
 The reference values are computed here by hand from the paper's numbers, typed in as literals
-(not imported from nmrl.geometry), or by C MuJoCo (``mujoco.MjModel``/``MjData``, float64),
+(not imported from nmrl.paper.geometry), or by C MuJoCo (``mujoco.MjModel``/``MjData``, float64),
 which shares no code with the JAX environment. One jitted single-env ``step`` and one jitted
 batched ``step`` are shared by the whole module (compiles dominate the run time).
 """
@@ -16,7 +16,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from nmrl.env import (
+from nmrl.paper.env import (
     MODEL_PATH,
     EnvConfig,
     HalfCheetah,

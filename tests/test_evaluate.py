@@ -1,4 +1,4 @@
-"""Evaluation of a saved policy (nmrl.evaluate): JSON summary, pictures, determinism, bad paths."""
+"""Evaluation of a saved policy (nmrl.analysis.evaluate): JSON summary, pictures, determinism, bad paths."""
 
 from __future__ import annotations
 
@@ -10,10 +10,11 @@ import jax
 import numpy as np
 import pytest
 
-from nmrl import checkpoint, evaluate
-from nmrl.checkpoint import CheckpointError
-from nmrl.env import REWARD_TERMS
-from nmrl.learner import TrainConfig, make_train
+from nmrl.runs import checkpoint
+from nmrl.analysis import evaluate
+from nmrl.runs.checkpoint import CheckpointError
+from nmrl.paper.env import REWARD_TERMS
+from nmrl.paper.learner import TrainConfig, make_train
 
 CFG = TrainConfig(num_envs=4, chunk_steps=5, hidden_actor=8, hidden_critic=8, steps=10, seed=1)
 SECONDS = 1.0

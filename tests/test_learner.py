@@ -1,4 +1,4 @@
-"""Behaviour of nmrl.learner (Table II of the paper) against independent references.
+"""Behaviour of nmrl.paper.learner (Table II of the paper) against independent references.
 
 The references below are plain Python loops over control steps, written from the paper (Sec. III,
 IV, V-C, Table II), NOT from learner.py:
@@ -40,8 +40,8 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 from jax.flatten_util import ravel_pytree  # noqa: E402
 
-from nmrl import networks  # noqa: E402
-from nmrl.learner import Hyper, TrainConfig, make_train  # noqa: E402
+from nmrl.paper import networks  # noqa: E402
+from nmrl.paper.learner import Hyper, TrainConfig, make_train  # noqa: E402
 
 try:  # pytest puts tests/ on sys.path (rootdir-relative "prepend" import mode)
     from tiny_env import TinyEnv  # noqa: E402
@@ -227,7 +227,7 @@ def test_single_env_matches_sequential_table2(l, delta, stop_prob, sigma, n_chun
     ref, stops, periods = reference_run(trainer.config, env, seed=3, n_steps=50 * n_chunks, every=50)
     assert stops >= 3 and periods >= 8, (stops, periods)
     assert int(hist[-1][0].trials) == stops and int(hist[-1][0].periods) == periods
-    # the diagnostic sums of g_k = d_k grad ln pi (nmrl/gradvar.py) over all periods
+    # the diagnostic sums of g_k = d_k grad ln pi (nmrl/experiments/gradvar.py) over all periods
     g_sum, g_sq = reference_run.grad_stats
     got_sum = sum(np.asarray(m["g_sum"], np.float64) for _, m in hist)
     got_sq = sum(float(m["g_sqnorm"]) for _, m in hist)
@@ -525,7 +525,7 @@ def test_step_sizes_are_traced_from_hyper():
 # --------------------------------------------------------------------------- 4. outcome on HalfCheetah
 
 #: Outcome-test configuration. The paper's step sizes (2e-6 / 1e-5, one environment) need ~1e5
-#: trials; here 64 environments sum their updates (Sec. "Batching" of nmrl/learner.py) and the
+#: trials; here 64 environments sum their updates (Sec. "Batching" of nmrl/paper/learner.py) and the
 #: actor step is 5x the paper's, the critic's 50x (so that the critic's baseline settles fast),
 #: everything else is the paper's (l = 10, Delta = 4, alpha = 0.8, sigma = 1, gamma = 0.995,
 #: lambda = 0.5, M^A = 100, M^C = 200). Measured on the 2-core CPU (seeds 0 and 1): the average

@@ -1,4 +1,4 @@
-"""Tests of nmrl.noise (eqs. (4)-(7), Sec. IV) and nmrl.toy (Sec. II).
+"""Tests of nmrl.paper.noise (eqs. (4)-(7), Sec. IV) and nmrl.paper.toy (Sec. II).
 
 Every check is against an independent computation: Monte Carlo moments vs eq. (5),
 dense float64 solves vs the tridiagonal closed form, ``jax.grad`` of the dense Gaussian
@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 from jax.scipy.stats import multivariate_normal
 
-from nmrl import noise as N
-from nmrl import toy
+from nmrl.paper import noise as N
+from nmrl.paper import toy
 
 OBS, HID, ACT = 31, 8, 6
 

@@ -1,4 +1,4 @@
-"""The finer-delta study (nmrl/study.py) and the gradient-variance statistics (nmrl/gradvar.py)."""
+"""The finer-delta study (nmrl/experiments/study.py) and the gradient-variance statistics (nmrl/experiments/gradvar.py)."""
 
 from __future__ import annotations
 
@@ -9,9 +9,10 @@ import math
 import numpy as np
 import pytest
 
-from nmrl import gradvar, run, study
-from nmrl.learner import TrainConfig
-from nmrl.timescale import DELTA_0
+from nmrl.runs import driver as run
+from nmrl.experiments import gradvar, study
+from nmrl.paper.learner import TrainConfig
+from nmrl.experiments.timescale import DELTA_0
 
 # ------------------------------------------------------------------ gradvar.summarize vs numpy / MC
 

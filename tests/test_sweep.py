@@ -1,4 +1,4 @@
-"""The sweep (nmrl/sweep.py, Sec. V-D / Fig. 3): one vmapped program equals separate runs."""
+"""The sweep (nmrl/experiments/sweep.py, Sec. V-D / Fig. 3): one vmapped program equals separate runs."""
 
 from __future__ import annotations
 
@@ -8,8 +8,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from nmrl import checkpoint, cli, run, sweep
-from nmrl.learner import TrainConfig, make_train
+from nmrl import cli
+from nmrl.runs import checkpoint, driver as run
+from nmrl.experiments import sweep
+from nmrl.paper.learner import TrainConfig, make_train
 
 # Tiny networks, 8 environments, 2 chunks of 25 steps: 400 periods per point at l = 1.
 BASE = TrainConfig(num_envs=8, chunk_steps=25, steps=50, hidden_actor=8, hidden_critic=8,

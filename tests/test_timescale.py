@@ -1,13 +1,13 @@
-"""Per-second invariants of nmrl.timescale (the finer-delta study's conversion rules)."""
+"""Per-second invariants of nmrl.experiments.timescale (the finer-delta study's conversion rules)."""
 
 import math
 
 import numpy as np
 import pytest
 
-from nmrl import noise
-from nmrl.learner import TrainConfig
-from nmrl.timescale import at_control_step
+from nmrl.paper import noise
+from nmrl.paper.learner import TrainConfig
+from nmrl.experiments.timescale import at_control_step
 
 BASE = TrainConfig()  # the paper's constants at 0.02 s
 

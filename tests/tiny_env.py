@@ -1,4 +1,4 @@
-"""A tiny deterministic-dynamics environment with the interface of ``nmrl.env.HalfCheetah``.
+"""A tiny deterministic-dynamics environment with the interface of ``nmrl.paper.env.HalfCheetah``.
 
 Used by the learner tests so that a run takes seconds. A stable linear system
 
@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nmrl.env import State
+from nmrl.paper.env import State
 
 A = np.array([[0.9, 0.1, 0.0], [-0.1, 0.8, 0.1], [0.0, 0.2, 0.7]], np.float32)
 B = np.array([[0.1, 0.0], [0.05, 0.1], [0.0, 0.1]], np.float32)

@@ -4,7 +4,7 @@ The paper's thesis (Sec. III, eq. (1)): as the control step delta shrinks, a sta
 (white exploration noise, l = 1) learns worse, and nm-periods of a fixed *duration* do not. Its
 experiment uses delta = 0.02 s only. This study runs delta in {0.02, 0.01, 0.005} s on the same
 physics (5 ms MuJoCo steps, 4/2/1 per control step) and the same problem in continuous time
-(nmrl/timescale.py: gamma, alpha, lambda, stop probability, Delta and rewards converted per second).
+(nmrl/experiments/timescale.py: gamma, alpha, lambda, stop probability, Delta and rewards converted per second).
 
 Arms, per delta: the stationary policy (l = 1) and nm-periods of 0.1, 0.2 and 0.4 s
 (l = period / delta, e.g. 10, 20, 40 for 0.2 s).
@@ -20,12 +20,12 @@ Every arm then runs ``seeds`` seeds at its chosen pair for the same budget in si
 Layout of ``OUT``::
 
     study.json                   the spec (refuses to continue a different one)
-    grid/dt{delta}/points/...    one vmapped program per delta (nmrl.sweep.run_points)
+    grid/dt{delta}/points/...    one vmapped program per delta (nmrl.experiments.sweep.run_points)
     grid.csv                     every grid run: delta, arm, betas, score, diverged, chosen
     final/dt{delta}/points/...   the chosen step sizes x seeds
     final.csv                    delta, arm, seed, betas, reward per second, speed, diverged
-    gradvar.csv                  tr Cov of the per-period actor gradient estimate (nmrl/gradvar.py)
-    timescale.png, grid.png      the figures (nmrl/plots.py)
+    gradvar.csv                  tr Cov of the per-period actor gradient estimate (nmrl/experiments/gradvar.py)
+    timescale.png, grid.png      the figures (nmrl/analysis/plots.py)
 
 Every phase resumes where it stopped: run the same command again. A larger ``--final-seconds``
 (everything else the same) extends the final runs from their last checkpoints.
@@ -47,9 +47,10 @@ from typing import Sequence
 import jax
 import numpy as np
 
-from nmrl import checkpoint, gradvar, run, sweep
-from nmrl.learner import TrainConfig, make_train
-from nmrl.timescale import DELTA_0, at_control_step
+from nmrl.runs import checkpoint, driver as run
+from nmrl.experiments import gradvar, sweep
+from nmrl.paper.learner import TrainConfig, make_train
+from nmrl.experiments.timescale import DELTA_0, at_control_step
 
 SPEC_FILE = "study.json"
 GRID_COLUMNS = ("dt", "arm", "period_s", "l", "delta", "beta_theta", "beta_v", "steps", "seconds",
@@ -406,7 +407,7 @@ def run_study(spec: StudySpec, out: str | pathlib.Path, *, phases: Sequence[str]
     elif (out / "gradvar.csv").exists():
         result["gradvar"] = read_csv(out / "gradvar.csv")
     if "plot" in phases and result["grid"]:
-        from nmrl import plots
+        from nmrl.analysis import plots
 
         plots.timescale(out, result["grid"], result["final"], result["gradvar"])
     return result

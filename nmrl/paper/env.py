@@ -38,9 +38,9 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 from flax import struct
-from nmrl import _mjx as mjx  # quiet import (see nmrl/__init__.py)
+from nmrl.paper import _mjx as mjx  # quiet import (see nmrl/__init__.py)
 
-from nmrl import geometry as g
+from nmrl.paper import geometry as g
 
 MODEL_PATH = pathlib.Path(__file__).resolve().parents[1] / "models" / "half_cheetah.xml"
 OBS_DIM = 31
@@ -104,7 +104,7 @@ def forward_kinematics(qpos: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Joint positions (10, 2) [(x, y)] and link angles phi (9,) from MJX qpos (9,).
 
     qpos = [x, z, theta, q3, q2, q1, q6, q7, q8]; omega_i = omega^0_i + q_i; the trunk angle is
-    phi_3 = theta. See nmrl/geometry.py for the conventions.
+    phi_3 = theta. See nmrl/paper/geometry.py for the conventions.
     """
     L = jnp.asarray(g.LINK_LENGTHS)
     w0 = jnp.asarray(g.OMEGA0)

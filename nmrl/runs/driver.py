@@ -1,14 +1,14 @@
 """The training run on the Python side: jitted chunks, progress, metrics.jsonl, checkpoints.
 
 Between two chunks of ``chunk_steps`` control steps (one ``jit``-compiled ``lax.scan``, see
-nmrl/learner.py) this loop only shows progress, appends one JSON object per chunk to
+nmrl/paper/learner.py) this loop only shows progress, appends one JSON object per chunk to
 ``OUT/metrics.jsonl`` and saves an orbax checkpoint of the full training state. A run whose
 parameters diverge stops with a clear message and keeps its last good checkpoint; SIGINT/SIGTERM
 stop the run after the chunk in flight has been saved (:class:`Stopped`; a second signal stops it
 at once; the last checkpoint is intact because checkpoints are written atomically).
 
 A run directory has one identity, the config it was created with (``config.json``; see
-nmrl/checkpoint.py). A fresh run never starts in a directory that holds any part of a run
+nmrl/runs/checkpoint.py). A fresh run never starts in a directory that holds any part of a run
 (:data:`RUN_FILES`); a resume continues the run with its own config -- only the budget may change,
 recorded in ``config.json`` and ``resumes.jsonl`` -- from its newest checkpoint or the one asked
 for, and refuses a checkpoint of another run or a corrupted one (naming the newest good one).
@@ -30,8 +30,8 @@ from typing import Callable
 import jax
 import numpy as np
 
-from nmrl import checkpoint, sharding
-from nmrl.learner import TrainConfig, make_train
+from nmrl.runs import checkpoint, sharding
+from nmrl.paper.learner import TrainConfig, make_train
 
 METRICS_FILE = "metrics.jsonl"
 CONFIG_FILE = checkpoint.RUN_CONFIG
@@ -71,7 +71,7 @@ def physics_timestep() -> float:
     """The MJCF's physics timestep [s]; a control step must be a whole number of them."""
     import mujoco
 
-    from nmrl.env import MODEL_PATH
+    from nmrl.paper.env import MODEL_PATH
 
     return float(mujoco.MjModel.from_xml_path(str(MODEL_PATH)).opt.timestep)
 
@@ -392,7 +392,7 @@ def train(cfg: TrainConfig, out: str | os.PathLike, *, resume: bool = False, pro
     """Run (or resume) training into ``out``; returns the metrics rows written in this call.
 
     The N environments are split over ``devices`` local devices (default: every one; on a CPU
-    nmrl.devices exposes one per core), each stepping its N/D environments; the summed update is
+    nmrl.runs.devices exposes one per core), each stepping its N/D environments; the summed update is
     ``psum``-ed (equal to the 1-device run up to float rounding, tests/test_sharding.py).
 
     A fresh run refuses an ``out`` holding any of :data:`RUN_FILES` (RunError). A resume continues

@@ -1,7 +1,7 @@
 """Checkpoints of a training run (orbax-checkpoint).
 
-``save(run_dir, ts, config)`` writes the whole :class:`~nmrl.learner.TrainState` (theta, v, every
-:class:`~nmrl.learner.EnvSlot` with its MJX state, noise, likelihood ratio and traces, the PRNG key,
+``save(run_dir, ts, config)`` writes the whole :class:`~nmrl.paper.learner.TrainState` (theta, v, every
+:class:`~nmrl.paper.learner.EnvSlot` with its MJX state, noise, likelihood ratio and traces, the PRNG key,
 the traced hyperparameters, the counters and the divergence flag) to ``RUN_DIR/checkpoints/<step>/``;
 ``restore(run_dir, trainer)`` gives it back bit for bit, so a resumed run continues exactly as an
 uninterrupted one. ``restore_policy`` reads only (theta, v) for evaluation.
@@ -70,9 +70,9 @@ import jax.numpy as jnp
 import numpy as np
 
 import nmrl
-from nmrl import networks
-from nmrl.env import MODEL_PATH, OBS_DIM, ACT_DIM
-from nmrl.learner import OPT_FIELDS, Params, TrainConfig, TrainState, Trainer
+from nmrl.paper import networks
+from nmrl.paper.env import MODEL_PATH, OBS_DIM, ACT_DIM
+from nmrl.paper.learner import OPT_FIELDS, Params, TrainConfig, TrainState, Trainer
 
 __all__ = [
     "CheckpointError",
@@ -107,7 +107,7 @@ ITEMS = ("state", "policy", "meta")
 #: Config fields that may differ between a checkpoint and the trainer that resumes it (the budget);
 #: every other field is part of the run's identity.
 RESUMABLE_FIELDS = ("steps", "trials")
-#: The run's config, written when the run is created (nmrl/run.py); the reference of its identity.
+#: The run's config, written when the run is created (nmrl/runs/driver.py); the reference of its identity.
 RUN_CONFIG = "config.json"
 
 _SEP = "."
@@ -711,7 +711,7 @@ def newest_good(run_dir: str | os.PathLike, load: Any, step: int | None = None
     raise CorruptCheckpoint(f"{d}: none of the {len(skipped)} checkpoints is readable; the newest: {skipped[0]}")
 
 
-if __name__ == "__main__":  # pragma: no cover - `python -m nmrl.checkpoint RUN` prints the metadata
+if __name__ == "__main__":  # pragma: no cover - `python -m nmrl.runs.checkpoint RUN` prints the metadata
     m = load_metadata(sys.argv[1], int(sys.argv[2]) if len(sys.argv) > 2 else None)
     m.pop("state_layout", None)
     print(json.dumps(m, indent=2))

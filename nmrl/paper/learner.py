@@ -10,7 +10,7 @@ Per environment e, per nm-period k (Table II):
 
 1. perform l_k actions a_t = a~(s_t; theta) + xi_t (eq. (6)) with xi the piecewise AR process (4);
    accumulate r_bar_k = sum_i gamma^i r_{t_k+i}; accumulate the Delta-sampled likelihood ratio
-   grad ln pi_Ahat(Ahat_k; S_k, theta) online (nmrl.noise.online_lr_add, the innovation form of (7));
+   grad ln pi_Ahat(Ahat_k; S_k, theta) online (nmrl.paper.noise.online_lr_add, the innovation form of (7));
 2. if the trial was stopped within the period, discard it: no update, traces z, y := 0 (a new trial
    begins), and a new period starts at the reset state;
 3. d_k = r_bar_k + gamma_k V~(s_{t_{k+1}}; v) - V~(s_{t_k}; v), gamma_k = gamma^{l_k};
@@ -63,14 +63,14 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from nmrl import networks, noise
-from nmrl.env import EnvConfig, HalfCheetah, State
+from nmrl.paper import networks, noise
+from nmrl.paper.env import EnvConfig, HalfCheetah, State
 
 Params = Any
 OptState = Any
 
 #: The TrainState fields that hold the optimizer states (a checkpoint written before issue 16 lacks
-#: them; nmrl/checkpoint.py restores it with fresh ones, see :func:`make_train`'s ``init_opt``).
+#: them; nmrl/runs/checkpoint.py restores it with fresh ones, see :func:`make_train`'s ``init_opt``).
 OPT_FIELDS = ("opt_theta", "opt_v")
 
 #: Named step-size presets. "paper" is Sec. V-C. "fast" is for the budgets this 2-core machine
@@ -112,10 +112,10 @@ class TrainConfig:
     seed: int = 0
     max_param_norm: float = 1e5  #: a parameter norm above this (or NaN) marks the run diverged
     #: the learner receives reward_scale * r_t (the finer-delta study uses delta / 0.02 s so that the
-    #: discounted return, an integral over time, keeps its scale; nmrl/timescale.py). Metrics report r_t.
+    #: discounted return, an integral over time, keeps its scale; nmrl/experiments/timescale.py). Metrics report r_t.
     reward_scale: float = 1.0
     #: diagnostic: every chunk also returns sums of the per-period actor gradient estimates
-    #: g_k = d_k grad ln pi (nmrl/gradvar.py); off in training (it costs a little)
+    #: g_k = d_k grad ln pi (nmrl/experiments/gradvar.py); off in training (it costs a little)
     grad_stats: bool = False
 
     def resolved(self) -> "TrainConfig":
@@ -268,7 +268,7 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
     ``State`` with ``obs``, ``reward``, ``done``, ``metrics`` incl. ``forward_speed`` and ``nonfinite``) works.
 
     With ``axis_name`` and ``num_shards`` > 1, ``chunk`` is written for ``jax.shard_map`` over the
-    environment axis of ``TrainState.slots`` (nmrl/run.py does that): each shard steps its
+    environment axis of ``TrainState.slots`` (nmrl/runs/driver.py does that): each shard steps its
     ``num_envs / num_shards`` environments, and the summed update and the statistics are ``psum``-ed
     over ``axis_name``. The noise of all N environments is drawn from the shared key and each shard
     takes its slice, so the draws equal the unsharded program's.

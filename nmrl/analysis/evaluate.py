@@ -1,6 +1,6 @@
 """Evaluate a saved policy: one trial of T seconds per policy, a JSON summary and pictures.
 
-``evaluate(run_dir)`` restores only (config, theta, v) of a checkpoint (:func:`nmrl.checkpoint.restore_policy`),
+``evaluate(run_dir)`` restores only (config, theta, v) of a checkpoint (:func:`nmrl.runs.checkpoint.restore_policy`),
 builds the Half-Cheetah with the run's control step (no random stopping, no automatic reset: a
 rollout is one trial of ``seconds``), and runs one jitted ``lax.scan`` rollout for
 
@@ -13,7 +13,7 @@ deterministic rollout is drawn as a Fig.-4-like strobe (``strobe.png``) and an a
 (``gait.gif``, real time, camera following the trunk). Pictures use matplotlib's Agg backend only.
 Same checkpoint and seed give the identical JSON.
 
-The checkpoint must be of the run (its identity, ``RUN_DIR/config.json``: nmrl/checkpoint.py);
+The checkpoint must be of the run (its identity, ``RUN_DIR/config.json``: nmrl/runs/checkpoint.py);
 without ``step`` a corrupted newest checkpoint is skipped with a warning naming it, and the newest
 good one is evaluated. Nothing in the run directory but ``eval/`` is written.
 """
@@ -32,13 +32,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nmrl import checkpoint, networks, noise
-from nmrl import geometry as g
-from nmrl.env import ACT_DIM, REWARD_TERMS, EnvConfig, HalfCheetah, forward_kinematics
+from nmrl.paper import networks, noise
+from nmrl.runs import checkpoint
+from nmrl.paper import geometry as g
+from nmrl.paper.env import ACT_DIM, REWARD_TERMS, EnvConfig, HalfCheetah, forward_kinematics
 
 __all__ = ["evaluate", "render", "rollout", "plot_strobe", "write_gif", "GROUND_KEYS"]
 
-#: ground_share key -> metric of nmrl.env.
+#: ground_share key -> metric of nmrl.paper.env.
 GROUND_KEYS = {"heel": "heel_ground", "knee": "knee_ground", "head": "head_ground"}
 EVAL_DIR = "eval"
 GIF_FPS = 25.0

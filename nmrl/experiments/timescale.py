@@ -25,7 +25,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from nmrl.learner import TrainConfig
+from nmrl.paper.learner import TrainConfig
 
 #: The paper's control step [s].
 DELTA_0 = 0.02

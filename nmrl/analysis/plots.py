@@ -49,7 +49,8 @@ def _save(fig, path: pathlib.Path) -> None:
 
 def fig3(out: str | os.PathLike, results: list[dict], path: str | os.PathLike | None = None) -> pathlib.Path:
     """Write fig3.png: reward vs l (mean, 95% CI over seeds, paper's points) and learning curves."""
-    from nmrl import run, sweep
+    from nmrl.runs import driver as run
+    from nmrl.experiments import sweep
 
     out = pathlib.Path(out)
     path = pathlib.Path(path) if path else out / "fig3.png"
@@ -105,7 +106,7 @@ def fig3(out: str | os.PathLike, results: list[dict], path: str | os.PathLike | 
 
 def learning_curve(run_dir: str | os.PathLike, path: str | os.PathLike | None = None) -> pathlib.Path:
     """Average reward and forward speed against trials for one run directory."""
-    from nmrl import run
+    from nmrl.runs import driver as run
 
     run_dir = pathlib.Path(run_dir)
     m = run.read_metrics(run_dir)
@@ -132,10 +133,10 @@ def _arm_label(arm: str) -> str:
 
 def timescale(out: str | os.PathLike, grid: list[dict], final: list[dict], gradvar: list[dict],
               path: str | os.PathLike | None = None) -> pathlib.Path:
-    """The finer-delta study (nmrl/study.py): ``timescale.png`` (reward per second against delta,
+    """The finer-delta study (nmrl/experiments/study.py): ``timescale.png`` (reward per second against delta,
     one line per period duration, 95% t-intervals over seeds; the per-period gradient variance and
     the signal-to-noise per second; learning curves per delta) and ``grid.png`` (the step-size grid)."""
-    from nmrl.run import read_metrics
+    from nmrl.runs.driver import read_metrics
 
     out = pathlib.Path(out)
     path = pathlib.Path(path) if path else out / "timescale.png"

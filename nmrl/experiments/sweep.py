@@ -1,12 +1,12 @@
 """The sweep over the period length l (and seeds) as one program: the paper's Fig. 3 (Sec. V-D).
 
 Every (l, seed) point is one training state; the states are stacked and one jitted program runs
-the learner's chunk on all of them. l lives in the traced ``Hyper`` pytree (nmrl/learner.py): the
+the learner's chunk on all of them. l lives in the traced ``Hyper`` pytree (nmrl/paper/learner.py): the
 in-period index is a counter compared with l, so no padding is needed and no point recompiles.
 
 Layout (:func:`points_program`, chosen by measurement in benchmarks/bench_sweep.py): MJX's cost per
 environment step on a CPU grows with the batch one device holds, so the points are split over the
-local devices with ``shard_map`` (no communication; on a CPU nmrl.devices exposes one device per
+local devices with ``shard_map`` (no communication; on a CPU nmrl.runs.devices exposes one device per
 core) and each device steps its points one after another (``lax.map``; ``group`` > 1 vmaps that many
 together). A point that is not active (finished, diverged, or waiting for the ``first`` stage) is
 skipped by ``lax.cond``. Every point gives the results of a separate ``nmrl train`` run up to float
@@ -19,7 +19,7 @@ Layout of ``OUT``::
                                      metrics.jsonl, checkpoints/, compact.npz): ``nmrl eval``
                                      and ``nmrl train --resume`` work on it
     results.csv                      l, seed, trials, steps, avg_reward, forward_speed, diverged, checkpoint
-    fig3.png                         Fig. 3 and the learning curves (nmrl/plots.py)
+    fig3.png                         Fig. 3 and the learning curves (nmrl/analysis/plots.py)
 
 ``avg_reward`` in results.csv is the average reward per control step during learning (the
 exploring policy, as the paper measures it), averaged over the last tenth of the chunks. A
@@ -49,8 +49,8 @@ import numpy as np
 
 from jax.sharding import PartitionSpec as P
 
-from nmrl import checkpoint, run, sharding
-from nmrl.learner import Hyper, TrainConfig, make_train
+from nmrl.runs import checkpoint, driver as run, sharding
+from nmrl.paper.learner import Hyper, TrainConfig, make_train
 
 SPEC_FILE = "sweep.json"
 RESULTS_FILE = "results.csv"
@@ -241,7 +241,7 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[T
     stage's points have finished their budget or diverged (points named in no stage form a last
     stage); the points are dealt over the devices in that order (:func:`slot_order`).
     Every point is checkpointed every ``checkpoint_every`` chunks and when it finishes, and writes
-    its compact continuation state (nmrl.checkpoint.save_compact) beside. ``resume`` continues every
+    its compact continuation state (nmrl.runs.checkpoint.save_compact) beside. ``resume`` continues every
     point from its newest checkpoint (its later metrics rows are dropped); a point without full
     checkpoints continues from its compact state (statistically, not bitwise, equal: every
     environment starts a new trial). A diverged point stays frozen at its last good checkpoint.
@@ -452,7 +452,7 @@ def run_sweep(spec: SweepSpec, out: str | os.PathLike, *, resume: bool = False, 
     def on_chunk():
         results = write_results(out, spec)
         if plot and time.time() - last_plot[0] >= PLOT_EVERY_S:
-            from nmrl import plots
+            from nmrl.analysis import plots
 
             plots.fig3(out, results)
             last_plot[0] = time.time()
@@ -465,7 +465,7 @@ def run_sweep(spec: SweepSpec, out: str | os.PathLike, *, resume: bool = False, 
     finally:
         results = write_results(out, spec)
         if plot and (out / "points").is_dir():
-            from nmrl import plots
+            from nmrl.analysis import plots
 
             plots.fig3(out, results)
     if signum is not None:

@@ -5,7 +5,7 @@ environment gives the actor's gradient estimate of Table II without traces,
 
     g_k = d_k * grad_theta ln pi_Ahat(Ahat_k; S_k, theta),     d_k = r_bar_k + gamma^l V(s') - V(s),
 
-(eq. (7) with Delta-sampling; nmrl/learner.py accumulates sum_k g_k and sum_k |g_k|^2 when
+(eq. (7) with Delta-sampling; nmrl/paper/learner.py accumulates sum_k g_k and sum_k |g_k|^2 when
 ``grad_stats`` is on). From n periods this module reports
 
 * ``trcov``: tr Cov(g_k), the total variance of one period's estimate (unbiased, n - 1);
@@ -31,9 +31,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nmrl.learner import Hyper, TrainConfig, make_train
-from nmrl.plots import mean_ci95
-from nmrl.sweep import stack_trees
+from nmrl.paper.learner import Hyper, TrainConfig, make_train
+from nmrl.analysis.plots import mean_ci95
+from nmrl.experiments.sweep import stack_trees
 
 
 def summarize(n: np.ndarray, g_sum: np.ndarray, g_sqnorm: np.ndarray, period_s: float) -> dict:
