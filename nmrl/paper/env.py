@@ -42,7 +42,7 @@ from nmrl.paper import _mjx as mjx  # quiet import (see nmrl/__init__.py)
 
 from nmrl.paper import geometry as g
 
-MODEL_PATH = pathlib.Path(__file__).resolve().parents[1] / "models" / "half_cheetah.xml"
+MODEL_PATH = pathlib.Path(__file__).resolve().parents[2] / "models" / "half_cheetah.xml"
 OBS_DIM = 31
 ACT_DIM = 6
 #: Actuator order of the MJCF (= qpos order of the hinges) mapped to the action index j - 1.
