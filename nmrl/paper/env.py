@@ -62,7 +62,6 @@ class EnvConfig:
     solver_iterations: int | None = None  #: None = the MJCF's (4)
     ls_iterations: int | None = None  #: None = the MJCF's (4)
     auto_reset: bool = True  #: reset a stopped trial inside ``step`` (batched training)
-    reward_scale: float = 1.0  #: multiplies the reward (a later study compares control steps)
 
     def validate(self) -> None:
         if not self.control_dt > 0:
@@ -71,8 +70,6 @@ class EnvConfig:
             raise ValueError(f"stop_prob must be in [0, 1), got {self.stop_prob!r}")
         if not (np.isfinite(self.contact_tol) and self.contact_tol >= 0):
             raise ValueError(f"contact_tol must be a finite number >= 0 metres, got {self.contact_tol!r}")
-        if not np.isfinite(self.reward_scale):
-            raise ValueError(f"reward_scale must be a finite number, got {self.reward_scale!r}")
         if self.timestep is not None and not self.timestep > 0:
             raise ValueError(f"timestep must be > 0 seconds, got {self.timestep!r}")
         for name in ("solver_iterations", "ls_iterations"):
@@ -250,7 +247,7 @@ class HalfCheetah:
         terms["r9_torque"] = -0.05 * jnp.sum(jnp.mean(over, axis=0))
         terms["r10_limit"] = -0.1 * jnp.sum(jnp.mean(jnp.minimum(jnp.abs(tau_w), 50.0), axis=0))
         terms = {k: jnp.where(finite, terms[k], 0.0) for k in REWARD_TERMS}
-        reward = cfg.reward_scale * sum(terms[k] for k in REWARD_TERMS)
+        reward = sum(terms[k] for k in REWARD_TERMS)  # the learner scales it (TrainConfig.reward_scale)
         obs = observation(p, v, phi, dphi, cfg.contact_tol)
         key, k_stop = jax.random.split(state.info["key"])
         stopped = (jax.random.uniform(k_stop) < cfg.stop_prob) | ~finite

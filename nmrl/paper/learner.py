@@ -1,8 +1,8 @@
 """The classic actor-critic with TD(lambda) over non-Markov periods (Table II), batched.
 
-``trainer = make_train(config)`` gives pure functions ``trainer.init(key)``, ``trainer.chunk(ts)``
-(``chunk_steps`` control steps of every environment, a ``lax.scan``) and ``trainer.train(key)``
-(the whole budget as nested ``lax.scan``s under one ``jit``). All hyperparameters that a sweep may
+``trainer = make_train(config)`` gives pure functions ``trainer.init(key)`` and ``trainer.chunk(ts)``
+(``chunk_steps`` control steps of every environment, a ``lax.scan``; nmrl/runs/driver.py runs the
+chunks of a budget). All hyperparameters that a sweep may
 vary (l, Delta, alpha, sigma, gamma, lambda, beta) live in the traced :class:`Hyper` pytree inside the
 training state, so ``jax.vmap`` over (l, seed) points compiles one program.
 
@@ -22,8 +22,12 @@ every control step the updates of all environments whose period ended at that st
 with the paper's step sizes: theta += beta^theta sum_e d_e z_e (same for v). Each period thus moves
 the parameters by exactly the step the sequential algorithm would take for it, and N = 1 is the
 paper's sequential algorithm. (Averaging instead of summing would divide the step per sample by N.)
-With N > 1 the parameters change within a period of one environment (other environments update);
-the likelihood ratio of each sample is evaluated at the parameters that generated it (u = xi).
+With N > 1 the parameters change within a period of one environment (other environments update).
+The likelihood ratio is accumulated online (docs/noise.md, "Online form"): each sample's noise
+u = xi is the one that generated its action, but every term is one vjp at the parameters current
+when it is added, and it covers the previous sample too, so the previous sample's Jacobian is
+evaluated at the current theta, which may differ from the theta that generated it. With N = 1
+theta is fixed within a period and the online sum equals the batch likelihood ratio of (7) exactly.
 
 The update goes through optax. The parameter steps of Table II (4., 5.) are plain gradient
 *ascent* along the pseudo-gradients sum_e d_e z_e and sum_e d_e y_e; optax minimises, so each
@@ -75,10 +79,15 @@ OPT_FIELDS = ("opt_theta", "opt_v")
 
 #: Named step-size presets. "paper" is Sec. V-C. "fast" is for the budgets this 2-core machine
 #: allows (10^3-10^4 trials instead of the paper's 10^5): with the paper's step sizes and 16-64
-#: environments nothing measurable is learned within a few thousand control steps (18 settings
-#: tried, tests/test_learner.py; 256 environments do learn: -0.71 -> +0.57 in 4000 steps), while beta^theta = 5x and beta^v = 50x the paper's raise the average reward
-#: of 64 environments from -0.68 to +0.55 within 4000 steps (~1000 trials). The critic needs the
+#: environments nothing measurable is learned within a few thousand control steps (measured when
+#: the preset was chosen; no test or record of those runs is kept; 256 environments do learn:
+#: -0.71 -> +0.57 in 4000 steps, README), while beta^theta = 5x and beta^v = 50x the paper's raise the
+#: average reward of 64 environments from -0.68 to +0.55 within 4000 steps (~1000 trials;
+#: tests/test_learner.py::test_halfcheetah_learning_raises_average_reward). The critic needs the
 #: larger factor: with the paper's beta^v its value estimates lag and the TD errors are mostly noise.
+#: The budget of a run given none (control steps per environment): a few minutes on 2 CPU cores.
+DEFAULT_STEPS = 4000
+
 PRESETS: dict[str, dict[str, float]] = {
     "paper": {"beta_theta": 2e-6, "beta_v": 1e-5},
     "fast": {"beta_theta": 1e-5, "beta_v": 5e-4},
@@ -119,7 +128,7 @@ class TrainConfig:
     grad_stats: bool = False
 
     def resolved(self) -> "TrainConfig":
-        """Validate, fill step sizes from the preset and a default budget."""
+        """Validate, fill step sizes from the preset and the default budget (:data:`DEFAULT_STEPS`)."""
         self.validate()
         p = PRESETS[self.preset]
         out = dataclasses.replace(
@@ -128,7 +137,7 @@ class TrainConfig:
             beta_v=p["beta_v"] if self.beta_v is None else self.beta_v,
         )
         if out.steps is None and out.trials is None:
-            out = dataclasses.replace(out, steps=4 * out.chunk_steps)
+            out = dataclasses.replace(out, steps=DEFAULT_STEPS)
         return out
 
     def validate(self) -> None:
@@ -168,17 +177,13 @@ class TrainConfig:
     def env_config(self) -> EnvConfig:
         return EnvConfig(control_dt=self.control_dt, stop_prob=self.stop_prob, auto_reset=True)
 
-    def num_chunks(self) -> int:
-        """Chunks needed for the budget (a trials budget uses the expected 1/stop_prob steps per trial)."""
-        cfg = self
-        if cfg.steps is not None:
-            return max(1, math.ceil(cfg.steps / cfg.chunk_steps))
-        steps_per_env = cfg.trials / (cfg.num_envs * cfg.stop_prob)
-        return max(1, math.ceil(steps_per_env / cfg.chunk_steps))
-
 
 class Hyper(NamedTuple):
-    """Traced hyperparameters (one program serves every value; the sweep vmaps over them)."""
+    """Traced hyperparameters (one program serves every value; the sweep vmaps over them).
+
+    The one list of which :class:`TrainConfig` fields are traced: each field here takes the value of
+    the config field of the same name (``int`` fields as int32, ``float`` fields as float32).
+    """
 
     l: jax.Array
     delta: jax.Array
@@ -191,10 +196,16 @@ class Hyper(NamedTuple):
 
     @staticmethod
     def from_config(cfg: TrainConfig) -> "Hyper":
-        f = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
-        return Hyper(l=jnp.asarray(cfg.l, jnp.int32), delta=jnp.asarray(cfg.delta, jnp.int32),
-                     alpha=f(cfg.alpha), sigma=f(cfg.sigma), gamma=f(cfg.gamma), lam=f(cfg.lam),
-                     beta_theta=f(cfg.beta_theta), beta_v=f(cfg.beta_v))
+        return Hyper(**{k: jnp.asarray(getattr(cfg, k), _HYPER_DTYPE[_config_type(k)]) for k in Hyper._fields})
+
+
+_HYPER_DTYPE = {int: jnp.int32, float: jnp.float32}
+
+
+def _config_type(name: str) -> type:
+    """``int`` or ``float``: the type of TrainConfig's field ``name`` (``float | None`` -> float)."""
+    t = TrainConfig.__dataclass_fields__[name].type
+    return int if t == "int" else float
 
 
 @struct.dataclass
@@ -233,7 +244,6 @@ class Trainer(NamedTuple):
     env: HalfCheetah
     init: Callable[..., TrainState]
     chunk: Callable[[TrainState], tuple[TrainState, dict]]
-    train: Callable[[jax.Array], tuple[TrainState, dict]]
     #: ``init_opt(theta, v, hyper) -> (opt_theta, opt_v)``: fresh optimizer states (as ``init`` makes)
     init_opt: Callable[[Params, Params, Hyper], tuple[OptState, OptState]]
 
@@ -431,8 +441,4 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
             out["g_sqnorm"] = jnp.sum(stats["g_sqnorm"])
         return ts, out
 
-    def train(key: jax.Array, hyper: Hyper | None = None) -> tuple[TrainState, dict]:
-        ts = init(key, hyper)
-        return jax.lax.scan(lambda t, _: chunk(t), ts, None, length=cfg.num_chunks())
-
-    return Trainer(config=cfg, env=env, init=init, chunk=chunk, train=train, init_opt=init_opt)
+    return Trainer(config=cfg, env=env, init=init, chunk=chunk, init_opt=init_opt)
