@@ -46,7 +46,6 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # see benchmarks/bench_likel
 
 HERE = pathlib.Path(__file__).resolve().parent
 ROOT = HERE.parent
-sys.path.insert(0, str(ROOT))
 
 SECTIONS = ("env", "learning", "likelihood", "sweep", "scaling")
 TOP_KEYS = ("meta", "machine", *SECTIONS, "summary")
@@ -348,10 +347,10 @@ def plot(res: dict, path: pathlib.Path) -> None:
 
 
 def _atomic_write(path: pathlib.Path, text: str) -> None:
+    from nmrl.runs.store import atomic_write_text
+
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    atomic_write_text(path, text)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -15,7 +15,7 @@ process, so only roughly comparable).
 Splitting a *single* run's environment batch over devices needs a psum of the summed update and is
 not implemented (README, "Many devices and hosts"), so only the points axis is measured.
 
-Every worker runs with a timeout: a 2-device shard_map run has hung before (nmrl/runs/sharding.py), and
+Every worker runs with a timeout: a 2-device shard_map run has hung before (docs/model.md section 6), and
 a hang is reported as ``{"error": "timeout ..."}`` with whatever the worker printed, instead of
 blocking the harness.
 
@@ -33,7 +33,6 @@ import sys
 import time
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 POINTS = 2
 NUM_ENVS = 64  # per point; the same in quick and full mode (compile-cache reuse)

@@ -1,4 +1,4 @@
-"""Command line: ``nmrl train``, ``nmrl sweep``, ``nmrl eval``, ``nmrl study``, ``nmrl bench``.
+"""Command line: ``nmrl train``, ``nmrl sweep``, ``nmrl eval``, ``nmrl study``.
 
 Every field of :class:`nmrl.paper.learner.TrainConfig` is an option of ``train`` and ``sweep``
 (``--beta-theta 2e-6``, ``--num-envs 256``, ...). Bad values exit with status 2 and a message that
@@ -6,7 +6,10 @@ names the value, before anything is written.
 
 Exit status: 0 done, 2 bad input (one line ``nmrl: error: ...`` on stderr, nothing written),
 3 diverged (the last good checkpoint is kept), 128 + the signal when SIGINT (130) or SIGTERM (143)
-stopped ``train`` (after the chunk in flight was saved; ``--resume`` continues it).
+stopped ``train`` or ``sweep`` (after the chunk in flight was saved; ``--resume`` continues it).
+
+The benchmarks are not a command: they live in the checkout (``python -m benchmarks``, which
+writes its measurements beside itself in benchmarks/), not in the installed package.
 """
 
 from __future__ import annotations
@@ -21,9 +24,7 @@ import typing
 from nmrl.runs import devices as _devices
 
 # nmrl.paper.learner (and with it JAX) is imported only after nmrl.runs.devices.configure has set the host
-# device count (main()).
-#: Budget of a plain ``nmrl train`` (control steps per environment): a few minutes on 2 CPU cores.
-DEFAULT_STEPS = 4000
+# device count (main()). The budget of a run given none is TrainConfig's (nmrl.paper.learner.DEFAULT_STEPS).
 _SWEEP_FIELDS = {"l", "seed"}  # given as lists to ``nmrl sweep``
 _NOT_OPTIONS = {"grad_stats"}  # diagnostics set by nmrl.experiments.gradvar, not training options
 #: Longest ``nmrl eval --seconds`` (the GIF keeps every frame in memory: 25 per simulated second).
@@ -72,13 +73,11 @@ def _fail(msg: str) -> int:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from nmrl.runs import checkpoint, driver as run
+    from nmrl.runs import checkpoint, driver as run, store
 
     try:
         given = given_options(args)
         cfg = config_from_args(args)
-        if not args.resume and cfg.steps is None and cfg.trials is None:
-            cfg = dataclasses.replace(cfg, steps=DEFAULT_STEPS)
         run.check_config(cfg)
         if args.step is not None and args.step < 0:
             raise ValueError(f"--step={args.step} is invalid: a checkpoint step is >= 0")
@@ -100,7 +99,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         print(f"nmrl: stopped at once; the newest checkpoint in {args.out} is intact (saves are atomic); "
               f"continue with: nmrl train --resume --out {args.out}", file=sys.stderr)
         return 130
-    rows = run.read_metrics(args.out)  # the run's, not only this session's
+    rows = store.read_metrics(args.out)  # the run's, not only this session's
     if rows:
         first, last = rows[0], rows[-1]
         print(json.dumps({"out": args.out, "step": last["step"], "trials": last["trials"],
@@ -133,6 +132,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     from nmrl.experiments import sweep
+    from nmrl.runs import checkpoint, driver
 
     try:
         base = config_from_args(args, skip=_SWEEP_FIELDS)
@@ -151,25 +151,13 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     try:
         sweep.run_sweep(spec, args.out, resume=args.resume, progress=not args.quiet,
                         checkpoint_every=args.checkpoint_every, group=args.group, devices=n_dev)
-    except (sweep.SweepError, ValueError) as e:
+    except (sweep.SweepError, driver.RunError, checkpoint.CheckpointError, ValueError) as e:
         return _fail(str(e))
-    except sweep.Stopped as e:
-        print(f"nmrl: sweep {e}; every active point was saved. Continue with: nmrl sweep --resume --l 1 "
-              f"--out {args.out}", file=sys.stderr)
-        return 128 + e.signum
+    except driver.Stopped as e:
+        print(f"nmrl: sweep stopped by signal {e.signum}; every active point was saved. Continue with: nmrl sweep "
+              f"--resume --l 1 --out {args.out}", file=sys.stderr)
+        return e.exit_status
     return 0
-
-
-def cmd_bench(args: argparse.Namespace) -> int:
-    import pathlib
-
-    root = pathlib.Path(__file__).resolve().parents[1]  # benchmarks/ lives beside nmrl/ in the checkout
-    if not (root / "benchmarks" / "__main__.py").exists():
-        return _fail(f"benchmarks/ not found beside {root / 'nmrl'}; run from a source checkout")
-    sys.path.insert(0, str(root))
-    from benchmarks.__main__ import main as bench_main
-
-    return bench_main(["--quick"] if args.quick else [])
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -218,10 +206,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_eval)
 
     sub.add_parser("study", help="the finer-delta study: nmrl study --help (nmrl/experiments/study.py)", add_help=False)
-
-    p = sub.add_parser("bench", help="run the benchmarks (python -m benchmarks)")
-    p.add_argument("--quick", action="store_true")
-    p.set_defaults(func=cmd_bench)
     return ap
 
 

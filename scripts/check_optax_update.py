@@ -24,19 +24,30 @@ import tempfile
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
 from nmrl.paper import learner  # noqa: E402
-from tiny_env import TinyEnv  # noqa: E402
+
+
+def _tiny_env():
+    """tests/tiny_env.py (the test suite's small environment), loaded from its file."""
+    spec = importlib.util.spec_from_file_location("tiny_env", ROOT / "tests" / "tiny_env.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod.TinyEnv
+
+
+TinyEnv = _tiny_env()
 
 
 def load_old(commit: str):
-    src = subprocess.run(["git", "show", f"{commit}:nmrl/paper/learner.py"], cwd=ROOT, check=True,
+    src = subprocess.run(["git", "show", f"{commit}:nmrl/learner.py"], cwd=ROOT, check=True,
                          capture_output=True, text=True).stdout
+    # that commit's nmrl was one flat folder; its modules live in nmrl/paper/ now (issue 15)
+    src = src.replace("from nmrl import networks, noise", "from nmrl.paper import networks, noise")
+    src = src.replace("from nmrl.env import", "from nmrl.paper.env import")
     path = pathlib.Path(tempfile.mkdtemp()) / "learner_old.py"
     path.write_text(src)
     spec = importlib.util.spec_from_file_location("nmrl_learner_old", path)

@@ -61,9 +61,9 @@ def main(argv=None) -> int:
     import jax.numpy as jnp
     import numpy as np
 
-    from nmrl.runs import driver as run
+    from nmrl.runs import driver, points, store
     from nmrl.experiments import sweep
-    from nmrl.analysis import plots
+    from nmrl.analysis import stats
     from nmrl.paper.learner import Hyper, TrainConfig, make_train
 
     cfgs = [TrainConfig(l=l, seed=s, num_envs=args.num_envs, chunk_steps=args.chunk_steps,
@@ -72,15 +72,15 @@ def main(argv=None) -> int:
     P = len(cfgs)
     tr = make_train(cfgs[0])
     n_dev = min(len(jax.local_devices()), P)
-    slots = sweep.slot_order(P, n_dev)
+    slots = points.slot_order(P, n_dev)
     hyp = [Hyper.from_config(c) for c in cfgs]
     zero = [h._replace(beta_theta=jnp.zeros_like(h.beta_theta), beta_v=jnp.zeros_like(h.beta_v)) for h in hyp]
     pick = lambda xs: [xs[i if i >= 0 else 0] for i in slots]  # noqa: E731
     keys = jnp.stack(pick([jax.random.PRNGKey(c.seed) for c in cfgs]))
-    ts = jax.jit(jax.vmap(tr.init))(keys, sweep.stack_trees(pick(zero)))
-    ts = sweep._place_points(ts, n_dev)
-    program = sweep.points_program(tr.chunk, n_dev)
-    act = sweep._place_points(jnp.asarray([i >= 0 for i in slots]), n_dev)
+    ts = jax.jit(jax.vmap(tr.init))(keys, points.stack_trees(pick(zero)))
+    ts = points.place_points(ts, n_dev)
+    program = points.points_program(tr.chunk, n_dev)
+    act = points.place_points(jnp.asarray([i >= 0 for i in slots]), n_dev)
     chunk = jax.jit(program, donate_argnums=0).lower(ts, act).compile()
     print(f"phase_check: {P} points on {n_dev} device(s); warm-up {args.warmup} steps at zero step sizes",
           file=sys.stderr, flush=True)
@@ -88,10 +88,10 @@ def main(argv=None) -> int:
         ts, _m = chunk(ts, act)
     # learning starts: the paper's step sizes, counters and traces at zero, phases as the warm-up left them
     zeros = lambda: jnp.zeros(ts.step.shape, ts.step.dtype)  # noqa: E731  (distinct buffers: donated)
-    ts = ts.replace(hyper=sweep._place_points(sweep.stack_trees(pick(hyp)), n_dev), step=zeros(), trials=zeros(),
+    ts = ts.replace(hyper=points.place_points(points.stack_trees(pick(hyp)), n_dev), step=zeros(), trials=zeros(),
                     periods=zeros(), slots=ts.slots.replace(z=jax.tree.map(jnp.zeros_like, ts.slots.z),
                                                         y=jax.tree.map(jnp.zeros_like, ts.slots.y)))
-    ts = sweep._place_points(ts, n_dev)
+    ts = points.place_points(ts, n_dev)
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     for n in names:
@@ -99,7 +99,7 @@ def main(argv=None) -> int:
     done = np.zeros(P, bool)
     t0 = time.time()
     while not done.all():
-        act_now = sweep._place_points(jnp.asarray([i >= 0 and not done[i] for i in slots]), n_dev)
+        act_now = points.place_points(jnp.asarray([i >= 0 and not done[i] for i in slots]), n_dev)
         t1 = time.time()
         ts, m = chunk(ts, act_now)
         m = jax.device_get(m)
@@ -107,11 +107,11 @@ def main(argv=None) -> int:
         for j, i in enumerate(slots):
             if i < 0 or done[i]:
                 continue
-            row = run.metrics_row(cfgs[i], run.to_python({k: v[j] for k, v in m.items()}), wall,
+            row = driver.metrics_row(cfgs[i], store.to_python({k: v[j] for k, v in m.items()}), wall,
                                   points=int((~done).sum()))
             with open(out / f"{names[i]}.jsonl", "a") as f:
                 f.write(json.dumps(row) + "\n")
-            done[i] = row["trials"] >= args.trials or run.is_diverged(row)
+            done[i] = row["trials"] >= args.trials or store.is_diverged(row)
         print(f"phase_check: {time.time() - t0:,.0f} s, trials "
               f"{min(int(t) for t in np.asarray(ts.trials)):,}", file=sys.stderr, flush=True)
 
@@ -125,29 +125,29 @@ def _read(path: pathlib.Path) -> list[dict]:
 def summarize(args, names, out: pathlib.Path) -> int:
     import numpy as np
 
-    from nmrl.runs import driver as run
+    from nmrl.runs import driver, points, store
     from nmrl.experiments import sweep
-    from nmrl.analysis import plots
+    from nmrl.analysis import stats
 
     res = {"what": __doc__.split("\n")[0], "args": vars(args), "milestones": list(MILESTONES), "by_l": {}}
     for l in args.ls:
         e = {}
         for M in MILESTONES:
-            mixed = [sweep.at_milestone(_read(out / f"l{l}_s{s}.jsonl"), M) for s in range(args.seeds)]
-            inph = [sweep.at_milestone(run.read_metrics(sweep.point_dir(pathlib.Path(args.sweep), l, s)), M) for s in range(args.seeds)]
+            mixed = [stats.at_milestone(_read(out / f"l{l}_s{s}.jsonl"), M) for s in range(args.seeds)]
+            inph = [stats.at_milestone(store.read_metrics(sweep.point_dir(pathlib.Path(args.sweep), l, s)), M) for s in range(args.seeds)]
             diff = [a - b for a, b in zip(mixed, inph) if a is not None and b is not None]
             # a paired comparison: the same initial networks (PRNGKey(seed)), different phases and noise
-            mm = plots.mean_ci95(np.array([x for x in mixed if x is not None])) if None not in mixed else (None, None)
-            mi = plots.mean_ci95(np.array([x for x in inph if x is not None])) if None not in inph else (None, None)
-            md = plots.mean_ci95(np.array(diff)) if len(diff) == args.seeds else (None, None)
+            mm = stats.mean_ci95(np.array([x for x in mixed if x is not None])) if None not in mixed else (None, None)
+            mi = stats.mean_ci95(np.array([x for x in inph if x is not None])) if None not in inph else (None, None)
+            md = stats.mean_ci95(np.array(diff)) if len(diff) == args.seeds else (None, None)
             e[str(M)] = {"mixed_phase": mixed, "in_phase": inph, "mixed_mean_ci": mm, "in_phase_mean_ci": mi,
                          "paired_diff_mean_ci": md}
         res["by_l"][str(l)] = e
     dest = pathlib.Path(args.results)
     dest.mkdir(parents=True, exist_ok=True)
-    run.atomic_write_text(dest / "phase_check.json", json.dumps(res, indent=1) + "\n")
+    store.atomic_write_text(dest / "phase_check.json", json.dumps(res, indent=1) + "\n")
     for n in names:
-        run.atomic_write_text(dest / f"{n}.jsonl", (out / f"{n}.jsonl").read_text())
+        store.atomic_write_text(dest / f"{n}.jsonl", (out / f"{n}.jsonl").read_text())
     print(json.dumps(res["by_l"], indent=1))
     return 0
 

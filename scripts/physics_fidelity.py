@@ -48,7 +48,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from nmrl.paper import networks, noise
-from nmrl.runs import checkpoint
+from nmrl.runs import checkpoint, store
 from nmrl.paper.env import ACT_DIM, EnvConfig, HalfCheetah, kinematics, observation
 
 CANDIDATES = {
@@ -337,9 +337,7 @@ def main(argv: list[str] | None = None) -> dict:
         "versions": {"jax": jax.__version__},
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out.with_name(f".{args.out.name}.{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(_finite(result), indent=2, allow_nan=False) + "\n")
-    os.replace(tmp, args.out)
+    store.atomic_write_text(args.out, json.dumps(_finite(result), indent=2, allow_nan=False) + "\n")
     print(f"\nwrote {args.out}")
     return result
 

@@ -14,13 +14,11 @@ import argparse
 import json
 import pathlib
 import shutil
-import sys
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
 
 from nmrl.runs import checkpoint  # noqa: E402
 from nmrl.experiments import sweep  # noqa: E402
-from nmrl.analysis import evaluate, plots  # noqa: E402
+from nmrl.analysis import evaluate  # noqa: E402
 
 
 def copy_policy(point: pathlib.Path, dest: pathlib.Path) -> pathlib.Path:
@@ -50,7 +48,7 @@ def main() -> None:
     results = sweep.write_results(src, sweep.SweepSpec(**_spec(src)))
     for name in (sweep.RESULTS_FILE, sweep.SPEC_FILE):
         shutil.copy2(src / name, dest / name)
-    plots.fig3(src, results, dest / "fig3.png")
+    sweep.draw(src, results, dest / "fig3.png")
     for r in results:
         d = dest / "metrics" / f"l{r['l']}_s{r['seed']}.jsonl"
         d.parent.mkdir(exist_ok=True)

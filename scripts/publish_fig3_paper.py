@@ -21,25 +21,23 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import pathlib
 import shutil
 
 import numpy as np
 
-from nmrl.runs import driver as run
+from nmrl.analysis import plots, stats
 from nmrl.experiments import sweep
-from nmrl.analysis import plots
 from nmrl.paper.learner import TrainConfig
+from nmrl.runs import store
 
 MILESTONES = (10_000, 30_000, 100_000)
 
 
 def _atomic_copy(src: pathlib.Path, dst: pathlib.Path) -> None:
     dst.parent.mkdir(parents=True, exist_ok=True)
-    tmp = dst.with_name(dst.name + ".tmp")
-    shutil.copy2(src, tmp)
-    os.replace(tmp, dst)
+    with store.atomic_path(dst) as tmp:
+        shutil.copy2(src, tmp)
 
 
 def progress(src: pathlib.Path, spec: sweep.SweepSpec) -> dict:
@@ -49,24 +47,24 @@ def progress(src: pathlib.Path, spec: sweep.SweepSpec) -> dict:
     for l in spec.ls:
         per = {str(m): [] for m in MILESTONES}
         for s in range(spec.seeds):
-            rows = run.read_metrics(sweep.point_dir(src, l, s))
+            rows = store.read_metrics(sweep.point_dir(src, l, s))
             name = f"l{l}_s{s}"
             last = rows[-1] if rows else {"trials": 0, "step": 0}
-            div = next((r for r in rows if run.is_diverged(r)), None)
+            div = next((r for r in rows if store.is_diverged(r)), None)
             if div is not None:
                 out["diverged"].append({"point": name, "trials": div["trials"], "step": div["step"]})
             out["points"][name] = {"trials": last["trials"], "steps": last["step"],
                                    "budget_share": last["trials"] / budget if budget else None,
-                                   "final_avg_reward": sweep.final_avg(rows, "avg_reward"),
+                                   "final_avg_reward": stats.final_avg(rows, "avg_reward"),
                                    "diverged": div is not None}
             for m in MILESTONES:
-                per[str(m)].append(sweep.at_milestone(rows, m))
+                per[str(m)].append(stats.at_milestone(rows, m))
             for r in rows[-20:]:
                 newest.setdefault(r["step"], []).append(r["steps_per_s"])
         out["by_l"][str(l)] = {}
         for m, vals in per.items():
             got = [v for v in vals if v is not None]
-            mean, half = plots.mean_ci95(np.array(got)) if len(got) == spec.seeds else (None, None)
+            mean, half = stats.mean_ci95(np.array(got)) if len(got) == spec.seeds else (None, None)
             out["by_l"][str(l)][m] = {"mean": mean, "ci95": half, "seeds": vals}
     # rate: the points active in a chunk share its wall time, and steps_per_s already counts every
     # one of them (nmrl.runs.driver.metrics_row(points=...))
@@ -108,14 +106,14 @@ def learning_curves(src: pathlib.Path, spec: sweep.SweepSpec, path: pathlib.Path
         color = cmap(j / max(1, len(spec.ls) - 1))
         curves = []
         for s in range(spec.seeds):
-            rows = run.read_metrics(sweep.point_dir(src, l, s))
+            rows = store.read_metrics(sweep.point_dir(src, l, s))
             if not rows:
                 continue
             t = np.array([r["trials"] for r in rows])
-            y = plots.smooth(np.array([r["avg_reward"] for r in rows]))
+            y = stats.smooth(np.array([r["avg_reward"] for r in rows]))
             ax.plot(t, y, color=color, lw=0.5, alpha=0.35)
             curves.append((t, y))
-            div = next((r for r in rows if run.is_diverged(r)), None)
+            div = next((r for r in rows if store.is_diverged(r)), None)
             if div is not None:
                 ax.plot([div["trials"]], [y[-1]], "x", color="tab:red")
         if curves:
@@ -131,10 +129,11 @@ def learning_curves(src: pathlib.Path, spec: sweep.SweepSpec, path: pathlib.Path
     ax.set_title("Fig. 3 at the paper's budget and step sizes: learning curves (x: diverged)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, ncol=4)
-    tmp = path.with_name(path.stem + ".tmp.png")
-    fig.savefig(tmp, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    os.replace(tmp, path)
+    try:
+        with store.atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=110, bbox_inches="tight")
+    finally:
+        plt.close(fig)
 
 
 def main() -> None:
@@ -157,11 +156,11 @@ def main() -> None:
         for name in ("config.json", "metrics.jsonl", "compact.npz"):
             if (p / name).is_file():
                 _atomic_copy(p / name, sweep.point_dir(dest, l, seed) / name)
-    plots.fig3(src, results, dest / "fig3.png")
+    sweep.draw(src, results, dest / "fig3.png")
     learning_curves(src, spec, dest / "learning_curves.png")
     p = progress(src, spec)
-    run.atomic_write_text(dest / "progress.json", json.dumps(p, indent=1) + "\n")
-    run.atomic_write_text(dest / "progress.md", progress_md(p))
+    store.atomic_write_text(dest / "progress.json", json.dumps(p, indent=1) + "\n")
+    store.atomic_write_text(dest / "progress.md", progress_md(p))
     print(progress_md(p))
 
 

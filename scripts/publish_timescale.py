@@ -16,8 +16,9 @@ import sys
 
 import numpy as np
 
-from nmrl.analysis.plots import arm_order, mean_ci95
-from nmrl.experiments.study import read_csv
+from nmrl.analysis.plots import arm_order
+from nmrl.analysis.stats import mean_ci95
+from nmrl.runs.store import read_csv
 
 
 def main(src: str, dst: str) -> None:
@@ -43,9 +44,9 @@ def main(src: str, dst: str) -> None:
             rows = [r for r in final if r["arm"] == a and float(r["dt"]) == d]
             v = np.array([float(r["reward_per_s"]) for r in rows])
             m, c = mean_ci95(v)
-            div = sum(r["diverged"] == "True" for r in rows)
-            col = sum(r.get("collapsed") == "True" for r in rows)
-            g = [r for r in grid if r["arm"] == a and float(r["dt"]) == d and r["chosen"] == "True"][0]
+            div = sum(bool(r["diverged"]) for r in rows)
+            col = sum(bool(r.get("collapsed")) for r in rows)
+            g = [r for r in grid if r["arm"] == a and float(r["dt"]) == d and r["chosen"]][0]
             cells.append(f"{m:+.1f} ± {c:.1f} ({', '.join(f'{x:+.0f}' for x in v)})"
                          + (f" {div} div." if div else "") + (f", {col} collapsed" if col else "")
                          + f"<br>β = {float(g['beta_theta']):.2g}, {float(g['beta_v']):.2g}")

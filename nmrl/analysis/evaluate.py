@@ -32,12 +32,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nmrl.paper import networks, noise
-from nmrl.runs import checkpoint
 from nmrl.paper import geometry as g
+from nmrl.paper import networks, noise
 from nmrl.paper.env import ACT_DIM, REWARD_TERMS, EnvConfig, HalfCheetah, forward_kinematics
+from nmrl.runs import checkpoint
+from nmrl.runs.store import atomic_path, atomic_write_text
 
-__all__ = ["evaluate", "render", "rollout", "plot_strobe", "write_gif", "GROUND_KEYS"]
+__all__ = ["evaluate", "rollout", "plot_strobe", "write_gif", "GROUND_KEYS"]
 
 #: ground_share key -> metric of nmrl.paper.env.
 GROUND_KEYS = {"heel": "heel_ground", "knee": "knee_ground", "head": "head_ground"}
@@ -121,12 +122,6 @@ def summarize(traj: dict[str, np.ndarray]) -> dict[str, Any]:
 # ----------------------------------------------------------------------------- entry points
 
 
-def _atomic_write_text(path: pathlib.Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
-
 def evaluate(
     run_dir: str | os.PathLike,
     step: int | None = None,
@@ -179,7 +174,7 @@ def evaluate(
         strobe = plot_strobe(det["pos"], config.control_dt, out_dir / "strobe.png", title=title)
         gif = write_gif(det["pos"], config.control_dt, out_dir / "gait.gif")
         result["files"] = {"strobe": str(strobe), "gif": str(gif)}
-    _atomic_write_text(out_dir / "eval.json", json.dumps(result, indent=2, allow_nan=False) + "\n")
+    atomic_write_text(out_dir / "eval.json", json.dumps(result, indent=2, allow_nan=False) + "\n")
     return result
 
 
@@ -197,25 +192,6 @@ def select_policy(run: pathlib.Path, step: int | None = None):
     return checkpoint.newest_good(run, load, step)
 
 
-def render(
-    run_dir: str | os.PathLike,
-    step: int | None = None,
-    seconds: float = 10.0,
-    seed: int = 0,
-    *,
-    out_dir: str | os.PathLike | None = None,
-) -> dict[str, str]:
-    """Draw only the pictures of the deterministic policy; returns {strobe, gif} paths."""
-    run = pathlib.Path(run_dir)
-    step, (_meta, (config, theta, _v)), _ = select_policy(run, step)
-    det = rollout(config, theta, seconds=seconds, seed=seed, exploring=False)
-    out_dir = pathlib.Path(out_dir) if out_dir is not None else run / EVAL_DIR
-    out_dir.mkdir(parents=True, exist_ok=True)
-    title = f"{run.name}, step {step}, deterministic policy"
-    return {"strobe": str(plot_strobe(det["pos"], config.control_dt, out_dir / "strobe.png", title=title)),
-            "gif": str(write_gif(det["pos"], config.control_dt, out_dir / "gait.gif"))}
-
-
 # ----------------------------------------------------------------------------- pictures
 
 
@@ -226,11 +202,6 @@ def _pyplot():
     import matplotlib.pyplot as plt
 
     return plt
-
-
-def _tmp_path(path: pathlib.Path) -> pathlib.Path:
-    # keep the suffix: matplotlib and imageio choose the format from it
-    return path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
 
 
 def _marker_sizes(scale: float) -> np.ndarray:
@@ -280,12 +251,11 @@ def plot_strobe(
     ax.set_title((title + "\n" if title else "") + f"every {dt_frames:.2f} s, "
                  f"t = 0 to {frames[-1] * control_dt:.2f} s", fontsize=9)
     fig.tight_layout()
-    tmp = _tmp_path(path)
     try:
-        fig.savefig(tmp)
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp)
     finally:
         plt.close(fig)
-    os.replace(tmp, path)
     return path
 
 
@@ -336,7 +306,6 @@ def write_gif(
             frames.append(np.asarray(fig.canvas.buffer_rgba())[..., :3].copy())
     finally:
         plt.close(fig)
-    tmp = _tmp_path(path)
-    iio.imwrite(tmp, np.stack(frames), duration=duration_ms, loop=0)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        iio.imwrite(tmp, np.stack(frames), duration=duration_ms, loop=0)
     return path

@@ -1,8 +1,11 @@
-"""Figures: the paper's Fig. 3 (average reward against l) and learning curves.
+"""Figures drawn from rows: the paper's Fig. 3 (average reward against l), learning curves, the
+finer-delta study's figures.
 
-Fig. 3 of the paper plots the average reward after 10^5 trials against the period length l; the
-text gives two of its values, 3.28 at l = 1 and 4.59 at l = 10, which are marked for reference.
-Intervals are 95% Student-t intervals of the mean over seeds.
+Every figure takes the rows it draws (results or study tables, metrics rows) as arguments and
+reads no run directory: the experiments (nmrl/experiments/) gather them. Fig. 3 of the paper plots
+the average reward after 10^5 trials against the period length l; the text gives two of its
+values, 3.28 at l = 1 and 4.59 at l = 10, which are marked for reference. Intervals are 95%
+Student-t intervals of the mean over seeds (nmrl/analysis/stats.py).
 """
 
 from __future__ import annotations
@@ -15,52 +18,34 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from scipy import stats  # noqa: E402
+
+from nmrl.analysis.stats import mean_ci95, smooth  # noqa: E402
+from nmrl.runs.store import atomic_path  # noqa: E402
 
 #: The values of Fig. 3 that the paper's text states (Sec. V-D).
 PAPER_FIG3 = {1: 3.28, 10: 4.59}
 
 
-def mean_ci95(x: np.ndarray) -> tuple[float, float]:
-    """Mean and half-width of the 95% t-interval (0 half-width for a single value)."""
-    x = np.asarray(x, float)
-    x = x[np.isfinite(x)]
-    if x.size == 0:
-        return float("nan"), float("nan")
-    if x.size == 1:
-        return float(x[0]), 0.0
-    return float(x.mean()), float(stats.t.ppf(0.975, x.size - 1) * x.std(ddof=1) / np.sqrt(x.size))
-
-
-def smooth(y: np.ndarray, k: int = 5) -> np.ndarray:
-    """Trailing running mean over up to ``k`` points (the first points use what exists)."""
-    c = np.cumsum(np.insert(np.asarray(y, float), 0, 0.0))
-    i = np.arange(1, len(y) + 1)
-    lo = np.maximum(i - k, 0)
-    return (c[i] - c[lo]) / (i - lo)
-
-
 def _save(fig, path: pathlib.Path) -> None:
-    tmp = path.with_name(path.stem + ".tmp.png")
-    fig.savefig(tmp, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    os.replace(tmp, path)
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=110, bbox_inches="tight")
+    finally:
+        plt.close(fig)
 
 
-def fig3(out: str | os.PathLike, results: list[dict], path: str | os.PathLike | None = None) -> pathlib.Path:
-    """Write fig3.png: reward vs l (mean, 95% CI over seeds, paper's points) and learning curves."""
-    from nmrl.runs import driver as run
-    from nmrl.experiments import sweep
-
-    out = pathlib.Path(out)
-    path = pathlib.Path(path) if path else out / "fig3.png"
+def fig3(results: list[dict], curves: dict[int, list[list[dict]]], path: str | os.PathLike) -> pathlib.Path:
+    """Write ``path``: reward vs l (mean, 95% CI over seeds, paper's points) from the ``results`` rows
+    (l, seed, trials, avg_reward, diverged: a bool), and the learning curves from ``curves``
+    (l -> the metrics rows of each of its seeds)."""
+    path = pathlib.Path(path)
     ls = sorted({int(r["l"]) for r in results})
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(13, 4.8))
     fig.subplots_adjust(wspace=0.32)
     means, halves, divs = [], [], []
     for l in ls:
         rs = [r for r in results if int(r["l"]) == l]
-        ok = [float(r["avg_reward"]) for r in rs if str(r["diverged"]) not in ("True", "true", "1")]
+        ok = [float(r["avg_reward"]) for r in rs if not r["diverged"]]
         m, h = mean_ci95(np.array(ok)) if ok else (float("nan"), float("nan"))
         means.append(m)
         halves.append(h)
@@ -82,42 +67,19 @@ def fig3(out: str | os.PathLike, results: list[dict], path: str | os.PathLike | 
 
     cmap = plt.get_cmap("viridis")
     for j, l in enumerate(ls):
-        curves = []
-        for r in results:
-            if int(r["l"]) != l:
-                continue
-            m = run.read_metrics(sweep.point_dir(out, l, int(r["seed"])))
-            if m:
-                curves.append((np.array([x["trials"] for x in m]), np.array([x["avg_reward"] for x in m])))
-        if not curves:
+        cs = [(np.array([x["trials"] for x in m]), np.array([x["avg_reward"] for x in m]))
+              for m in curves.get(l, []) if m]
+        if not cs:
             continue
-        n = min(len(c[0]) for c in curves)
-        tr = np.mean([c[0][:n] for c in curves], axis=0)
-        rw = np.mean([c[1][:n] for c in curves], axis=0)
+        n = min(len(c[0]) for c in cs)
+        tr = np.mean([c[0][:n] for c in cs], axis=0)
+        rw = np.mean([c[1][:n] for c in cs], axis=0)
         ax2.plot(tr, smooth(rw), color=cmap(j / max(1, len(ls) - 1)), label=f"l={l}")
     ax2.set_xlabel("trials")
     ax2.set_ylabel("average reward per step (mean over seeds,\nrunning mean of 5 chunks)")
     ax2.set_title("learning curves")
     ax2.grid(alpha=0.3)
     ax2.legend(fontsize=8, ncol=2)
-    _save(fig, path)
-    return path
-
-
-def learning_curve(run_dir: str | os.PathLike, path: str | os.PathLike | None = None) -> pathlib.Path:
-    """Average reward and forward speed against trials for one run directory."""
-    from nmrl.runs import driver as run
-
-    run_dir = pathlib.Path(run_dir)
-    m = run.read_metrics(run_dir)
-    path = pathlib.Path(path) if path else run_dir / "learning_curve.png"
-    fig, ax = plt.subplots(figsize=(6, 4))
-    tr = [x["trials"] for x in m]
-    ax.plot(tr, [x["avg_reward"] for x in m], label="average reward per step")
-    ax.plot(tr, [x["forward_speed"] for x in m], label="forward speed [m/s]")
-    ax.set_xlabel("trials")
-    ax.grid(alpha=0.3)
-    ax.legend()
     _save(fig, path)
     return path
 
@@ -132,12 +94,12 @@ def _arm_label(arm: str) -> str:
 
 
 def timescale(out: str | os.PathLike, grid: list[dict], final: list[dict], gradvar: list[dict],
-              path: str | os.PathLike | None = None) -> pathlib.Path:
+              curves: dict[tuple[str, float], list[list[dict]]], path: str | os.PathLike | None = None
+              ) -> pathlib.Path:
     """The finer-delta study (nmrl/experiments/study.py): ``timescale.png`` (reward per second against delta,
     one line per period duration, 95% t-intervals over seeds; the per-period gradient variance and
-    the signal-to-noise per second; learning curves per delta) and ``grid.png`` (the step-size grid)."""
-    from nmrl.runs.driver import read_metrics
-
+    the signal-to-noise per second; learning curves per delta, ``curves[(arm, dt)]`` = the metrics
+    rows of each final run) and ``grid.png`` (the step-size grid), in ``out``."""
     out = pathlib.Path(out)
     path = pathlib.Path(path) if path else out / "timescale.png"
     arms = arm_order(grid)
@@ -197,18 +159,13 @@ def timescale(out: str | os.PathLike, grid: list[dict], final: list[dict], gradv
     for j, dt in enumerate(dts[:3]):
         ax = axes[1, j]
         for a in arms:
-            curves = []
-            for r in final:
-                if r["arm"] != a or float(r["dt"]) != dt:
-                    continue
-                d = out / "final" / f"dt{dt:g}" / "points" / f"{a}_s{r['seed']}"
-                m = read_metrics(d)
-                curves.append(([x["step"] * dt for x in m], [x["avg_reward"] / 0.02 for x in m]))
-            if not curves:
+            cs = [([x["step"] * dt for x in m], [x["avg_reward"] / 0.02 for x in m])
+                  for m in curves.get((a, dt), [])]
+            if not cs:
                 continue
-            n = min(len(c[0]) for c in curves)
-            t = np.array(curves[0][0][:n])
-            y = np.mean([c[1][:n] for c in curves], axis=0)
+            n = min(len(c[0]) for c in cs)
+            t = np.array(cs[0][0][:n])
+            y = np.mean([c[1][:n] for c in cs], axis=0)
             ax.plot(t, smooth(y, 3), color=colors[a], label=_arm_label(a))
         ax.set_title(f"δ = {dt:g} s: mean over seeds", fontsize=10)
         ax.set_xlabel("simulated seconds per environment")
@@ -233,7 +190,7 @@ def _grid_figure(grid: list[dict], arms: list[str], dts: list[float], path: path
                 if r["arm"] == a and float(r["dt"]) == dt:
                     s = float(r["score"])
                     z[bts.index(float(r["beta_theta"])), bvs.index(float(r["beta_v"]))] = s / 0.02 if np.isfinite(s) else np.nan
-                    if str(r["chosen"]) == "True":
+                    if r["chosen"]:
                         ax.add_patch(plt.Rectangle((bvs.index(float(r["beta_v"])) - 0.5, bts.index(float(r["beta_theta"])) - 0.5),
                                                    1, 1, fill=False, ec="red", lw=2))
             im = ax.imshow(z, origin="lower", cmap="viridis")

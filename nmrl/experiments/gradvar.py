@@ -32,8 +32,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from nmrl.paper.learner import Hyper, TrainConfig, make_train
-from nmrl.analysis.plots import mean_ci95
-from nmrl.experiments.sweep import stack_trees
+from nmrl.analysis.stats import mean_ci95
+from nmrl.runs.points import stack_trees
 
 
 def summarize(n: np.ndarray, g_sum: np.ndarray, g_sqnorm: np.ndarray, period_s: float) -> dict:

@@ -20,7 +20,7 @@ Every arm then runs ``seeds`` seeds at its chosen pair for the same budget in si
 Layout of ``OUT``::
 
     study.json                   the spec (refuses to continue a different one)
-    grid/dt{delta}/points/...    one vmapped program per delta (nmrl.experiments.sweep.run_points)
+    grid/dt{delta}/points/...    one vmapped program per delta (nmrl.runs.driver.run_points)
     grid.csv                     every grid run: delta, arm, betas, score, diverged, chosen
     final/dt{delta}/points/...   the chosen step sizes x seeds
     final.csv                    delta, arm, seed, betas, reward per second, speed, diverged
@@ -34,9 +34,7 @@ Every phase resumes where it stopped: run the same command again. A larger ``--f
 from __future__ import annotations
 
 import argparse
-import csv
 import dataclasses
-import io
 import json
 import math
 import pathlib
@@ -47,10 +45,12 @@ from typing import Sequence
 import jax
 import numpy as np
 
-from nmrl.runs import checkpoint, driver as run
-from nmrl.experiments import gradvar, sweep
-from nmrl.paper.learner import TrainConfig, make_train
+from nmrl.analysis import stats
+from nmrl.experiments import gradvar
 from nmrl.experiments.timescale import DELTA_0, at_control_step
+from nmrl.paper.learner import TrainConfig, make_train
+from nmrl.runs import checkpoint, driver, store
+from nmrl.runs.store import read_csv, read_metrics, write_csv
 
 SPEC_FILE = "study.json"
 GRID_COLUMNS = ("dt", "arm", "period_s", "l", "delta", "beta_theta", "beta_v", "steps", "seconds",
@@ -182,22 +182,9 @@ def _dt_dir(out: pathlib.Path, phase: str, dt: float) -> pathlib.Path:
     return out / phase / f"dt{dt:g}"
 
 
-def _write_csv(path: pathlib.Path, columns: Sequence[str], rows: list[dict]) -> None:
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=columns)
-    w.writeheader()
-    w.writerows(rows)
-    run.atomic_write_text(path, buf.getvalue())
-
-
-def read_csv(path: str | pathlib.Path) -> list[dict]:
-    with open(path) as f:
-        return list(csv.DictReader(f))
-
-
 def _point_done(d: pathlib.Path, steps: int) -> bool:
-    m = run.read_metrics(d)
-    return bool(m) and (m[-1]["step"] >= steps or any(run.is_diverged(r) for r in m))
+    m = read_metrics(d)
+    return bool(m) and (m[-1]["step"] >= steps or any(store.is_diverged(r) for r in m))
 
 
 def _run_phase(out: pathlib.Path, phase: str, dt: float, names: list[str], cfgs: list[TrainConfig],
@@ -209,7 +196,7 @@ def _run_phase(out: pathlib.Path, phase: str, dt: float, names: list[str], cfgs:
         return
     names, cfgs = [names[i] for i in todo], [cfgs[i] for i in todo]  # finished points stay as they are
     dirs = [d / "points" / n for n in names]
-    have = [run.existing_step(p) is not None for p in dirs]
+    have = [driver.existing_step(p) is not None for p in dirs]
     if any(have) and not all(have):
         raise StudyError(f"{d}: some points have checkpoints and some do not; remove {d} to rerun this phase")
     resume = all(have)
@@ -218,7 +205,7 @@ def _run_phase(out: pathlib.Path, phase: str, dt: float, names: list[str], cfgs:
     def on_chunk():
         if not progress:
             return
-        rows = [run.read_metrics(p) for p in dirs]
+        rows = [read_metrics(p) for p in dirs]
         done = [r[-1] for r in rows if r]
         if not done:
             return
@@ -231,7 +218,7 @@ def _run_phase(out: pathlib.Path, phase: str, dt: float, names: list[str], cfgs:
     if progress:
         print(f"[{phase} dt={dt:g}] {'resuming' if resume else 'starting'} {len(names)} points "
               f"x {cfgs[0].num_envs} environments", file=sys.stderr, flush=True)
-    sweep.run_points(d, names, cfgs, resume=resume, progress=progress, table=False,
+    driver.run_points(d, names, cfgs, resume=resume, progress=progress, table=False,
                      checkpoint_every=spec.checkpoint_every, on_chunk=on_chunk)
 
 
@@ -242,16 +229,16 @@ def _grid_rows(out: pathlib.Path, spec: StudySpec) -> list[dict]:
         per_arm: dict[str, list[dict]] = {}
         for i, (n, c) in enumerate(zip(names, cfgs)):
             period = spec.periods[i // (len(spec.beta_theta_grid) * len(spec.beta_v_grid))]
-            m = run.read_metrics(_dt_dir(out, "grid", dt) / "points" / n)
-            if not m or m[-1]["step"] < c.steps and not any(run.is_diverged(r) for r in m):
+            m = read_metrics(_dt_dir(out, "grid", dt) / "points" / n)
+            if not m or m[-1]["step"] < c.steps and not any(store.is_diverged(r) for r in m):
                 return []  # the grid of this delta is not finished
-            diverged = any(run.is_diverged(r) for r in m)
+            diverged = any(store.is_diverged(r) for r in m)
             half = m[len(m) // 2:]
             score = float("-inf") if diverged else float(np.mean([r["avg_reward"] for r in half]))
             row = {"dt": dt, "arm": arm_name(period), "period_s": "" if period is None else period, "l": c.l,
                    "delta": c.delta, "beta_theta": c.beta_theta, "beta_v": c.beta_v, "steps": m[-1]["step"],
                    "seconds": m[-1]["step"] * dt, "trials": m[-1]["trials"], "score": score,
-                   "avg_reward": sweep.final_avg(m, "avg_reward"), "diverged": diverged, "chosen": False}
+                   "avg_reward": stats.final_avg(m, "avg_reward"), "diverged": diverged, "chosen": False}
             per_arm.setdefault(row["arm"], []).append(row)
             rows.append(row)
         for arm_rows in per_arm.values():
@@ -266,7 +253,7 @@ def _grid_rows(out: pathlib.Path, spec: StudySpec) -> list[dict]:
 
 def chosen_betas(grid_rows: list[dict], dt: float) -> dict[str, tuple[float, float]]:
     return {r["arm"]: (float(r["beta_theta"]), float(r["beta_v"])) for r in grid_rows
-            if float(r["dt"]) == dt and str(r["chosen"]) == "True"}
+            if float(r["dt"]) == dt and r["chosen"]}
 
 
 def _final_rows(out: pathlib.Path, spec: StudySpec, grid_rows: list[dict]) -> list[dict]:
@@ -275,16 +262,16 @@ def _final_rows(out: pathlib.Path, spec: StudySpec, grid_rows: list[dict]) -> li
         names, cfgs = spec.final_points(dt, chosen_betas(grid_rows, dt))
         for i, (n, c) in enumerate(zip(names, cfgs)):
             period = spec.periods[i // spec.seeds]
-            m = run.read_metrics(_dt_dir(out, "final", dt) / "points" / n)
+            m = read_metrics(_dt_dir(out, "final", dt) / "points" / n)
             if not m:
                 continue
-            avg = sweep.final_avg(m, "avg_reward")
+            avg = stats.final_avg(m, "avg_reward")
             rows.append({"dt": dt, "arm": arm_name(period), "period_s": "" if period is None else period,
                          "l": c.l, "delta": c.delta, "seed": c.seed, "beta_theta": c.beta_theta,
                          "beta_v": c.beta_v, "steps": m[-1]["step"], "seconds": m[-1]["step"] * dt,
                          "trials": m[-1]["trials"], "avg_reward": avg, "reward_per_s": avg / DELTA_0,
-                         "forward_speed": sweep.final_avg(m, "forward_speed"),
-                         "diverged": any(run.is_diverged(r) for r in m),
+                         "forward_speed": stats.final_avg(m, "forward_speed"),
+                         "diverged": any(store.is_diverged(r) for r in m),
                          "theta_norm_first": m[0]["theta_norm"], "theta_norm": m[-1]["theta_norm"],
                          "collapsed": m[-1]["theta_norm"] > COLLAPSE_FACTOR * m[0]["theta_norm"]})
     return rows
@@ -306,7 +293,7 @@ def _policies(out: pathlib.Path, spec: StudySpec) -> list[tuple[str, object, obj
     for p in [None] + ([pick] if pick is not None else []):
         if p not in spec.periods:
             continue
-        scores = {s: sweep.final_avg(run.read_metrics(_dt_dir(out, "final", dt0) / "points" / f"{arm_name(p)}_s{s}"),
+        scores = {s: stats.final_avg(read_metrics(_dt_dir(out, "final", dt0) / "points" / f"{arm_name(p)}_s{s}"),
                                      "avg_reward") for s in range(spec.seeds)}
         best = max(scores, key=lambda s: scores[s])
         d = _dt_dir(out, "final", dt0) / "points" / f"{arm_name(p)}_s{best}"
@@ -341,7 +328,7 @@ def _gradvar(out: pathlib.Path, spec: StudySpec, progress: bool) -> list[dict]:
         if progress:
             print(f"[gradvar dt={dt:g}] {len(cfgs)} (policy, arm) pairs in {time.time() - t0:,.0f} s",
                   file=sys.stderr, flush=True)
-    _write_csv(path, GRADVAR_COLUMNS, rows)
+    write_csv(path, GRADVAR_COLUMNS, rows)
     return read_csv(path)
 
 
@@ -371,14 +358,14 @@ def run_study(spec: StudySpec, out: str | pathlib.Path, *, phases: Sequence[str]
                 # a longer final budget continues the final runs; the gradient variance of the (now
                 # different) trained policies is measured again, the old table is kept beside it
                 old.rename(out / f"gradvar_final{saved.final_seconds:g}s.csv")
-            run.atomic_write_text(spec_path, json.dumps(spec.to_json(), indent=2) + "\n")
+            store.atomic_write_json(spec_path, spec.to_json())
         elif diff:
             raise StudyError(f"{out} holds a study with other settings ({', '.join(diff)}); continue it "
                              f"with the same options (a longer --final-seconds, or other --gradvar-* before "
                              f"gradvar.csv exists, may be given) or choose another --out")
     else:
         out.mkdir(parents=True, exist_ok=True)
-        run.atomic_write_text(spec_path, json.dumps(spec.to_json(), indent=2) + "\n")
+        store.atomic_write_json(spec_path, spec.to_json())
     result: dict = {"grid": [], "final": [], "gradvar": []}
     if "grid" in phases:
         for dt in spec.dts:
@@ -386,7 +373,7 @@ def run_study(spec: StudySpec, out: str | pathlib.Path, *, phases: Sequence[str]
             _run_phase(out, "grid", dt, names, cfgs, spec, progress)
     grid_rows = _grid_rows(out, spec)
     if grid_rows:
-        _write_csv(out / "grid.csv", GRID_COLUMNS, grid_rows)
+        write_csv(out / "grid.csv", GRID_COLUMNS, grid_rows)
         result["grid"] = read_csv(out / "grid.csv")
     if "final" in phases:
         if not grid_rows:
@@ -397,11 +384,11 @@ def run_study(spec: StudySpec, out: str | pathlib.Path, *, phases: Sequence[str]
     if grid_rows:
         final_rows = _final_rows(out, spec, result["grid"])
         if final_rows:
-            _write_csv(out / "final.csv", FINAL_COLUMNS, final_rows)
+            write_csv(out / "final.csv", FINAL_COLUMNS, final_rows)
             result["final"] = read_csv(out / "final.csv")
     if "gradvar" in phases:
         if len(result["final"]) < len(spec.dts) * len(spec.periods) * spec.seeds or any(
-                float(r["seconds"]) + 1e-9 < spec.final_seconds and r["diverged"] == "False" for r in result["final"]):
+                float(r["seconds"]) + 1e-9 < spec.final_seconds and not r["diverged"] for r in result["final"]):
             raise StudyError(f"{out}: the final runs are not finished; run the final phase first")
         result["gradvar"] = _gradvar(out, spec, progress)
     elif (out / "gradvar.csv").exists():
@@ -409,7 +396,11 @@ def run_study(spec: StudySpec, out: str | pathlib.Path, *, phases: Sequence[str]
     if "plot" in phases and result["grid"]:
         from nmrl.analysis import plots
 
-        plots.timescale(out, result["grid"], result["final"], result["gradvar"])
+        curves: dict = {}
+        for r in result["final"]:
+            m = read_metrics(_dt_dir(out, "final", float(r["dt"])) / "points" / f"{r['arm']}_s{r['seed']}")
+            curves.setdefault((r["arm"], float(r["dt"])), []).append(m)
+        plots.timescale(out, result["grid"], result["final"], result["gradvar"], curves)
     return result
 
 
@@ -452,9 +443,13 @@ def main(argv: Sequence[str] | None = None) -> int:
                      gradvar_batches=a.gradvar_batches, beta_theta_cap=a.beta_theta_cap)
     try:
         run_study(spec, a.out, phases=a.phases, progress=not a.quiet)
-    except (ValueError, StudyError, sweep.SweepError, checkpoint.CheckpointError) as e:
+    except (ValueError, StudyError, driver.RunError, checkpoint.CheckpointError) as e:
         print(f"nmrl study: error: {e}", file=sys.stderr)
         return 2
+    except driver.Stopped as e:
+        print(f"nmrl study: {e}; every active point was saved; run the same command again to continue",
+              file=sys.stderr)
+        return e.exit_status
     return 0
 
 

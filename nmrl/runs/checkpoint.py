@@ -1,6 +1,8 @@
 """Checkpoints of a training run (orbax-checkpoint).
 
-``save(run_dir, ts, config)`` writes the whole :class:`~nmrl.paper.learner.TrainState` (theta, v, every
+One :class:`Checkpointer` per run holds one orbax ``CheckpointManager`` for a whole session (the
+driver, nmrl/runs/driver.py, opens one per point): its ``save(ts, config)`` (or the one-off
+``save(run_dir, ts, config)``) writes the whole :class:`~nmrl.paper.learner.TrainState` (theta, v, every
 :class:`~nmrl.paper.learner.EnvSlot` with its MJX state, noise, likelihood ratio and traces, the PRNG key,
 the traced hyperparameters, the counters and the divergence flag) to ``RUN_DIR/checkpoints/<step>/``;
 ``restore(run_dir, trainer)`` gives it back bit for bit, so a resumed run continues exactly as an
@@ -23,7 +25,8 @@ silently corrupted data after reading.
 
 Atomicity: orbax writes the step into ``<step>.orbax-checkpoint-tmp*`` and renames it to ``<step>``
 when complete (local file systems); unfinished tmp directories are ignored by readers. ``save`` is
-synchronous (async checkpointing off) and fsyncs the files before returning.
+synchronous (async checkpointing off) and fsyncs the files before returning. The checkout's git
+commit and the library versions recorded in the metadata are looked up once per process.
 
 Checkpoints written before the update went through optax (issue 16) have the same schema but
 their state lacks the optimizer states ``opt_theta.*`` and ``opt_v.*``. ``restore`` accepts such a
@@ -53,6 +56,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import dataclasses
+import functools
 import hashlib
 import json
 import logging
@@ -70,12 +74,14 @@ import jax.numpy as jnp
 import numpy as np
 
 import nmrl
-from nmrl.paper import networks
-from nmrl.paper.env import MODEL_PATH, OBS_DIM, ACT_DIM
+from nmrl.paper.env import MODEL_PATH
 from nmrl.paper.learner import OPT_FIELDS, Params, TrainConfig, TrainState, Trainer
+from nmrl.runs import store
+from nmrl.runs.store import CHECKPOINTS, COMPACT_FILE
 
 __all__ = [
     "CheckpointError",
+    "Checkpointer",
     "save",
     "latest_step",
     "all_steps",
@@ -102,13 +108,12 @@ __all__ = [
 #: Version of the on-disk layout below; bump when it changes incompatibly.
 SCHEMA_VERSION = 1
 FORMAT = "nmrl-checkpoint"
-CHECKPOINTS = "checkpoints"
 ITEMS = ("state", "policy", "meta")
 #: Config fields that may differ between a checkpoint and the trainer that resumes it (the budget);
 #: every other field is part of the run's identity.
 RESUMABLE_FIELDS = ("steps", "trials")
-#: The run's config, written when the run is created (nmrl/runs/driver.py); the reference of its identity.
-RUN_CONFIG = "config.json"
+#: The run's config, written when the run is created (nmrl/runs/store.py); the reference of its identity.
+RUN_CONFIG = store.CONFIG_FILE
 
 _SEP = "."
 
@@ -196,7 +201,8 @@ def _quiet_absl() -> Iterator[None]:
             lg.setLevel(lv)
 
 
-def _manager(directory: pathlib.Path, *, keep: int | None = None, read_only: bool = False):
+def _manager(directory: pathlib.Path, *, keep: int | None = None, read_only: bool = False,
+             save_interval_steps: int | None = None):
     ocp = _ocp()
     opts = ocp.CheckpointManagerOptions(
         max_to_keep=keep,
@@ -204,6 +210,7 @@ def _manager(directory: pathlib.Path, *, keep: int | None = None, read_only: boo
         read_only=read_only,
         enable_async_checkpointing=False,
         cleanup_tmp_directories=not read_only,
+        **({} if save_interval_steps is None else {"save_interval_steps": save_interval_steps}),
     )
     return ocp.CheckpointManager(directory, options=opts, item_names=ITEMS)
 
@@ -252,7 +259,9 @@ def _sha256_file(path: pathlib.Path) -> str | None:
         return None
 
 
+@functools.lru_cache(maxsize=1)
 def _git_commit() -> str | None:
+    """The checkout's commit (one ``git rev-parse`` per process, not one per save)."""
     root = pathlib.Path(nmrl.__file__).resolve().parents[1]
     try:
         out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True,
@@ -263,6 +272,11 @@ def _git_commit() -> str | None:
 
 
 def _versions() -> dict[str, str | None]:
+    return dict(_versions_once())
+
+
+@functools.lru_cache(maxsize=1)
+def _versions_once() -> dict[str, str | None]:
     from importlib import metadata as im
 
     out: dict[str, str | None] = {"nmrl": nmrl.__version__, "python": platform.python_version()}
@@ -298,14 +312,22 @@ def _fsync_tree(path: pathlib.Path) -> None:
             os.close(fd)
 
 
-def _policy_template(config: TrainConfig) -> dict[str, Params]:
-    actor = networks.make_actor(config.hidden_actor, ACT_DIM)
-    critic = networks.make_critic(config.hidden_critic)
-    key = jax.random.PRNGKey(0)
-    return {
-        "theta": jax.eval_shape(lambda k: networks.init_params(actor, k, OBS_DIM), key),
-        "v": jax.eval_shape(lambda k: networks.init_params(critic, k, OBS_DIM), key),
-    }
+def _policy_template(meta: dict) -> dict[str, Params]:
+    """Shapes of the saved (theta, v), read from the checkpoint's own layout: nothing here assumes an
+    environment's dimensions (``make_train`` accepts any environment)."""
+    tree: dict = {}
+    for name, (shape, dtype) in meta["state_layout"].items():
+        head, _, rest = name.partition(_SEP)
+        if head not in ("theta", "v") or not rest:
+            continue
+        node = tree.setdefault(head, {})
+        *parents, leaf = rest.split(_SEP)
+        for k in parents:
+            node = node.setdefault(k, {})
+        node[leaf] = jax.ShapeDtypeStruct(tuple(shape), np.dtype(dtype))
+    if set(tree) != {"theta", "v"}:
+        raise CorruptCheckpoint(f"{meta['path']}: the saved layout has no actor/critic parameters")
+    return tree
 
 
 def _abstract(tree: Any) -> Any:
@@ -348,8 +370,12 @@ def all_steps(run_dir: str | os.PathLike) -> list[int]:
 
 def latest_step(run_dir: str | os.PathLike) -> int | None:
     """The newest finished checkpoint's step, or None if the run has none."""
-    steps = all_steps(run_dir)
-    return steps[-1] if steps else None
+    d = _existing_dir(run_dir)
+    try:
+        with _quiet_absl(), _manager(d, read_only=True) as m:
+            return m.latest_step()
+    except Exception as e:  # noqa: BLE001 - wrap every orbax failure
+        raise _err(d, "cannot list checkpoints", e) from e
 
 
 def _resolve_step(run_dir: str | os.PathLike, step: int | None) -> tuple[pathlib.Path, int]:
@@ -370,6 +396,122 @@ def _resolve_step(run_dir: str | os.PathLike, step: int | None) -> tuple[pathlib
 # ----------------------------------------------------------------------------- save
 
 
+class Checkpointer:
+    """The checkpoints of one run for one session: one orbax ``CheckpointManager`` opened once.
+
+    ``keep`` newest checkpoints are kept (orbax's ``max_to_keep``); with ``every_steps`` the
+    manager's own save policy (``save_interval_steps``: steps that are multiples of it, and the
+    first save of a run without checkpoints) answers :meth:`should_save`. Use as a context manager
+    or call :meth:`close`.
+    """
+
+    def __init__(self, run_dir: str | os.PathLike, *, keep: int = 3, every_steps: int | None = None):
+        if not (isinstance(keep, int) and keep >= 1):
+            raise ValueError(f"keep must be an integer >= 1, got {keep!r}")
+        self.run_dir = pathlib.Path(run_dir)
+        self.dir = checkpoint_dir(run_dir)
+        self.keep, self.every_steps = keep, every_steps
+        self._m = None
+
+    def _manager(self):
+        if self._m is None:
+            try:
+                with _quiet_absl():
+                    self._m = _manager(self.dir, keep=self.keep, save_interval_steps=self.every_steps)
+            except Exception as e:  # noqa: BLE001
+                raise _err(self.dir, "cannot open the checkpoints for writing", e) from e
+        return self._m
+
+    def steps(self) -> list[int]:
+        return sorted(int(s) for s in self._manager().all_steps())
+
+    def latest_step(self) -> int | None:
+        return self._manager().latest_step()
+
+    def should_save(self, step: int) -> bool:
+        """Whether the save policy asks for a checkpoint at ``step`` (never for a step <= the newest)."""
+        with _quiet_absl():
+            return bool(self._manager().should_save(int(step)))
+
+    def save(self, ts: TrainState, config: TrainConfig, *, extra: dict | None = None) -> pathlib.Path:
+        """Write the full training state at step ``int(ts.step)`` (see :func:`save`)."""
+        extra = {} if extra is None else extra
+        try:
+            json.dumps(extra, allow_nan=False)
+        except (TypeError, ValueError) as e:
+            raise TypeError(f"extra must be a JSON-serializable dict: {e}") from e
+        d = self.dir
+        step = int(ts.step)
+        names, leaves, _ = _flatten(ts)
+        state_host = {n: np.asarray(x) for n, x in zip(names, leaves)}
+        layout = _layout(names, list(state_host.values()))
+        state_item = {n: a for n, a in state_host.items() if a.size > 0}
+        policy_item = {"theta": jax.tree.map(np.asarray, ts.theta), "v": jax.tree.map(np.asarray, ts.v)}
+        pnames, pleaves, _ = _flatten(policy_item)
+        model_sha = _sha256_file(MODEL_PATH)
+        try:
+            ident = identity_digest(config, model_sha)
+        except (ValueError, TypeError):  # a config that does not resolve: saved as it is, checked on restore
+            ident = None
+
+        meta = {
+            "format": FORMAT,
+            "schema": SCHEMA_VERSION,
+            "step": step,
+            "trials": int(ts.trials),
+            "periods": int(ts.periods),
+            "diverged": bool(ts.diverged),
+            "config": dataclasses.asdict(config),
+            "versions": _versions(),
+            "git_commit": _git_commit(),
+            "model_file": str(MODEL_PATH.relative_to(MODEL_PATH.parents[1])),
+            "model_sha256": model_sha,
+            "identity": ident,
+            "saved_unix_time": time.time(),
+            "state_layout": layout,
+            "state_digest": _digest(state_item),
+            "policy_digest": _digest(dict(zip(pnames, pleaves))),
+            "extra": extra,
+        }
+        ocp = _ocp()
+        try:
+            with _quiet_absl():
+                m = self._manager()
+                if step in m.all_steps():
+                    m.delete(step)
+                m.save(
+                    step,
+                    args=ocp.args.Composite(
+                        state=ocp.args.StandardSave(state_item),
+                        policy=ocp.args.StandardSave(policy_item),
+                        meta=ocp.args.JsonSave(meta),
+                    ),
+                    force=True,
+                )
+                m.wait_until_finished()
+        except CheckpointError:
+            raise
+        except Exception as e:  # noqa: BLE001
+            raise _err(d / str(step), "saving the checkpoint failed", e) from e
+        path = d / str(step)
+        if not path.is_dir():
+            raise CheckpointError(f"{path}: orbax reported success but the step directory is missing")
+        _fsync_tree(path)
+        return path
+
+    def close(self) -> None:
+        if self._m is not None:
+            with _quiet_absl():
+                self._m.close()
+            self._m = None
+
+    def __enter__(self) -> "Checkpointer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
 def save(
     run_dir: str | os.PathLike,
     ts: TrainState,
@@ -382,71 +524,10 @@ def save(
 
     Returns the step directory. Synchronous and atomic (see the module docstring). Saving a step
     that already exists replaces it. ``extra`` must be JSON-serializable; it is stored in the
-    metadata unchanged.
+    metadata unchanged. (A loop that saves many times holds one :class:`Checkpointer` instead.)
     """
-    if not (isinstance(keep, int) and keep >= 1):
-        raise ValueError(f"keep must be an integer >= 1, got {keep!r}")
-    extra = {} if extra is None else extra
-    try:
-        json.dumps(extra, allow_nan=False)
-    except (TypeError, ValueError) as e:
-        raise TypeError(f"extra must be a JSON-serializable dict: {e}") from e
-    d = checkpoint_dir(run_dir)
-    step = int(ts.step)
-
-    names, leaves, _ = _flatten(ts)
-    state_host = {n: np.asarray(x) for n, x in zip(names, leaves)}
-    layout = _layout(names, list(state_host.values()))
-    state_item = {n: a for n, a in state_host.items() if a.size > 0}
-    policy_item = {"theta": jax.tree.map(np.asarray, ts.theta), "v": jax.tree.map(np.asarray, ts.v)}
-    pnames, pleaves, _ = _flatten(policy_item)
-    model_sha = _sha256_file(MODEL_PATH)
-    try:
-        ident = identity_digest(config, model_sha)
-    except (ValueError, TypeError):  # a config that does not resolve: saved as it is, checked on restore
-        ident = None
-
-    meta = {
-        "format": FORMAT,
-        "schema": SCHEMA_VERSION,
-        "step": step,
-        "trials": int(ts.trials),
-        "periods": int(ts.periods),
-        "diverged": bool(ts.diverged),
-        "config": dataclasses.asdict(config),
-        "versions": _versions(),
-        "git_commit": _git_commit(),
-        "model_file": str(MODEL_PATH.relative_to(MODEL_PATH.parents[1])),
-        "model_sha256": model_sha,
-        "identity": ident,
-        "saved_unix_time": time.time(),
-        "state_layout": layout,
-        "state_digest": _digest(state_item),
-        "policy_digest": _digest(dict(zip(pnames, pleaves))),
-        "extra": extra,
-    }
-    ocp = _ocp()
-    try:
-        with _quiet_absl(), _manager(d, keep=keep) as m:
-            if step in m.all_steps():
-                m.delete(step)
-            m.save(
-                step,
-                args=ocp.args.Composite(
-                    state=ocp.args.StandardSave(state_item),
-                    policy=ocp.args.StandardSave(policy_item),
-                    meta=ocp.args.JsonSave(meta),
-                ),
-                force=True,
-            )
-            m.wait_until_finished()
-    except Exception as e:  # noqa: BLE001
-        raise _err(d / str(step), "saving the checkpoint failed", e) from e
-    path = d / str(step)
-    if not path.is_dir():
-        raise CheckpointError(f"{path}: orbax reported success but the step directory is missing")
-    _fsync_tree(path)
-    return path
+    with Checkpointer(run_dir, keep=keep) as c:
+        return c.save(ts, config, extra=extra)
 
 
 # ----------------------------------------------------------------------------- load
@@ -604,7 +685,7 @@ def restore_policy(
     if check_model:
         _check_model(meta)
     config = _config_from_meta(meta)
-    template = _policy_template(config)
+    template = _policy_template(meta)
     ocp = _ocp()
     restored = _restore_items(path.parent, int(meta["step"]),
                               policy=ocp.args.StandardRestore(_abstract(template))).policy
@@ -719,7 +800,6 @@ if __name__ == "__main__":  # pragma: no cover - `python -m nmrl.runs.checkpoint
 
 # ------------------------------------------------------------------ compact continuation state
 
-COMPACT_FILE = "compact.npz"
 COMPACT_FORMAT = "nmrl-compact"
 COMPACT_SCHEMA = 1
 
@@ -753,12 +833,8 @@ def save_compact(run_dir: str | os.PathLike, ts: TrainState, config: TrainConfig
             "digest": _digest(arrays)}
     arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
     path = compact_path(run_dir)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        np.savez(f, **arrays)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    with store.atomic_path(path) as tmp:
+        np.savez(tmp, **arrays)
     return path
 
 

@@ -1,44 +1,54 @@
-"""The training run on the Python side: jitted chunks, progress, metrics.jsonl, checkpoints.
+"""The one driver of training runs: 1..P points, chunk by chunk, with signals and progress.
 
 Between two chunks of ``chunk_steps`` control steps (one ``jit``-compiled ``lax.scan``, see
-nmrl/paper/learner.py) this loop only shows progress, appends one JSON object per chunk to
-``OUT/metrics.jsonl`` and saves an orbax checkpoint of the full training state. A run whose
-parameters diverge stops with a clear message and keeps its last good checkpoint; SIGINT/SIGTERM
-stop the run after the chunk in flight has been saved (:class:`Stopped`; a second signal stops it
-at once; the last checkpoint is intact because checkpoints are written atomically).
+nmrl/paper/learner.py) the driver only appends one metrics row per point to its
+``metrics.jsonl``, checkpoints the points (one :class:`~nmrl.runs.checkpoint.Checkpointer` per
+point, saving every ``checkpoint_every`` chunks, when a point finishes and when a signal stops
+the loop) and shows progress. Two layouts of the same loop:
+
+* :func:`train` -- one run (``nmrl train``): its N environments split over the local devices
+  (``psum``-ed updates, nmrl/runs/sharding.py). A run whose parameters diverge stops with
+  :class:`Diverged` and keeps its last good checkpoint.
+* :func:`run_points` -- P runs (the points of a sweep or study) as one compiled program
+  (nmrl/runs/points.py: the points over the devices, one at a time per device). A diverged point
+  is frozen at its last good checkpoint and the others go on; ``priority`` stages the points.
+
+SIGINT/SIGTERM stop either after the chunk in flight, every active point saved (:class:`Stopped`;
+a second signal stops at once; the last checkpoints are intact because checkpoints are written
+atomically).
 
 A run directory has one identity, the config it was created with (``config.json``; see
-nmrl/runs/checkpoint.py). A fresh run never starts in a directory that holds any part of a run
-(:data:`RUN_FILES`); a resume continues the run with its own config -- only the budget may change,
-recorded in ``config.json`` and ``resumes.jsonl`` -- from its newest checkpoint or the one asked
-for, and refuses a checkpoint of another run or a corrupted one (naming the newest good one).
-Every refusal happens before anything is written.
+nmrl/runs/checkpoint.py and nmrl/runs/store.py). A fresh run never starts in a directory that
+holds any part of a run (:data:`RUN_FILES`). A resume -- of a run or of every point -- goes through
+one function (:func:`_resume`): it continues the run with its own config, only the budget may
+change (recorded in ``config.json`` and ``resumes.jsonl``), from its newest checkpoint or the one
+asked for (else from its compact continuation state, else from the start if it never ran a chunk),
+and refuses a checkpoint of another run or a corrupted one (naming the newest good one). Every
+refusal happens before anything is written.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
-import json
 import math
 import os
 import pathlib
 import signal
 import sys
 import time
-from typing import Callable
+from typing import Callable, Sequence
+
 import jax
+import jax.numpy as jnp
 import numpy as np
 
-from nmrl.runs import checkpoint, sharding
-from nmrl.paper.learner import TrainConfig, make_train
+from nmrl.paper.learner import Hyper, TrainConfig, Trainer, make_train
+from nmrl.runs import checkpoint, sharding, store
+from nmrl.runs import points as pts
+from nmrl.runs.store import (CONFIG_FILE, METRICS_FILE, RESUMES_FILE, RUN_FILES, append_metrics,  # noqa: F401
+                             is_diverged, read_metrics, to_python, truncate_metrics)
 
-METRICS_FILE = "metrics.jsonl"
-CONFIG_FILE = checkpoint.RUN_CONFIG
-#: One JSON object per resume: the step and checkpoint it continued from, the budget before and after.
-RESUMES_FILE = "resumes.jsonl"
-#: Any of these in a directory makes it a run: a fresh run refuses to start there.
-RUN_FILES = (CONFIG_FILE, METRICS_FILE, checkpoint.CHECKPOINTS, checkpoint.COMPACT_FILE, RESUMES_FILE)
 #: Config fields a resume may change (the budget); the others are the run's identity.
 BUDGET_FIELDS = checkpoint.RESUMABLE_FIELDS
 #: JAX PRNG seeds are 32-bit: larger (or negative) seeds wrap around to another seed's key.
@@ -125,47 +135,6 @@ def _create_dir(out: pathlib.Path) -> None:
         raise RunError(f"--out={str(out)!r} is invalid: cannot create the directory ({e.strerror or e})") from e
 
 
-def atomic_write_text(path: pathlib.Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-
-
-def to_python(m: dict) -> dict:
-    out = {}
-    for k, v in m.items():
-        v = np.asarray(v)
-        out[k] = bool(v) if v.dtype == bool else (int(v) if np.issubdtype(v.dtype, np.integer) else float(v))
-    return out
-
-
-def read_metrics(run_dir: str | os.PathLike) -> list[dict]:
-    p = pathlib.Path(run_dir) / METRICS_FILE
-    if not p.exists():
-        return []
-    return [json.loads(line) for line in p.read_text().splitlines() if line.strip()]
-
-
-def truncate_metrics(run_dir: pathlib.Path, step: int) -> None:
-    """Keep only the metrics of chunks up to the restored checkpoint (resume == uninterrupted);
-    the file is not rewritten when it has no later rows."""
-    rows = read_metrics(run_dir)
-    keep = [r for r in rows if r["step"] <= step]
-    if len(keep) == len(rows) and (run_dir / METRICS_FILE).exists():
-        return
-    atomic_write_text(run_dir / METRICS_FILE, "".join(json.dumps(r) + "\n" for r in keep))
-
-
-def append_metrics(run_dir: pathlib.Path, row: dict) -> None:
-    with open(run_dir / METRICS_FILE, "a") as f:
-        f.write(json.dumps(row) + "\n")
-        f.flush()
-        os.fsync(f.fileno())
-
-
 def existing_step(run_dir: pathlib.Path) -> int | None:
     """The newest checkpoint step in ``run_dir``, or None when there is none (or no directory)."""
     try:
@@ -226,10 +195,6 @@ def metrics_row(cfg: TrainConfig, m: dict, wall: float, points: int = 1) -> dict
     """One metrics.jsonl object from a chunk's metrics (``points`` programs shared the wall time)."""
     return {"chunk": m["step"] // cfg.chunk_steps, **m, "total_steps": m["step"] * cfg.num_envs,
             "wall_s": wall, "steps_per_s": points * cfg.chunk_steps * cfg.num_envs / wall}
-
-
-def is_diverged(m: dict) -> bool:
-    return bool(m["diverged"]) or not all(math.isfinite(m[k]) for k in ("theta_norm", "v_norm"))
 
 
 def budget_done(cfg: TrainConfig, ts_step: int, ts_trials: int) -> bool:
@@ -305,8 +270,12 @@ def _budget(cfg: TrainConfig) -> dict:
     return {k: getattr(cfg, k) for k in BUDGET_FIELDS}
 
 
-def _resume(cfg: TrainConfig, out: pathlib.Path, given: dict | None, step: int | None):
-    """Everything a resume checks and reads, nothing written: (config, trainer, state, record)."""
+def _resume(cfg: TrainConfig, out: pathlib.Path, given: dict | None, step: int | None, env=None):
+    """Everything a resume of the run in ``out`` checks and reads, nothing written:
+    ``(config, trainer, state, record)``, the config with the session's budget (``given``'s, else
+    ``cfg``'s, else the run's own), the state from the checkpoint ``step`` or the newest one, else from
+    the compact continuation state, else (a run that never finished a chunk) the initial state.
+    ``record`` is the line for ``resumes.jsonl`` (:func:`_begin_resumed` writes it)."""
     if not out.is_dir():
         why = "it does not exist" if not out.exists() else "it is not a directory"
         raise RunError(f"--resume: no checkpoint found in {out} ({why})")
@@ -318,9 +287,10 @@ def _resume(cfg: TrainConfig, out: pathlib.Path, given: dict | None, step: int |
         if (out / checkpoint.CHECKPOINTS).is_dir():
             raise
         steps = []
+    compact = not steps and checkpoint.has_compact(out)
     if not steps:
         rows = read_metrics(out)
-        if run_cfg is None or rows or step is not None:
+        if run_cfg is None or (rows and not compact) or step is not None:
             why = (f"; its {METRICS_FILE} has {len(rows)} row(s) that cannot be continued: choose another --out"
                    if rows else "")
             raise RunError(f"--resume: no checkpoint found in {out}" + why)
@@ -341,14 +311,18 @@ def _resume(cfg: TrainConfig, out: pathlib.Path, given: dict | None, step: int |
         new_budget = _budget(cfg)
     if all(v is None for v in new_budget.values()):
         new_budget = None
-    trainer = make_train(run_cfg)
+    trainer = make_train(run_cfg, env=env)
 
     def load(s: int):
         meta = checkpoint.load_metadata(out, s)
         checkpoint.check_identity(meta, run_cfg, source)
         return meta, checkpoint.restore(out, trainer, step=s)
 
-    if not steps:  # created, stopped before its first checkpoint: start it again, as it would have
+    if compact:  # no full checkpoint (e.g. a fresh clone of published results): statistically equal
+        meta = {"path": str(checkpoint.compact_path(out))}
+        ts = checkpoint.restore_compact(out, trainer)
+        old_budget = _budget(run_cfg)
+    elif not steps:  # created, stopped before its first checkpoint: start it again, as it would have
         meta, ts = None, jax.jit(trainer.init)(jax.random.PRNGKey(run_cfg.seed))
         old_budget = _budget(run_cfg)
     else:
@@ -386,6 +360,182 @@ def _resume(cfg: TrainConfig, out: pathlib.Path, given: dict | None, step: int |
     return cfg, trainer, ts, record
 
 
+# ----------------------------------------------------------------------------- the points of a session
+
+
+@dataclasses.dataclass
+class _Point:
+    """One run of this session: its directory, config (with this session's budget), trainer, the
+    state it starts from, and whether it is frozen (diverged before this session)."""
+
+    name: str
+    dir: pathlib.Path
+    cfg: TrainConfig
+    trainer: Trainer
+    ts: object
+    frozen: bool = False
+    record: dict | None = None  #: the resume record (None for a fresh start)
+
+
+def _begin_fresh(p: _Point) -> None:
+    """Write a fresh point's config.json and drop metrics of an earlier, unsaved start."""
+    store.write_config(p.dir, p.cfg)
+    store.remove_metrics(p.dir)
+
+
+def _begin_resumed(p: _Point) -> None:
+    """What a resume writes, after every point's checks passed: the metrics after the restored step
+    are dropped (not for a frozen point: its last rows say why it stopped), a changed budget is
+    written to config.json, and the resume is recorded in resumes.jsonl."""
+    if not p.frozen:
+        truncate_metrics(p.dir, int(p.ts.step))
+    if p.record["config_json_updated"]:
+        store.write_config(p.dir, p.cfg)
+    store.append_resume(p.dir, p.record)
+
+
+class _OneRun:
+    """Layout of :func:`train`: one point, its environments split over ``n_dev`` devices."""
+
+    def __init__(self, p: _Point, devices: int | None):
+        self.n_dev = n_dev = _num_shards(p.cfg, devices)
+        trainer = _sharded_trainer(p.cfg, p.trainer, devices)
+        if n_dev > 1:
+            program, self.place = sharding.shard_train_chunk(trainer.chunk, p.ts,
+                                                             sharding.make_mesh(jax.local_devices()[:n_dev]))
+        else:
+            program, self.place = trainer.chunk, jax.device_put
+        self.ts = self.place(p.ts)  # committed inputs: no second, hidden compile of the chunk
+        self.program = program
+
+    def compile(self) -> float:
+        self.chunk, compile_s = compile_chunk(self.program, self.ts)
+        return compile_s
+
+    def run(self, active: np.ndarray) -> list[dict | None]:
+        ts_new, m = self.chunk(self.ts)
+        m = to_python(jax.device_get(m))
+        self.ts = self.place(ts_new)
+        return [m]
+
+    def state(self, i: int):
+        return self.ts
+
+    def counters(self, i: int) -> tuple[int, int, bool]:
+        return int(self.ts.step), int(self.ts.trials), bool(self.ts.diverged)
+
+
+class _Points:
+    """Layout of :func:`run_points`: the stacked points over ``n_dev`` devices (nmrl/runs/points.py)."""
+
+    def __init__(self, ps: Sequence[_Point], n_dev: int, group: int, order: Sequence[int]):
+        self.n_dev = n_dev
+        self.slots = pts.slot_order(len(ps), n_dev, order)
+        self.slot_of = {i: j for j, i in enumerate(self.slots) if i >= 0}
+        self.ts = pts.place_points(pts.stack_trees([ps[i if i >= 0 else 0].ts for i in self.slots]), n_dev)
+        self.program = pts.points_program(ps[0].trainer.chunk, n_dev, group)
+        self.per_dev = len(self.slots) // n_dev
+
+    def compile(self) -> float:
+        t0 = time.time()
+        active_like = pts.place_points(jnp.zeros(len(self.slots), bool), self.n_dev)
+        self.chunk = jax.jit(self.program, donate_argnums=0).lower(self.ts, active_like).compile()
+        return time.time() - t0
+
+    def run(self, active: np.ndarray) -> list[dict | None]:
+        act_slots = np.array([i >= 0 and active[i] for i in self.slots])
+        self.ts, m = self.chunk(self.ts, pts.place_points(jnp.asarray(act_slots), self.n_dev))
+        m = jax.device_get(m)
+        return [to_python({k: v[self.slot_of[i]] for k, v in m.items()}) if a else None
+                for i, a in enumerate(active)]
+
+    def state(self, i: int):
+        return pts.unstack(self.ts, self.slot_of[i])
+
+    def counters(self, i: int) -> tuple[int, int, bool]:
+        j = self.slot_of[i]
+        return int(self.ts.step[j]), int(self.ts.trials[j]), bool(self.ts.diverged[j])
+
+
+def _drive(ps: Sequence[_Point], layout, *, stages: list[list[int]], checkpoint_every: int, keep: int,
+           freeze_diverged: bool, compact: bool, on_chunk: Callable[[dict[int, dict]], None] | None,
+           stop_message: Callable[[int, int], str], max_chunks: int | None) -> list[dict]:
+    """The chunk loop of every run: step the active points of the first unfinished stage, append
+    their metrics rows, checkpoint them, report progress, stop on signals. Returns the rows written
+    (every point's, in order). A diverged point raises :class:`Diverged` (``freeze_diverged`` False)
+    or is frozen at its last good checkpoint while the others go on."""
+    ckpts = [checkpoint.Checkpointer(p.dir, keep=keep, every_steps=checkpoint_every * p.cfg.chunk_steps)
+             for p in ps]
+    done = np.zeros(len(ps), bool)
+    for i, p in enumerate(ps):
+        step, trials, div = layout.counters(i)
+        done[i] = budget_done(p.cfg, step, trials) or (freeze_diverged and (div or p.frozen))
+    rows: list[dict] = []
+    unsaved: set[int] = set()  # points whose newest metrics row has no checkpoint yet
+    n_chunks = 0
+
+    def save(i: int) -> None:
+        one = layout.state(i)
+        ckpts[i].save(one, ps[i].cfg)
+        if compact:
+            checkpoint.save_compact(ps[i].dir, one, ps[i].cfg)
+        unsaved.discard(i)
+
+    stop, restore_signals = stop_on_signals()
+    try:
+        while not done.all():
+            stage = next(st for st in stages if not all(done[i] for i in st))
+            active = np.zeros(len(ps), bool)
+            active[[i for i in stage if not done[i]]] = True
+            t0 = time.time()
+            ms = layout.run(active)
+            wall = time.time() - t0
+            n_active = int(active.sum())
+            new: dict[int, dict] = {}
+            for i, p in enumerate(ps):
+                if not active[i]:
+                    continue
+                row = metrics_row(p.cfg, ms[i], wall, points=n_active)
+                append_metrics(p.dir, row)
+                rows.append(row)
+                new[i] = row
+                if is_diverged(row):
+                    done[i] = True  # its last good checkpoint is kept; frozen from now on
+                    if not freeze_diverged:
+                        raise Diverged(
+                            f"training diverged at step {row['step']} (theta norm {row['theta_norm']:.3g}, v norm "
+                            f"{row['v_norm']:.3g}, limit {p.cfg.max_param_norm:g}); the last good checkpoint "
+                            f"(step {ckpts[i].latest_step()}) is kept in {p.dir}. Try smaller step sizes.")
+                    continue
+                finished = budget_done(p.cfg, row["step"], row["trials"])
+                if (finished or checkpoint_every == 1 or stop["signal"] is not None
+                        or ckpts[i].should_save(row["step"])):
+                    save(i)
+                else:
+                    unsaved.add(i)
+                if finished:
+                    done[i] = True
+            if on_chunk is not None:
+                on_chunk(new)
+            n_chunks += 1
+            if stop["signal"] is not None:
+                for i in sorted(unsaved):  # the signal came after this chunk's saves
+                    save(i)
+                step = max(r["step"] for r in new.values()) if new else 0
+                print(stop_message(stop["signal"], step), file=sys.stderr, flush=True)
+                raise Stopped(stop["signal"], step, rows)
+            if max_chunks is not None and n_chunks >= max_chunks:
+                break
+    finally:
+        restore_signals()
+        for c in ckpts:
+            c.close()
+    return rows
+
+
+# ----------------------------------------------------------------------------- one run
+
+
 def train(cfg: TrainConfig, out: str | os.PathLike, *, resume: bool = False, progress: bool = True,
           keep: int = 3, max_chunks: int | None = None, devices: int | None = None,
           given: dict | None = None, step: int | None = None) -> list[dict]:
@@ -419,12 +569,8 @@ def train(cfg: TrainConfig, out: str | os.PathLike, *, resume: bool = False, pro
                   f"is {'steps' if cfg.steps is not None else 'trials'}={cfg.steps or cfg.trials}; give a larger "
                   f"--steps or --trials to continue", file=sys.stderr, flush=True)
             return []
-        truncate_metrics(out, int(ts.step))
-        if record["config_json_updated"]:
-            atomic_write_text(out / CONFIG_FILE, json.dumps(dataclasses.asdict(cfg), indent=2) + "\n")
-        with open(out / RESUMES_FILE, "a") as f:
-            f.write(json.dumps(record) + "\n")
-        trainer = _sharded_trainer(cfg, trainer, devices)
+        p = _Point(out.name, out, cfg, trainer, ts, record=record)
+        _begin_resumed(p)
     else:
         check_config(cfg)
         cfg = cfg.resolved()
@@ -432,60 +578,139 @@ def train(cfg: TrainConfig, out: str | os.PathLike, *, resume: bool = False, pro
         trainer = make_train(cfg)
         _num_shards(cfg, devices)
         _create_dir(out)
-        atomic_write_text(out / CONFIG_FILE, json.dumps(dataclasses.asdict(cfg), indent=2) + "\n")
-        ts = jax.jit(trainer.init)(jax.random.PRNGKey(cfg.seed))
-        trainer = _sharded_trainer(cfg, trainer, devices)
+        store.write_config(out, cfg)
+        p = _Point(out.name, out, cfg, trainer, jax.jit(trainer.init)(jax.random.PRNGKey(cfg.seed)))
     if cfg.steps is not None and cfg.steps % cfg.chunk_steps:
         end = math.ceil(cfg.steps / cfg.chunk_steps) * cfg.chunk_steps
         print(f"note: the budget of {cfg.steps} steps is not a whole number of chunks of {cfg.chunk_steps}: "
               f"the run stops after whole chunks, at step {end}", file=sys.stderr, flush=True)
-    n_dev = _num_shards(cfg, devices)
+    layout = _OneRun(p, devices)
+    n_dev = layout.n_dev
     if progress:
         print(f"train: {cfg.num_envs} environments on {n_dev} device(s), {cfg.num_envs // n_dev} per device "
               f"({len(jax.local_devices())} local {jax.local_devices()[0].platform} device(s))",
               file=sys.stderr, flush=True)
-    if n_dev > 1:
-        program, place = sharding.shard_train_chunk(trainer.chunk, ts,
-                                                    sharding.make_mesh(jax.local_devices()[:n_dev]))
-    else:
-        program, place = trainer.chunk, jax.device_put
-    ts = place(ts)  # committed inputs: no second, hidden compile of the chunk
-    chunk, compile_s = compile_chunk(program, ts)
+    compile_s = layout.compile()
     if progress:
         print(f"compiled the training chunk ({cfg.num_envs} environments on {n_dev} device(s)) in "
               f"{compile_s:.1f} s", file=sys.stderr, flush=True)
-
-    stop, restore_signals = stop_on_signals()
-    bar = _Progress(cfg, progress, int(ts.step) if cfg.steps is not None else int(ts.trials))
-    rows: list[dict] = []
-    n_chunks = 0
+    bar = _Progress(cfg, progress, int(p.ts.step) if cfg.steps is not None else int(p.ts.trials))
     try:
-        while not budget_done(cfg, int(ts.step), int(ts.trials)):
-            t0 = time.time()
-            ts_new, m = chunk(ts)
-            m = to_python(jax.device_get(m))
-            wall = time.time() - t0
-            row = metrics_row(cfg, m, wall)
-            bad = is_diverged(m)
-            ts = place(ts_new)
-            append_metrics(out, row)
-            rows.append(row)
-            if bad:
-                raise Diverged(
-                    f"training diverged at step {m['step']} (theta norm {m['theta_norm']:.3g}, v norm "
-                    f"{m['v_norm']:.3g}, limit {cfg.max_param_norm:g}); the last good checkpoint "
-                    f"(step {checkpoint.latest_step(out)}) is kept in {out}. Try smaller step sizes.")
-            checkpoint.save(out, ts, cfg, keep=keep)
-            bar.update(row)
-            n_chunks += 1
-            if stop["signal"] is not None:
-                print(f"stopped by signal {stop['signal']} at step {m['step']} (saved); continue with: "
-                      f"nmrl train --resume --out {out}", file=sys.stderr, flush=True)
-                raise Stopped(stop["signal"], m["step"], rows)
-            if max_chunks is not None and n_chunks >= max_chunks:
-                break
+        return _drive([p], layout, stages=[[0]], checkpoint_every=1, keep=keep, freeze_diverged=False,
+                      compact=False, on_chunk=lambda new: bar.update(new[0]), max_chunks=max_chunks,
+                      stop_message=lambda sig, st: (f"stopped by signal {sig} at step {st} (saved); continue "
+                                                    f"with: nmrl train --resume --out {out}"))
     finally:
         bar.close()
-        restore_signals()
-    return rows
 
+
+# ----------------------------------------------------------------------------- P runs as one program
+
+
+def _progress_table(names: Sequence[str], rows_by_point: dict, elapsed: float) -> str:
+    lines = [f"sweep: {len(names)} points, {elapsed:,.0f} s"]
+    w = max(len(n) for n in names)
+    for name in names:
+        r = rows_by_point.get(name)
+        if r is None:
+            continue
+        flag = "  DIVERGED" if r["diverged"] else ""
+        lines.append(f"  {name:<{w}}  trials {r['trials']:>8,}  steps {r['step']:>8,}  "
+                     f"avg reward {r['avg_reward']:+.3f}  speed {r['forward_speed']:+.2f} m/s{flag}")
+    return "\n".join(lines)
+
+
+def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[TrainConfig], *,
+               resume: bool = False, progress: bool = True, keep: int = 2, max_chunks: int | None = None,
+               checkpoint_every: int = 1, on_chunk: Callable[[], None] | None = None,
+               table: bool = True, priority: Sequence[Sequence[int]] | None = None, group: int = 1,
+               devices: int | None = None, before_start: Callable[[], None] | None = None) -> list[dict]:
+    """Train every config as one compiled program; point ``names[i]`` lives in ``out/points/<name>/``.
+
+    The configs may differ only in the traced :class:`Hyper` fields and the seed (one program).
+    Layout (nmrl/runs/points.py): the points are split over ``devices`` local devices (default:
+    all), stepped one after another on each (``group`` points vmapped together). ``priority`` is a
+    list of stages, each a list of point indices: a stage's points run only when every earlier
+    stage's points have finished their budget or diverged (points named in no stage form a last
+    stage); the points are dealt over the devices in that order (``points.slot_order``).
+    Every point is checkpointed every ``checkpoint_every`` chunks (its checkpointer's save policy:
+    steps that are multiples of ``checkpoint_every * chunk_steps``), when it finishes and when a
+    signal stops the sweep, and writes its compact continuation state beside
+    (nmrl.runs.checkpoint.save_compact). ``resume`` continues every point as :func:`train` resumes a
+    run (:func:`_resume`, with the budget of ``configs``; other fields must be the point's own): from
+    its newest checkpoint (its later metrics rows are dropped), else from its compact state
+    (statistically, not bitwise, equal: every environment starts a new trial), else (a point of a
+    later stage that never ran) from the start. A diverged point stays frozen at its last good
+    checkpoint. ``on_chunk()`` runs after every chunk; ``progress`` prints the layout, the compile
+    time and (with ``table``) every point's latest metrics. SIGINT/SIGTERM stop the sweep after the
+    chunk in flight, every active point saved, with :class:`Stopped`. Returns the rows written.
+    ``before_start()`` runs once every check has passed, before the points' files are written.
+    """
+    if not (isinstance(checkpoint_every, int) and checkpoint_every >= 1):
+        raise ValueError(f"checkpoint_every={checkpoint_every!r} is invalid: must be an integer >= 1")
+    if len(names) != len(configs) or len(set(names)) != len(names) or not names:
+        raise ValueError(f"need one distinct name per config, got {len(names)} names for {len(configs)} configs")
+    out = pathlib.Path(out)
+    configs = [c.resolved() for c in configs]
+    pts.check_one_program(names, configs)
+    P_ = len(names)
+    stages = pts.stages(priority, P_)
+    n_avail = len(jax.local_devices())
+    n_dev = n_avail if devices is None else devices
+    if not (isinstance(n_dev, int) and 1 <= n_dev <= n_avail):
+        raise ValueError(f"devices={devices!r} is invalid: this process has {n_avail} local device(s)")
+    n_dev = min(n_dev, P_)
+    dirs = [out / "points" / n for n in names]
+
+    env = None
+    ps: list[_Point] = []
+    if resume:
+        for n, d, c in zip(names, dirs, configs):
+            # a diverged point stopped saving at its last good step and stays frozen there
+            frozen = any(is_diverged(r) for r in read_metrics(d))
+            cfg, tr, ts, record = _resume(c, d, dataclasses.asdict(c), None, env=env)
+            env = env or tr.env
+            ps.append(_Point(n, d, cfg, tr, ts, frozen=frozen, record=record))
+        pts.check_one_program(names, [p.cfg for p in ps])
+        if before_start is not None:
+            before_start()
+        for p in ps:  # every point's checks passed: now write
+            _begin_resumed(p)
+    else:
+        trainers = [make_train(configs[0])]
+        trainers += [make_train(c, env=trainers[0].env) for c in configs[1:]]
+        init = jax.jit(jax.vmap(trainers[0].init))
+        keys = jnp.stack([jax.random.PRNGKey(c.seed) for c in configs])
+        ts = init(keys, pts.stack_trees([Hyper.from_config(c) for c in configs]))
+        ps = [_Point(n, d, c, tr, pts.unstack(ts, i)) for i, (n, d, c, tr) in enumerate(zip(names, dirs, configs, trainers))]
+        del ts
+        if before_start is not None:
+            before_start()
+        for p in ps:
+            _begin_fresh(p)
+    layout = _Points(ps, n_dev, group, [i for st in stages for i in st])
+    for p in ps:
+        p.ts = None  # the layout holds the states now
+    if progress:
+        print(f"sweep: {P_} points x {configs[0].num_envs} environments on {n_dev} "
+              f"{jax.local_devices()[0].platform} device(s), {layout.per_dev} point(s) per device stepped "
+              f"{'one at a time' if group == 1 else f'in vmapped groups of {group}'} "
+              f"({configs[0].num_envs * min(group, layout.per_dev)} environments per device at a time)",
+              file=sys.stderr, flush=True)
+    compile_s = layout.compile()
+    if progress:
+        print(f"compiled the sweep chunk in {compile_s:.1f} s", file=sys.stderr, flush=True)
+    last_rows: dict = {}
+    t_start = time.time()
+
+    def chunk_done(new: dict[int, dict]) -> None:
+        last_rows.update({names[i]: r for i, r in new.items()})
+        if on_chunk is not None:
+            on_chunk()
+        if progress and table:
+            print(_progress_table(names, last_rows, time.time() - t_start), file=sys.stderr, flush=True)
+
+    return _drive(ps, layout, stages=stages, checkpoint_every=checkpoint_every, keep=keep, freeze_diverged=True,
+                  compact=True, on_chunk=chunk_done, max_chunks=max_chunks,
+                  stop_message=lambda sig, st: (f"stopped by signal {sig} after saving every active point; "
+                                                f"continue with --resume"))

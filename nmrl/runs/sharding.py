@@ -7,9 +7,8 @@ reference machine (benchmarks/env.json, docs/model.md section 6): batch 256, 4 s
 42-46k physics steps/s on 2 devices vs 15-23k on 1; GSPMD (``jit`` with sharded inputs) ~= 1
 device (26k); ``pmap`` slower (9.5k).
 
-EXPERIMENTAL -- the 2-device run at batch 4096 hung twice (every thread blocked in a futex, no
-CPU use, no error), and at batch 64/1024 the gain was small in a loaded machine. Use a timeout
-/ watchdog and prefer 1 device for long training runs until that is understood.
+A known problem is recorded in docs/model.md section 6 (a 2-device run of the bare environment at
+batch 4096 hung; the benchmarks run their workers under a timeout).
 
 Usage::
 

@@ -1,0 +1,48 @@
+"""Statistics of runs: intervals over seeds, running means, the averages the tables report.
+
+Plain numpy/scipy on numbers and metrics rows (``metrics.jsonl`` objects); no figures, no files.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import stats
+
+
+def mean_ci95(x: np.ndarray) -> tuple[float, float]:
+    """Mean and half-width of the 95% t-interval (0 half-width for a single value)."""
+    x = np.asarray(x, float)
+    x = x[np.isfinite(x)]
+    if x.size == 0:
+        return float("nan"), float("nan")
+    if x.size == 1:
+        return float(x[0]), 0.0
+    return float(x.mean()), float(stats.t.ppf(0.975, x.size - 1) * x.std(ddof=1) / np.sqrt(x.size))
+
+
+def smooth(y: np.ndarray, k: int = 5) -> np.ndarray:
+    """Trailing running mean over up to ``k`` points (the first points use what exists)."""
+    c = np.cumsum(np.insert(np.asarray(y, float), 0, 0.0))
+    i = np.arange(1, len(y) + 1)
+    lo = np.maximum(i - k, 0)
+    return (c[i] - c[lo]) / (i - lo)
+
+
+def final_avg(rows: list[dict], key: str) -> float:
+    """Mean of ``key`` over the last tenth (at least one) of the chunks."""
+    if not rows:
+        return float("nan")
+    k = max(1, len(rows) // 10)
+    return float(np.mean([r[key] for r in rows[-k:]]))
+
+
+def at_milestone(rows: list[dict], m: int) -> float | None:
+    """Mean avg_reward of the chunks whose trial count lies in (0.9 m, m] (the last tenth before the
+    milestone m); None when the run has not reached m trials."""
+    if not rows or rows[-1]["trials"] < m:
+        return None
+    sel = [r["avg_reward"] for r in rows if 0.9 * m < r["trials"] <= m]
+    if not sel:  # a chunk longer than a tenth of m: the last chunk at or before m
+        before = [r for r in rows if r["trials"] <= m]
+        sel = [before[-1]["avg_reward"]] if before else []
+    return float(np.mean(sel)) if sel else None

@@ -1,0 +1,188 @@
+"""The run store: what a run directory holds and the one way each file is written and read.
+
+A run directory (one ``nmrl train`` run, or one point of a sweep or study)::
+
+    RUN_DIR/
+        config.json      the config the run was created with; a resume may change only its budget
+        metrics.jsonl    one JSON object per chunk (append-only; a resume drops rows after its step)
+        resumes.jsonl    one JSON object per resume: from which step/checkpoint, the budgets
+        checkpoints/     orbax step directories (nmrl/runs/checkpoint.py)
+        compact.npz      the compact continuation state (nmrl/runs/checkpoint.py)
+
+Every file that is replaced (config.json, CSV tables, figures, compact states, JSON summaries) is
+written through :func:`atomic_path`: into a temporary file beside it, flushed to disk, then
+renamed over the old one, so a reader (or a crash) never sees half a file. CSV tables are written
+by :func:`write_csv` and read back by :func:`read_csv` with their types: booleans as ``bool``,
+numbers as ``int``/``float``, empty cells as ``None``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import dataclasses
+import io
+import json
+import math
+import os
+import pathlib
+import re
+from typing import Any, Iterator, Sequence
+
+import numpy as np
+
+CONFIG_FILE = "config.json"
+METRICS_FILE = "metrics.jsonl"
+#: One JSON object per resume: the step and checkpoint it continued from, the budget before and after.
+RESUMES_FILE = "resumes.jsonl"
+CHECKPOINTS = "checkpoints"
+COMPACT_FILE = "compact.npz"
+#: Any of these in a directory makes it a run: a fresh run refuses to start there.
+RUN_FILES = (CONFIG_FILE, METRICS_FILE, CHECKPOINTS, COMPACT_FILE, RESUMES_FILE)
+
+
+# ----------------------------------------------------------------------------- atomic files
+
+
+def _fsync_dir(d: pathlib.Path) -> None:
+    with contextlib.suppress(OSError):
+        fd = os.open(d, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike) -> Iterator[pathlib.Path]:
+    """``with atomic_path(p) as tmp: write(tmp)``: ``tmp`` (same directory and suffix: matplotlib,
+    imageio and numpy choose the format from it) is flushed to disk and renamed to ``p`` when the
+    block ends without an error; on an error it is removed and ``p`` is left as it was."""
+    path = pathlib.Path(path)
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+    try:
+        yield tmp
+        with contextlib.suppress(OSError):
+            fd = os.open(tmp, os.O_RDONLY)
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+        os.replace(tmp, path)
+        _fsync_dir(path.parent)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> None:
+    with atomic_path(path) as tmp:
+        tmp.write_text(text)
+
+
+def atomic_write_json(path: str | os.PathLike, obj: Any, indent: int | None = 2) -> None:
+    atomic_write_text(path, json.dumps(obj, indent=indent) + "\n")
+
+
+# ----------------------------------------------------------------------------- config.json
+
+
+def write_config(run_dir: str | os.PathLike, cfg: Any) -> pathlib.Path:
+    """Write ``RUN_DIR/config.json`` (a dataclass config; the directory is created)."""
+    run_dir = pathlib.Path(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    path = run_dir / CONFIG_FILE
+    atomic_write_json(path, dataclasses.asdict(cfg))
+    return path
+
+
+def append_resume(run_dir: str | os.PathLike, record: dict) -> None:
+    _append_line(pathlib.Path(run_dir) / RESUMES_FILE, json.dumps(record))
+
+
+# ----------------------------------------------------------------------------- metrics.jsonl
+
+
+def _append_line(path: pathlib.Path, line: str) -> None:
+    with open(path, "a") as f:
+        f.write(line + "\n")
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def to_python(m: dict) -> dict:
+    """A chunk's metrics (numpy/JAX scalars) as plain Python bool/int/float."""
+    out = {}
+    for k, v in m.items():
+        v = np.asarray(v)
+        out[k] = bool(v) if v.dtype == bool else (int(v) if np.issubdtype(v.dtype, np.integer) else float(v))
+    return out
+
+
+def read_metrics(run_dir: str | os.PathLike) -> list[dict]:
+    p = pathlib.Path(run_dir) / METRICS_FILE
+    if not p.exists():
+        return []
+    return [json.loads(line) for line in p.read_text().splitlines() if line.strip()]
+
+
+def append_metrics(run_dir: str | os.PathLike, row: dict) -> None:
+    _append_line(pathlib.Path(run_dir) / METRICS_FILE, json.dumps(row))
+
+
+def truncate_metrics(run_dir: str | os.PathLike, step: int) -> None:
+    """Keep only the metrics of chunks up to ``step`` (the restored checkpoint: a resumed run's file
+    equals an uninterrupted run's); the file is not rewritten when it has no later rows."""
+    run_dir = pathlib.Path(run_dir)
+    rows = read_metrics(run_dir)
+    keep = [r for r in rows if r["step"] <= step]
+    if len(keep) == len(rows) and (run_dir / METRICS_FILE).exists():
+        return
+    atomic_write_text(run_dir / METRICS_FILE, "".join(json.dumps(r) + "\n" for r in keep))
+
+
+def remove_metrics(run_dir: str | os.PathLike) -> None:
+    (pathlib.Path(run_dir) / METRICS_FILE).unlink(missing_ok=True)
+
+
+def is_diverged(m: dict) -> bool:
+    """A metrics row of a diverged chunk (the flag, or a non-finite parameter norm)."""
+    return bool(m["diverged"]) or not all(math.isfinite(m[k]) for k in ("theta_norm", "v_norm"))
+
+
+# ----------------------------------------------------------------------------- CSV tables
+
+_INT = re.compile(r"[+-]?\d+")
+
+
+def _cell(v: Any) -> Any:
+    return "" if v is None else v
+
+
+def write_csv(path: str | os.PathLike, columns: Sequence[str], rows: list[dict]) -> None:
+    """Write ``rows`` (dicts with exactly ``columns``) as a CSV table, atomically."""
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=list(columns))
+    w.writeheader()
+    w.writerows({k: _cell(v) for k, v in r.items()} for r in rows)
+    atomic_write_text(path, buf.getvalue())
+
+
+def parse_cell(s: str) -> Any:
+    """One CSV cell back to its value: ``True``/``False`` -> bool, integers -> int, other numbers
+    (also ``nan``, ``inf``) -> float, empty -> None, anything else stays a string."""
+    if s == "":
+        return None
+    if s in ("True", "False"):
+        return s == "True"
+    if _INT.fullmatch(s):
+        return int(s)
+    try:
+        return float(s)
+    except ValueError:
+        return s
+
+
+def read_csv(path: str | os.PathLike) -> list[dict]:
+    """The rows of a table written by :func:`write_csv`, with their types (:func:`parse_cell`)."""
+    with open(path, newline="") as f:
+        return [{k: parse_cell(v) for k, v in r.items()} for r in csv.DictReader(f)]
