@@ -24,12 +24,10 @@ import json
 import os
 import platform
 import statistics
-import sys
 import time
 from pathlib import Path
 from typing import Any, Callable
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 # Multi-threaded OpenBLAS (used by XLA's LAPACK custom calls for the dense solve) spins
 # pathologically on a small shared machine (10-20x slower at l >= 300 when the cores are
 # busy); pin it to one thread unless the caller chose otherwise. Only effective when this

@@ -9,10 +9,8 @@ Writes scripts/out/fig1_noise.png.
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import jax  # noqa: E402
 import matplotlib  # noqa: E402

@@ -18,11 +18,9 @@ Writes scripts/out/toy_variance.png and scripts/out/toy_variance.md.
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import jax  # noqa: E402
 import matplotlib  # noqa: E402
