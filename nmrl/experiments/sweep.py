@@ -4,13 +4,12 @@ Every (l, seed) point is one training state; the states are stacked and one jitt
 the learner's chunk on all of them. l lives in the traced ``Hyper`` pytree (nmrl/paper/learner.py): the
 in-period index is a counter compared with l, so no padding is needed and no point recompiles.
 
-Layout (:func:`points_program`, chosen by measurement in benchmarks/bench_sweep.py): MJX's cost per
-environment step on a CPU grows with the batch one device holds, so the points are split over the
-local devices with ``shard_map`` (no communication; on a CPU nmrl.runs.devices exposes one device per
-core) and each device steps its points one after another (``lax.map``; ``group`` > 1 vmaps that many
-together). A point that is not active (finished, diverged, or waiting for the ``first`` stage) is
-skipped by ``lax.cond``. Every point gives the results of a separate ``nmrl train`` run up to float
-rounding (the two programs are compiled apart; tests/test_sweep.py).
+The points run through the one driver (nmrl.runs.driver.run_points) in the layout of
+nmrl/runs/points.py, chosen by measurement in benchmarks/bench_sweep.py: the points split over the
+local devices, each device stepping its points one after another; a point that is not active
+(finished, diverged, or waiting for the ``first`` stage) is skipped. Every point gives the results
+of a separate ``nmrl train`` run up to float rounding (the two programs are compiled apart;
+tests/test_sweep.py).
 
 Layout of ``OUT``::
 
@@ -24,7 +23,8 @@ Layout of ``OUT``::
 ``avg_reward`` in results.csv is the average reward per control step during learning (the
 exploring policy, as the paper measures it), averaged over the last tenth of the chunks. A
 diverged point is frozen at its last good parameters and marked; it never stops the sweep.
-Resuming restores every point from its own newest full checkpoint, else from its compact
+Resuming (the driver's one resume, as ``nmrl train --resume``) restores every point from its own
+newest full checkpoint, else from its compact
 continuation state (``compact.npz``: parameters, counters, PRNG key; every environment then starts a
 new trial, so the continuation is statistically, not bitwise, equal); a point of a later stage that
 never ran starts as a fresh sweep would. A diverged point stays frozen at its last good checkpoint
