@@ -134,7 +134,7 @@ def test_grid_choice_follows_the_rule(tiny_study):
             assert [x["step"] for x in m] == [50, 100]
             scores[name] = np.mean([x["avg_reward"] for x in m[1:]])
             assert float(r["score"]) == pytest.approx(scores[name])
-        chosen = [r for r in rows if r["chosen"] == "True"]
+        chosen = [r for r in rows if r["chosen"] is True]  # study tables read back typed
         assert len(chosen) == 1
         assert float(chosen[0]["score"]) == pytest.approx(max(scores.values()))
         finals = [r for r in res["final"] if r["arm"] == arm]
@@ -144,7 +144,7 @@ def test_grid_choice_follows_the_rule(tiny_study):
             assert float(r["seconds"]) == pytest.approx(2.0)
             assert float(r["reward_per_s"]) == pytest.approx(float(r["avg_reward"]) / DELTA_0)
             collapsed = float(r["theta_norm"]) > study.COLLAPSE_FACTOR * float(r["theta_norm_first"])
-            assert r["collapsed"] == str(collapsed)
+            assert r["collapsed"] is collapsed
 
 
 def test_gradvar_rows_and_figures(tiny_study):
@@ -213,7 +213,7 @@ def test_beta_theta_cap_reuses_the_grid(tiny_study, tmp_path):
     assert {p: os.stat(p).st_mtime_ns for p in (out / "grid").rglob("metrics.jsonl")} == stamps  # not rerun
     for arm in ("stationary", "p0.04s"):
         rows = [r for r in got["grid"] if r["arm"] == arm]
-        chosen = [r for r in rows if r["chosen"] == "True"]
+        chosen = [r for r in rows if r["chosen"] is True]  # study tables read back typed
         assert len(chosen) == 1 and float(chosen[0]["beta_theta"]) == 1e-5  # the only pair under the cap
         assert {float(r["score"]) for r in rows} == {float(r["score"]) for r in res["grid"] if r["arm"] == arm}
     assert {float(r["beta_theta"]) for r in got["final"]} == {1e-5}
