@@ -81,6 +81,29 @@ def test_pictures(result, run):
     assert not list((run / "eval").glob(".*tmp*"))
 
 
+def test_strobe_draws_the_poses_it_is_given(tmp_path, saved_figures):
+    """The strobe's content: one stick figure every 0.1 s (every 5th control step), exactly the given
+    joint positions, a pose with a non-finite joint left out, the joints drawn by mass (Sec. V-A)."""
+    rng = np.random.default_rng(0)
+    pos = rng.uniform(0.0, 1.0, size=(51, 10, 2))  # 1 s of 0.02 s steps, frame 0 the initial pose
+    pos[10, 3, 1] = np.nan
+    evaluate.plot_strobe(pos, 0.02, tmp_path / "strobe.png", title="T")
+    ((_, fig),) = saved_figures
+    (ax,) = fig.axes
+    sticks = [ln for ln in ax.lines if len(ln.get_xdata()) == 10]
+    frames = [0, 5, 15, 20, 25, 30, 35, 40, 45, 50]  # 10 is not finite
+    assert len(sticks) == len(frames) == len(ax.collections)
+    for ln, dots, i in zip(sticks, ax.collections, frames):
+        np.testing.assert_array_equal(np.column_stack(ln.get_data()), pos[i])
+        np.testing.assert_array_equal(dots.get_offsets(), pos[i])
+        np.testing.assert_array_equal(dots.get_sizes(), 10.0 * np.array([1, 1, 1, 4, 1, 2, 1, 1, 1, 1]))
+    (ground,) = [ln for ln in ax.lines if ln not in sticks]
+    assert list(ground.get_ydata()) == [0.0, 0.0]
+    assert ax.get_title() == "T\nevery 0.10 s, t = 0 to 1.00 s"
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("x [m]", "y [m]")
+    assert (tmp_path / "strobe.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
 def test_deterministic_for_same_checkpoint_and_seed(result, run):
     text = (run / "eval" / "eval.json").read_text()
     again = evaluate.evaluate(run, seconds=SECONDS, seed=0, render=False)
