@@ -20,3 +20,25 @@ import jax  # noqa: E402
 jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"])
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+
+
+import pathlib as _pathlib  # noqa: E402
+
+import pytest  # noqa: E402
+
+
+@pytest.fixture
+def saved_figures(monkeypatch):
+    """Every matplotlib Figure saved during the test, as (path, figure): the figure's content (its
+    Axes, lines, collections, labels) can then be checked, not only the file it became."""
+    import matplotlib.figure
+
+    saved: list = []
+    savefig = matplotlib.figure.Figure.savefig
+
+    def recording_savefig(self, fname, *args, **kwargs):
+        saved.append((_pathlib.Path(fname), self))
+        return savefig(self, fname, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", recording_savefig)
+    return saved

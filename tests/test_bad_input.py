@@ -22,6 +22,7 @@ import sys
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import pytest
 
 from nmrl import cli
@@ -412,6 +413,71 @@ def test_a_signal_stops_after_the_saved_chunk_with_its_own_status(base, tmp_path
     assert json.loads(out)["step"] == 100
     assert checkpoint.latest_step(d) == 100 and run.read_metrics(d)[-1]["step"] == 100
     assert signal.getsignal(sig) is old_handler
+
+
+def _same_state(a, b) -> bool:
+    la, ta = jax.tree_util.tree_flatten(a)
+    lb, tb = jax.tree_util.tree_flatten(b)
+    return ta == tb and all(np.asarray(x).tobytes() == np.asarray(y).tobytes() and np.asarray(x).dtype == np.asarray(y).dtype
+                            for x, y in zip(la, lb))
+
+
+def test_sigterm_to_an_nmrl_train_process_saves_exits_143_and_resume_is_bit_identical(tmp_path):
+    """A real ``nmrl train`` process gets SIGTERM from outside while it trains: it exits 143 after the
+    chunk in flight is saved (the newest checkpoint is its last metrics row), and ``--resume``
+    continues to the metrics and the state of an uninterrupted run, bit for bit (README: "continue
+    (bit-identical to an uninterrupted run)")."""
+    import time
+
+    d = tmp_path / "S"
+    cmd = [sys.executable, "-m", "nmrl.cli", "train", *TINY, "--devices", "1", "--steps", "100000", "--out", str(d)]
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 300
+    try:
+        while not (d / "metrics.jsonl").exists() or (d / "metrics.jsonl").read_text().count("\n") < 2:
+            assert time.time() < deadline and p.poll() is None, p.poll()
+            time.sleep(0.05)
+        p.send_signal(signal.SIGTERM)
+        out, err = p.communicate(timeout=300)
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+    assert p.returncode == 143, err[-2000:]
+    last = run.read_metrics(d)[-1]["step"]
+    assert last >= 50 and checkpoint.latest_step(d) == last
+    assert f"stopped by signal 15 at step {last} (saved)" in err and json.loads(out)["step"] == last
+    rc, _, err = _main(["train", "--resume", "--out", str(d), "--steps", str(last + 50), "--devices", "1", "--quiet"])
+    assert rc == 0, err
+    ref = tmp_path / "R"
+    rc, _, err = _main(["train", *TINY, "--devices", "1", "--steps", str(last + 50), "--out", str(ref)])
+    assert rc == 0, err
+    assert _without_timing(run.read_metrics(d)) == _without_timing(run.read_metrics(ref))
+    trainer = make_train(checkpoint.load_config(ref))
+    assert checkpoint.latest_step(d) == checkpoint.latest_step(ref) == last + 50
+    assert _same_state(checkpoint.restore(d, trainer), checkpoint.restore(ref, trainer))
+
+
+def test_a_diverging_run_exits_3_says_so_and_keeps_its_last_good_checkpoint(tmp_path):
+    """Absurd step sizes (beta = 0.1; here the parameters pass the norm limit in the second chunk):
+    status 3, one message naming the step and the last good checkpoint, nothing on stdout, and that
+    checkpoint holds the last good, finite parameters."""
+    d = tmp_path / "div"
+    rc, out, err = _main(["train", *TINY, "--beta-theta", "0.1", "--beta-v", "0.1", "--steps", "500",
+                          "--devices", "1", "--out", str(d)])
+    rows = run.read_metrics(d)
+    assert len(rows) >= 2, rows  # at least one good chunk before the divergence (else pick smaller betas)
+    bad, good = rows[-1], rows[-2]
+    assert bad["diverged"] is True and not any(r["diverged"] for r in rows[:-1]) and bad["step"] < 500
+    assert rc == 3 and out == ""
+    (line,) = err.splitlines()
+    assert line.startswith(f"nmrl: training diverged at step {bad['step']} (theta norm "), line
+    assert f"the last good checkpoint (step {good['step']}) is kept in {d}. Try smaller step sizes." in line
+    assert checkpoint.all_steps(d)[-1] == good["step"]
+    ts = checkpoint.restore(d, make_train(checkpoint.load_config(d)))
+    assert int(ts.step) == good["step"] and not bool(ts.diverged)
+    norms = [float(np.sqrt(sum(np.sum(np.square(x)) for x in jax.tree.leaves(t)))) for t in (ts.theta, ts.v)]
+    assert norms == pytest.approx([good["theta_norm"], good["v_norm"]], rel=1e-5) and max(norms) < 1e5
 
 
 def test_progress_eta_after_resume_uses_this_sessions_speed(capsys):

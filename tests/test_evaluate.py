@@ -7,13 +7,15 @@ import math
 
 import imageio.v3 as iio
 import jax
+import jax.numpy as jnp
+import mujoco
 import numpy as np
 import pytest
 
 from nmrl.runs import checkpoint
 from nmrl.analysis import evaluate
 from nmrl.runs.checkpoint import CheckpointError
-from nmrl.paper.env import REWARD_TERMS
+from nmrl.paper.env import MODEL_PATH, REWARD_TERMS
 from nmrl.paper.learner import TrainConfig, make_train
 
 CFG = TrainConfig(num_envs=4, chunk_steps=5, hidden_actor=8, hidden_critic=8, steps=10, seed=1)
@@ -80,6 +82,29 @@ def test_pictures(result, run):
     assert not list((run / "eval").glob(".*tmp*"))
 
 
+def test_strobe_draws_the_poses_it_is_given(tmp_path, saved_figures):
+    """The strobe's content: one stick figure every 0.1 s (every 5th control step), exactly the given
+    joint positions, a pose with a non-finite joint left out, the joints drawn by mass (Sec. V-A)."""
+    rng = np.random.default_rng(0)
+    pos = rng.uniform(0.0, 1.0, size=(51, 10, 2))  # 1 s of 0.02 s steps, frame 0 the initial pose
+    pos[10, 3, 1] = np.nan
+    evaluate.plot_strobe(pos, 0.02, tmp_path / "strobe.png", title="T")
+    ((_, fig),) = saved_figures
+    (ax,) = fig.axes
+    sticks = [ln for ln in ax.lines if len(ln.get_xdata()) == 10]
+    frames = [0, 5, 15, 20, 25, 30, 35, 40, 45, 50]  # 10 is not finite
+    assert len(sticks) == len(frames) == len(ax.collections)
+    for ln, dots, i in zip(sticks, ax.collections, frames):
+        np.testing.assert_array_equal(np.column_stack(ln.get_data()), pos[i])
+        np.testing.assert_array_equal(dots.get_offsets(), pos[i])
+        np.testing.assert_array_equal(dots.get_sizes(), 10.0 * np.array([1, 1, 1, 4, 1, 2, 1, 1, 1, 1]))
+    (ground,) = [ln for ln in ax.lines if ln not in sticks]
+    assert list(ground.get_ydata()) == [0.0, 0.0]
+    assert ax.get_title() == "T\nevery 0.10 s, t = 0 to 1.00 s"
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("x [m]", "y [m]")
+    assert (tmp_path / "strobe.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
 def test_deterministic_for_same_checkpoint_and_seed(result, run):
     text = (run / "eval" / "eval.json").read_text()
     again = evaluate.evaluate(run, seconds=SECONDS, seed=0, render=False)
@@ -109,13 +134,137 @@ def test_bad_path(tmp_path, run):
         evaluate.evaluate(run, seconds=0.0)
 
 
-def test_initial_pose_looks_like_a_cheetah(run):
-    """The rollout's frame 0 is the reset pose: trunk ~0.6 m up, head ahead, hind paw behind."""
+def test_initial_pose_is_the_models_reset_pose(run):
+    """The rollout's frame 0 is the reset pose: every joint where C MuJoCo puts the MJCF's sites at
+    its initial qpos, and the heights derived from the paper's numbers (Sec. V-A): hind paw 0.1 m
+    up, then the legs' vertical projections 0.2, 0.15, 0.25 m: heel 0.3, knee 0.45, hip and neck
+    0.7, head 0.85 m."""
     cfg, theta, _ = checkpoint.restore_policy(run)
     traj = evaluate.rollout(cfg, theta, seconds=SECONDS, seed=0, exploring=False)
     pos = traj["pos"]
     assert pos.shape == (round(SECONDS / CFG.control_dt) + 1, 10, 2)
-    p = pos[0]
-    assert abs(p[3, 1] - 0.6) < 0.1 and abs(p[4, 1] - 0.6) < 0.1  # hip and neck
-    assert p[5, 0] > p[4, 0] > p[3, 0] > p[0, 0] - 0.3  # head ahead of the neck ahead of the hip
     assert np.all(np.isfinite(pos))
+    m = mujoco.MjModel.from_xml_path(str(MODEL_PATH))
+    d = mujoco.MjData(m)  # qpos = the model's qpos0
+    mujoco.mj_kinematics(m, d)
+    c_sites = np.array([d.site(f"joint{i}").xpos[[0, 2]] for i in range(10)])
+    np.testing.assert_allclose(pos[0], c_sites, atol=2e-6)
+    np.testing.assert_allclose(pos[0][[0, 1, 2, 3, 4, 5], 1], [0.1, 0.3, 0.45, 0.7, 0.7, 0.85], atol=2e-6)
+    assert pos[0][3, 0] < pos[0][4, 0] < pos[0][5, 0]  # hip, neck, head: the head ahead
+    assert traj["x0"] == pytest.approx(0.5 * (c_sites[3, 0] + c_sites[4, 0]), abs=2e-6)
+
+
+# ------------------------------------------------- eval's numbers vs an independent C MuJoCo rollout
+
+ACT = (1, 2, 3, 6, 7, 8)  # I_j: action index k drives joint ACT[k] (Sec. V-A)
+STRENGTH = {1: 60.0, 2: 90.0, 3: 120.0, 6: 90.0, 7: 60.0, 8: 30.0}
+TOL = 0.005  # "[y = 0]": the joint's centre at most 5 mm up (docs/model.md)
+
+
+def _f(x: float) -> float:
+    """The soft step f of Sec. V-B."""
+    return 0.0 if x <= 0 else 2 * x * x if x <= 0.5 else 1 - 2 * (x - 1) ** 2 if x <= 1 else 1.0
+
+
+def _c_sites(m, d):
+    """Joint positions and velocities (10, 2) in the paper's (x, y) plane from the MJCF's sites."""
+    p = np.array([d.site(f"joint{i}").xpos[[0, 2]] for i in range(10)])
+    v, res = np.zeros((10, 2)), np.zeros(6)
+    for i in range(10):
+        mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_SITE, m.site(f"joint{i}").id, res, 0)
+        v[i] = res[[3, 5]]
+    return p, v
+
+
+def _c_obs(p, v):
+    """Table I from joint positions/velocities; link angles from the sites (s_2 = dy_0/dt / 0.3)."""
+    y, xd, yd = p[:, 1], v[:, 0], v[:, 1]
+    s = [(y[0] - 0.1) / 0.1, yd[0] / 0.3, (float(y[0] <= TOL) - 0.5) / 0.5, ((y[3] + y[4]) / 2 - 0.6) / 0.2,
+         (xd[3] + xd[4]) / 2 - 1, yd[3] / 0.3, yd[4] / 0.3, (y[9] - 0.1) / 0.1, yd[9] / 0.3,
+         (float(y[9] <= TOL) - 0.5) / 0.5]
+    for k in (0, 1, 2, 3, 6, 7, 8):
+        u, du = p[k + 1] - p[k], v[k + 1] - v[k]
+        n = math.hypot(*u)
+        s += [u[0] / n / 0.7, u[1] / n / 0.7, (u[0] * du[1] - u[1] * du[0]) / n**2 / 3]
+    return np.array(s)
+
+
+def _c_rollout(theta, steps: int) -> list[dict]:
+    """One trial of the deterministic policy in C MuJoCo (float64), rewards (8)-(14) written out."""
+    m = mujoco.MjModel.from_xml_path(str(MODEL_PATH))
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    P = theta["params"]
+    W1, b1 = (np.asarray(P["hidden"][k], np.float64) for k in ("kernel", "bias"))
+    W2, b2 = (np.asarray(P["output"][k], np.float64) for k in ("kernel", "bias"))
+    rows = []
+    for _ in range(steps):
+        a = W2.T @ np.arctan(W1.T @ _c_obs(*_c_sites(m, d)) + b1) + b2  # a~(s; theta), Sec. V-C
+        over, tau_w = [], []
+        for _ in range(4):  # 4 physics steps of 5 ms; the PD torque of Sec. V-A in each
+            pre = []
+            for k, i in enumerate(ACT):
+                j = m.joint(f"j{i}")
+                tau0 = 2 / math.pi * math.atan(-2 * d.qpos[j.qposadr[0]] - 0.05 * d.qvel[j.dofadr[0]])
+                pre.append(tau0 + 0.1 * a[k])
+                d.actuator(f"m{i}").ctrl[0] = STRENGTH[i] * min(max(-1.0, pre[-1]), 1.0)
+            mujoco.mj_step(m, d)
+            f = np.where(d.efc_type == mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT, d.efc_force, 0.0)
+            jt = np.zeros(m.nv)
+            if d.nefc:
+                mujoco.mj_mulJacTVec(m, d, jt, f)
+            tau_w.append([jt[m.joint(f"j{i}").dofadr[0]] for i in ACT])
+            over.append(np.maximum(np.abs(pre) - 1.0, 0.0))
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        mujoco.mj_comVel(m, d)
+        p, v = _c_sites(m, d)
+        y, xd, yd = p[:, 1], v[:, 0], v[:, 1]
+        rows.append({
+            "r8_speed": 0.5 * (xd[3] + xd[4]),
+            "r9_torque": -0.05 * np.sum(np.mean(over, axis=0)),
+            "r10_limit": -0.1 * np.sum(np.mean(np.minimum(np.abs(tau_w), 50.0), axis=0)),
+            "r11_lift": (_f(0.3 * max(yd[3] + (y[0] > TOL), yd[4] + (y[9] > TOL)) + 0.1) - 1)
+            * (1 - _f(1.5 * (xd[3] + xd[4]))),
+            "r12_heel": _f(9 * y[1]) - 1, "r13_knee": _f(5 * y[2]) - 1, "r14_head": _f(2 * y[5]) - 1,
+            "speed": 0.5 * (xd[3] + xd[4]), "x": 0.5 * (p[3, 0] + p[4, 0]),
+        })
+    return rows
+
+
+@pytest.fixture(scope="module")
+def moving_run(tmp_path_factory):
+    """A checkpoint whose actor moves the robot: random output weights (the initial policy is 0)."""
+    out = tmp_path_factory.mktemp("moving_run")
+    trainer = make_train(CFG)
+    ts = jax.jit(trainer.init)(jax.random.PRNGKey(CFG.seed))
+    rng = np.random.default_rng(0)
+    o = ts.theta["params"]["output"]
+    out_layer = {"kernel": jnp.asarray(2.0 * rng.normal(size=o["kernel"].shape), jnp.float32),
+                 "bias": jnp.asarray(rng.normal(size=o["bias"].shape), jnp.float32)}
+    ts = ts.replace(theta={"params": {**ts.theta["params"], "output": out_layer}})
+    checkpoint.save(out, ts, trainer.config)
+    return out, jax.device_get(ts.theta)
+
+
+def test_eval_numbers_equal_an_independent_c_mujoco_rollout(moving_run, capsys):
+    """``nmrl eval``'s deterministic average reward, each term, speed and distance equal a rollout of
+    the same policy in C MuJoCo with the torque law, Table I and (8)-(14) written out here (MJX is
+    float32: per-step rewards agree to ~6e-4, the means to ~5e-6 here)."""
+    from nmrl import cli
+
+    run_dir, theta = moving_run
+    assert cli.main(["eval", str(run_dir), "--seconds", str(SECONDS), "--seed", "0", "--no-render"]) == 0
+    det = json.loads(capsys.readouterr().out)["deterministic"]
+    rows = _c_rollout(theta, round(SECONDS / CFG.control_dt))
+    want = {k: float(np.mean([r[k] for r in rows])) for k in REWARD_TERMS}
+    assert want["r8_speed"] > 0.3 and want["r10_limit"] < -1.0  # the policy moves and meets its limits
+    for k in REWARD_TERMS:
+        assert det["terms"][k] == pytest.approx(want[k], abs=5e-5), k
+    assert det["avg_reward"] == pytest.approx(sum(want.values()), abs=1e-4)
+    assert det["forward_speed"] == pytest.approx(float(np.mean([r["speed"] for r in rows])), abs=5e-5)
+    m = mujoco.MjModel.from_xml_path(str(MODEL_PATH))
+    d = mujoco.MjData(m)
+    mujoco.mj_kinematics(m, d)
+    x0 = 0.5 * (d.site("joint3").xpos[0] + d.site("joint4").xpos[0])
+    assert det["distance"] == pytest.approx(rows[-1]["x"] - x0, abs=5e-5)

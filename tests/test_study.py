@@ -142,12 +142,72 @@ def test_grid_choice_follows_the_rule(tiny_study):
         for r in finals:  # every seed runs at the chosen step sizes, the same simulated time
             assert (r["beta_theta"], r["beta_v"]) == (chosen[0]["beta_theta"], chosen[0]["beta_v"])
             assert float(r["seconds"]) == pytest.approx(2.0)
-            assert float(r["reward_per_s"]) == pytest.approx(float(r["avg_reward"]) / DELTA_0)
-            collapsed = float(r["theta_norm"]) > study.COLLAPSE_FACTOR * float(r["theta_norm_first"])
-            assert r["collapsed"] is collapsed
+            # from the point's own files: the received reward (reward_scale * r_t, config.json) summed
+            # over one second (1 / control_dt steps), the mean over the last tenth of metrics.jsonl
+            d = out / "final" / "dt0.02" / "points" / f"{arm}_s{r['seed']}"
+            cfg = json.loads((d / "config.json").read_text())
+            raw = [json.loads(x) for x in (d / "metrics.jsonl").read_text().splitlines()]
+            assert len(raw) == 2  # 2 chunks: the last tenth is the last chunk
+            want = raw[-1]["avg_reward"] * cfg["reward_scale"] / cfg["control_dt"]
+            assert float(r["reward_per_s"]) == pytest.approx(want, rel=1e-9)
+            assert r["collapsed"] is (raw[-1]["theta_norm"] > 1.5 * raw[0]["theta_norm"])
 
 
-def test_gradvar_rows_and_figures(tiny_study):
+def _write_rows(d, rows):
+    d.mkdir(parents=True)
+    (d / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+
+
+def _row(step, avg, theta=10.0, speed=0.0, diverged=False):
+    return {"step": step, "trials": step // 5, "avg_reward": avg, "forward_speed": speed,
+            "theta_norm": theta, "v_norm": 1.0, "diverged": diverged}
+
+
+def test_rows_from_hand_written_metrics(tmp_path):
+    """grid.csv and final.csv from metrics.jsonl rows written here, at delta = 0.01 s (where the
+    received reward is 0.5 r_t and a second has 100 steps), against values computed by hand."""
+    spec = study.StudySpec(dts=(0.01,), periods=(None, 0.04), beta_theta_grid=(1e-5, 3e-5), beta_v_grid=(5e-4,),
+                           chunk_seconds=0.1, grid_seconds=0.4, final_seconds=2.0, seeds=2)
+    grid = tmp_path / "grid" / "dt0.01" / "points"
+    # stationary: the second half decides (1e-5: 1.5 although its whole mean is lower than 3e-5's)
+    _write_rows(grid / "stationary_bt1.0e-05_bv5.0e-04", [_row(10 * i, a) for i, a in
+                                                          enumerate([-3.0, -3.0, 1.5, 1.5], 1)])
+    _write_rows(grid / "stationary_bt3.0e-05_bv5.0e-04", [_row(10 * i, a) for i, a in
+                                                          enumerate([3.0, 3.0, 1.0, 1.0], 1)])
+    # 0.04 s periods: 3e-5 diverged (never chosen, however high its rewards)
+    _write_rows(grid / "p0.04s_bt1.0e-05_bv5.0e-04", [_row(10 * i, a) for i, a in
+                                                      enumerate([0.0, 0.0, 0.5, 0.5], 1)])
+    _write_rows(grid / "p0.04s_bt3.0e-05_bv5.0e-04", [_row(10, 9.0), _row(20, 9.0, diverged=True)])
+    final = tmp_path / "final" / "dt0.01" / "points"
+    # 20 chunks of 10 steps: the last tenth is the last 2 chunks
+    avg = [-1.0] * 18 + [0.3, 0.5]  # last tenth 0.4 -> 0.4 * 0.5 * 100 = 20 per second
+    speed = [0.0] * 18 + [1.0, 2.0]  # -> 1.5 m/s
+    for arm, seed, first, second, last in (("stationary", 0, 10.0, 5.0, 14.9), ("stationary", 1, 10.0, 20.0, 15.1),
+                                           ("p0.04s", 0, 4.0, 9.0, 5.0), ("p0.04s", 1, 4.0, 4.0, 6.5)):
+        thetas = [first, second] + [5.0] * 17 + [last]
+        _write_rows(final / f"{arm}_s{seed}", [_row(10 * i, a + seed, th, v) for i, (a, th, v) in
+                                               enumerate(zip(avg, thetas, speed), 1)])
+    res = study.run_study(spec, tmp_path, phases=(), progress=False)
+    got = {(r["arm"], float(r["beta_theta"])): r for r in res["grid"]}
+    assert {k: float(r["score"]) for k, r in got.items()} == {
+        ("stationary", 1e-5): 1.5, ("stationary", 3e-5): 1.0, ("p0.04s", 1e-5): 0.5, ("p0.04s", 3e-5): -math.inf}
+    assert {k for k, r in got.items() if r["chosen"] is True} == {("stationary", 1e-5), ("p0.04s", 1e-5)}
+    assert got[("p0.04s", 3e-5)]["diverged"] is True
+    fin = {(r["arm"], int(r["seed"])): r for r in res["final"]}
+    assert len(fin) == 4
+    for (arm, seed), r in fin.items():
+        assert float(r["beta_theta"]) == 1e-5 and float(r["seconds"]) == pytest.approx(2.0)
+        assert int(r["steps"]) == 200 and r["diverged"] is False
+        assert float(r["avg_reward"]) == pytest.approx(0.4 + seed)
+        assert float(r["reward_per_s"]) == pytest.approx([20.0, 70.0][seed])  # (0.4 + seed) * 0.5 * 100
+        assert float(r["forward_speed"]) == pytest.approx(1.5)
+    # collapsed: the last norm above 1.5 x the norm after the first chunk (10 -> 15, 4 -> 6; the
+    # second chunk's norms would give the opposite answers)
+    assert {k: r["collapsed"] for k, r in fin.items()} == {
+        ("stationary", 0): False, ("stationary", 1): True, ("p0.04s", 0): False, ("p0.04s", 1): True}
+
+
+def test_gradvar_rows_and_figures(tiny_study, tmp_path, saved_figures):
     out, res = tiny_study
     rows = res["gradvar"]
     pols = sorted({r["policy"] for r in rows})
@@ -162,7 +222,60 @@ def test_gradvar_rows_and_figures(tiny_study):
         # 4 envs x 2 batches x 1 s, one period per step (stationary) or per 2 steps (0.04 s), minus stops
         per = 0.02 if r["arm"] == "stationary" else 0.04
         assert 0.8 * 8 / per <= int(r["periods"]) <= 8 / per
-    assert (out / "timescale.png").stat().st_size > 20_000 and (out / "grid.png").stat().st_size > 10_000
+    assert (out / "timescale.png").is_file() and (out / "grid.png").is_file()
+    _check_timescale_figures(out, res, tmp_path, saved_figures)
+
+
+def _per_second(point, rows):
+    """Each chunk's received reward per simulated second, from the point's config.json."""
+    cfg = json.loads((point / "config.json").read_text())
+    return np.array([r["avg_reward"] for r in rows]) * cfg["reward_scale"] / cfg["control_dt"]
+
+
+def _check_timescale_figures(out, res, tmp_path, saved):
+    """What the study's figures draw: the final rows' mean reward per second with its 95% t-interval,
+    the learning curves and the grid's scores per second, against the files read here."""
+    from matplotlib.container import ErrorbarContainer
+
+    from nmrl.analysis import plots
+
+    curves: dict = {}  # each final point's metrics rows, read here from its metrics.jsonl
+    for r in res["final"]:
+        d = out / "final" / f"dt{float(r['dt'])}" / "points" / f"{r['arm']}_s{r['seed']}"
+        curves.setdefault((r["arm"], float(r["dt"])), []).append(
+            [json.loads(x) for x in (d / "metrics.jsonl").read_text().splitlines()])
+    plots.timescale(out, res["grid"], res["final"], res["gradvar"], curves, path=tmp_path / "timescale.png")
+    (fig,) = [f for p, f in saved if p.name.startswith("timescale")]
+    (gfig,) = [f for p, f in saved if p.name.startswith("grid")]
+    labels = {"stationary": "stationary (l = 1)", "p0.04s": "nm-period 0.04 s"}
+    ax = fig.axes[0]
+    bars = {c.get_label(): c for c in ax.containers if isinstance(c, ErrorbarContainer)}
+    assert set(bars) == set(labels.values())
+    curves = {ln.get_label(): ln for ln in fig.axes[3].lines}  # the learning curves at delta = 0.02 s
+    for arm, label in labels.items():
+        v = [float(r["reward_per_s"]) for r in res["final"] if r["arm"] == arm]
+        assert len(v) == 2
+        x, y = (np.asarray(a, float) for a in bars[label].lines[0].get_data())
+        ((_, lo), (_, hi)), = bars[label].lines[2][0].get_segments()
+        np.testing.assert_allclose(x, [0.02])
+        np.testing.assert_allclose(y, [np.mean(v)])
+        np.testing.assert_allclose(hi - y[0], 12.706204736174707 * abs(v[0] - v[1]) / 2)  # t(0.975, 1) s / sqrt 2
+        points = [out / "final" / "dt0.02" / "points" / f"{arm}_s{s}" for s in (0, 1)]
+        per_s = [_per_second(p, [json.loads(x) for x in (p / "metrics.jsonl").read_text().splitlines()]) for p in points]
+        mean = np.mean(per_s, axis=0)
+        np.testing.assert_allclose(curves[label].get_xdata(), [1.0, 2.0])  # 50 and 100 steps of 0.02 s
+        np.testing.assert_allclose(curves[label].get_ydata(), [mean[0], (mean[0] + mean[1]) / 2], rtol=1e-6)
+        gax = [a for a in gfig.axes if a.get_title() == f"δ=0.02 s, {label}"][0]
+        z = gax.images[0].get_array()
+        for r in (r for r in res["grid"] if r["arm"] == arm):
+            i, j = [1e-5, 3e-5].index(float(r["beta_theta"])), 0
+            name = f"{arm}_bt{float(r['beta_theta']):.1e}_bv{float(r['beta_v']):.1e}"
+            p = out / "grid" / "dt0.02" / "points" / name
+            m = [json.loads(x) for x in (p / "metrics.jsonl").read_text().splitlines()]
+            assert z[i, j] == pytest.approx(float(np.mean(_per_second(p, m[len(m) // 2:]))), rel=1e-6)
+            if r["chosen"]:
+                (rect,) = gax.patches
+                assert rect.get_xy() == (j - 0.5, i - 0.5) and rect.get_edgecolor()[:3] == (1.0, 0.0, 0.0)
 
 
 def test_rerun_is_a_no_op_and_other_settings_are_refused(tiny_study):

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import json
+import math
 
 import numpy as np
 import pytest
@@ -37,7 +39,7 @@ def swept(tmp_path_factory):
     return out, results
 
 
-def test_results_file_and_figure(swept):
+def test_results_file_and_figure(swept, tmp_path, saved_figures):
     out, results = swept
     with open(out / "results.csv") as f:
         rows = list(csv.DictReader(f))
@@ -48,7 +50,87 @@ def test_results_file_and_figure(swept):
         assert np.isfinite(float(r["avg_reward"]))
         assert r["diverged"] == "False"
         assert checkpoint.latest_step(out / r["checkpoint"]) == 50
-    assert (out / "fig3.png").stat().st_size > 10_000
+    assert (out / "fig3.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    from nmrl.runs import store  # the figure of these results draws their numbers (read here from the files)
+
+    sweep.draw(out, store.read_csv(out / "results.csv"), path=tmp_path / "fig3.png")
+    ax, ax2 = _fig3_axes(saved_figures)
+    x, y, _, _ = _errorbar(ax)
+    np.testing.assert_allclose(x, LS)
+    np.testing.assert_allclose(y, [np.mean([float(r["avg_reward"]) for r in rows if int(r["l"]) == l]) for l in LS])
+    curves = {ln.get_label(): ln for ln in ax2.lines}
+    for l in LS:
+        raw = [[json.loads(x) for x in (sweep.point_dir(out, l, s) / "metrics.jsonl").read_text().splitlines()]
+               for s in (0, 1)]
+        np.testing.assert_allclose(curves[f"l={l}"].get_xdata(), np.mean([[x["trials"] for x in m] for m in raw], 0))
+        mean = np.mean([[x["avg_reward"] for x in m] for m in raw], 0)
+        np.testing.assert_allclose(curves[f"l={l}"].get_ydata(), _trailing_mean(mean, 5), rtol=1e-12)
+
+
+def _errorbar(ax):
+    """(x, y, lower, upper) of the Axes' one errorbar series."""
+    from matplotlib.container import ErrorbarContainer
+
+    (c,) = [c for c in ax.containers if isinstance(c, ErrorbarContainer)]
+    x, y = c.lines[0].get_xdata(), c.lines[0].get_ydata()
+    seg = np.array(c.lines[2][0].get_segments())  # one vertical segment per x: (x, lo), (x, hi)
+    np.testing.assert_array_equal(seg[:, 0, 0], x)
+    return np.asarray(x, float), np.asarray(y, float), seg[:, 0, 1], seg[:, 1, 1]
+
+
+def _trailing_mean(y, k):
+    return [float(np.mean(y[max(0, i - k + 1):i + 1])) for i in range(len(y))]
+
+
+def _fig3_axes(saved):
+    (fig,) = [f for p, f in saved if p.name.startswith("fig3")]
+    ax, ax2 = fig.axes
+    return ax, ax2
+
+
+def test_fig3_draws_the_results_it_is_given(tmp_path, saved_figures):
+    """Fig. 3 from rows and learning curves written here: the plotted means, 95% t-intervals, seeds,
+    the paper's two values and the curves against numbers computed by hand."""
+    from nmrl.analysis import plots
+
+    out = tmp_path / "sw"
+    results = []
+    finals = {1: [1.0, 2.0, 3.0], 10: [4.0, 6.0, 8.0]}
+    for l, vals in finals.items():
+        for seed, v in enumerate(vals):
+            diverged = (l, seed) == (10, 2)
+            results.append({"l": str(l), "seed": str(seed), "trials": str(1000 * l + seed), "steps": "70",
+                            "avg_reward": str(v), "forward_speed": "0.5", "diverged": diverged,
+                            "checkpoint": ""})
+            d = sweep.point_dir(out, l, seed)
+            d.mkdir(parents=True)
+            rows = [{"step": 10 * i, "trials": 100 * i + seed, "avg_reward": l * 0.1 * i * i + seed}
+                    for i in range(1, 8)]
+            (d / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    sweep.draw(out, results)
+    ax, ax2 = _fig3_axes(saved_figures)
+    x, y, lo, hi = _errorbar(ax)
+    # l = 1: mean 2, sd 1; l = 10: the diverged seed (8.0) left out, mean 5, sd sqrt(2)
+    t975 = {2: 4.302652729911275, 1: 12.706204736174707}  # Student t quantiles, 2 and 1 d.o.f.
+    np.testing.assert_allclose(x, [1, 10])
+    np.testing.assert_allclose(y, [2.0, 5.0])
+    np.testing.assert_allclose(hi - y, [t975[2] * 1 / math.sqrt(3), t975[1] * math.sqrt(2) / math.sqrt(2)])
+    np.testing.assert_allclose(y - lo, hi - y)
+    pts = {tuple(o) for c in ax.collections if c.get_label() != "paper (values given in the text)"
+           for o in np.asarray(c.get_offsets()) if len(o)}
+    assert pts >= {(1, 1.0), (1, 2.0), (1, 3.0), (10, 4.0), (10, 6.0)} and (10, 8.0) not in pts
+    (paper,) = [c for c in ax.collections if c.get_label() == "paper (values given in the text)"]
+    assert sorted(map(tuple, np.asarray(paper.get_offsets()))) == [(1, 3.28), (10, 4.59)]
+    assert [t.get_text() for t in ax.texts] == ["1 diverged"]
+    assert ax.get_xlabel() == "period length l" and ax.get_ylabel() == "average reward per step"
+    assert "~5,501 trials" in ax.get_title()  # the median of 1000, 1001, 1002, 10000, 10001, 10002
+    curves = {ln.get_label(): ln for ln in ax2.lines}
+    assert set(curves) == {"l=1", "l=10"}
+    for l in (1, 10):  # mean over the 3 seeds (the diverged one too), then a trailing mean of 5 chunks
+        np.testing.assert_allclose(curves[f"l={l}"].get_xdata(), [100 * i + 1 for i in range(1, 8)])
+        mean = [l * 0.1 * i * i + 1 for i in range(1, 8)]
+        np.testing.assert_allclose(curves[f"l={l}"].get_ydata(), _trailing_mean(mean, 5))
+    assert ax2.get_xlabel() == "trials"
 
 
 def _assert_rows_close(a, b, what):
