@@ -423,8 +423,13 @@ def _stages(priority, num_points: int) -> list[list[int]]:
 
 def run_sweep(spec: SweepSpec, out: str | os.PathLike, *, resume: bool = False, progress: bool = True,
               keep: int = 2, max_chunks: int | None = None, plot: bool = True,
-              checkpoint_every: int = 1, group: int = 1, devices: int | None = None) -> list[dict]:
-    """Run (or resume) the sweep into ``out`` (:func:`run_points`); returns the results rows."""
+              checkpoint_every: int = 1, group: int = 1, devices: int | None = None,
+              given: dict | None = None) -> list[dict]:
+    """Run (or resume) the sweep into ``out`` (:func:`run_points`); returns the results rows.
+
+    A resume continues the saved spec; ``given`` (the config options given on the command line)
+    may change only the budget: any other that differs from the saved base config (e.g. another
+    ``actor_opt`` chain) is refused (SweepError naming them), before anything is written."""
     spec.validate()
     out = pathlib.Path(out)
     if resume:
@@ -432,6 +437,11 @@ def run_sweep(spec: SweepSpec, out: str | os.PathLike, *, resume: bool = False, 
             raise SweepError(f"--resume: {out / SPEC_FILE} not found; is {out} a sweep directory?")
         saved = json.loads((out / SPEC_FILE).read_text())
         base = TrainConfig(**saved["base"])
+        if given:
+            try:
+                run._given_changes(base, given, out)
+            except run.RunError as e:
+                raise SweepError(str(e).replace("the run in", "the sweep in")) from e
         if spec.base.steps is not None or spec.base.trials is not None:  # the budget may be extended
             base = dataclasses.replace(base, steps=spec.base.steps, trials=spec.base.trials)
         spec = SweepSpec(ls=tuple(saved["ls"]), seeds=saved["seeds"], base=base,
