@@ -93,6 +93,12 @@ OPT_FIELDS = ("opt_theta", "opt_v")
 PRESETS: dict[str, dict[str, Any]] = {
     "paper": {"beta_theta": 2e-6, "beta_v": 1e-5, "actor_opt": "sgd", "critic_opt": "sgd"},
     "fast": {"beta_theta": 1e-5, "beta_v": 5e-4, "actor_opt": "sgd", "critic_opt": "sgd"},
+    #: the fast step sizes with every update clipped by global norm (issue 16, results/fast_preset/):
+    #: in the fast preset's collapses the critic blows up first (|v| 90 -> 58,000 within one chunk,
+    #: TD errors x10^4, the actor then takes one huge step). The bounds are in parameter units (after
+    #: sgd): the actor's summed update had a mean norm of ~0.01 per control step, the critic's ~0.3-1.5
+    #: (l = 1, 2 highest), with outliers of 0.1-0.2 and 10-100 in the first chunk.
+    "fast_clip": {"beta_theta": 1e-5, "beta_v": 5e-4, "actor_opt": "sgd,clip:0.03", "critic_opt": "sgd,clip:1"},
 }
 
 # ------------------------------------------------------------------------ optimizer vocabulary
