@@ -80,6 +80,8 @@ def point_summary(rows: list[dict]) -> dict:
 
 
 def points_of(src: pathlib.Path, baseline: bool) -> dict[tuple[int, int], list[dict]]:
+    """Every point's metrics rows by (l, seed): ``src/l<l>_s<seed>.jsonl`` (baseline) or
+    ``src/points/l<l>_s<seed>/metrics.jsonl`` (a sweep)."""
     pat = re.compile(r"l(\d+)_s(\d+)")
     files = sorted(src.glob("*.jsonl")) if baseline else sorted((src / "points").glob("*/metrics.jsonl"))
     out = {}
@@ -89,6 +91,19 @@ def points_of(src: pathlib.Path, baseline: bool) -> dict[tuple[int, int], list[d
         if m and rows:
             out[(int(m.group(1)), int(m.group(2)))] = rows
     return dict(sorted(out.items()))
+
+
+def screen_points(name: str, src: pathlib.Path) -> dict[str, dict[tuple[int, int], list[dict]]]:
+    """A screening run's points by candidate: ``points/l<l>_s<seed>`` belong to ``name``;
+    ``points/<candidate>__l<l>_s<seed>`` (several candidates in one program) to ``<candidate>``."""
+    pat = re.compile(r"(?:(.+)__)?l(\d+)_s(\d+)")
+    out: dict = {}
+    for f in sorted((src / "points").glob("*/metrics.jsonl")):
+        m = pat.fullmatch(f.parent.name)
+        rows = read_rows(f)
+        if m and rows:
+            out.setdefault(m.group(1) or name, {})[(int(m.group(2)), int(m.group(3)))] = rows
+    return out
 
 
 def write_csv(path: pathlib.Path, table: list[dict]) -> None:
@@ -111,14 +126,51 @@ def mean_curve(points: dict, grid: np.ndarray) -> np.ndarray:
     return np.nanmean(np.array(ys), axis=0) if ys else np.full(grid.shape, np.nan)
 
 
+MILESTONES = (500, 1000, 1500, 2000, 2500, 3000, 3500)
+
+
+def at_trials(rows: list[dict], m: int) -> float | None:
+    """The 5-chunk running mean of the average reward at the last chunk with <= m trials (None if
+    the point has not reached m)."""
+    if not rows or rows[-1]["trials"] < m:
+        return None
+    i = max(j for j, x in enumerate(rows) if x["trials"] <= m)
+    return float(np.mean([x["avg_reward"] for x in rows[max(0, i - SMOOTH + 1):i + 1]]))
+
+
+def screening_table(screens: dict, old: dict) -> str:
+    """Markdown: every screened point at the milestones, beside the old preset's same point."""
+    reach = max(x[-1]["trials"] for pts in screens.values() for x in pts.values())
+    ms = [m for m in MILESTONES if m <= reach]
+    lines = ["| candidate | point | " + " | ".join(f"{m:,} trials" for m in ms) + " | end (trials) | collapsed |",
+             "|---|---|" + "---|" * len(ms) + "---|---|"]
+    f = lambda v: "–" if v is None else f"{v:+.2f}"  # noqa: E731
+    pts_all = sorted({k for pts in screens.values() for k in pts})
+    for key in pts_all:
+        if key in old:
+            o = point_summary(old[key])
+            lines.append(f"| fast (results/fig3_fast) | l = {key[0]}, seed {key[1]} | "
+                         + " | ".join(f(at_trials(old[key], m)) for m in ms)
+                         + f" | {o['avg_reward']:+.2f} ({o['trials']:,}) | {'yes' if o['collapsed'] else 'no'} |")
+        for name, pts in screens.items():
+            if key in pts:
+                o = point_summary(pts[key])
+                lines.append(f"| {name} | l = {key[0]}, seed {key[1]} | "
+                             + " | ".join(f(at_trials(pts[key], m)) for m in ms)
+                             + f" | {o['avg_reward']:+.2f} ({o['trials']:,}) | {'yes' if o['collapsed'] else 'no'} |")
+    return "\n".join(lines) + "\n"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--run", action="append", default=[], help="NAME=SWEEP_DIR of a full candidate sweep")
     ap.add_argument("--screen", action="append", default=[], help="NAME=SWEEP_DIR of a screening sweep")
     ap.add_argument("--state", default=None,
                     help="SWEEP_DIR whose continuation state (sweep.json, results.csv, every point's config, "
-                         "metrics and compact.npz) is copied to OUT/sweep/, so that scripts/fast_preset.sh "
-                         "continues it on a fresh clone")
+                         "and its metrics and compact.npz once it has one) is copied to OUT/sweep/, so that "
+                         "scripts/fast_preset.sh continues it on a fresh clone")
+    ap.add_argument("--rename", action="append", default=[],
+                    help="OLD=NEW: call the screened candidate OLD (a point-name prefix) NEW")
     ap.add_argument("--out", default=str(OUT))
     args = ap.parse_args()
     out = pathlib.Path(args.out)
@@ -129,18 +181,26 @@ def main() -> None:
             if (src / f).is_file():
                 _atomic_copy(src / f, out / "sweep" / f)
         for d in sorted((src / "points").glob("*/")):
-            for f in ("config.json", "metrics.jsonl", "compact.npz"):
-                if (d / f).is_file():
-                    _atomic_copy(d / f, out / "sweep" / "points" / d.name / f)
+            dest = out / "sweep" / "points" / d.name
+            # a point's metrics only with its compact state: a point with rows but no state cannot be
+            # continued (nmrl.sweep refuses it); without rows it starts afresh, as in a new sweep
+            names = ("config.json", "metrics.jsonl", "compact.npz") if (d / "compact.npz").is_file() else ("config.json",)
+            for f in ("metrics.jsonl", "compact.npz"):
+                if f not in names and (dest / f).is_file():
+                    (dest / f).unlink()
+            for f in names:
+                _atomic_copy(d / f, dest / f)
 
     sets = {"fast": points_of(BASELINE, baseline=True)}
     for spec in args.run:
         name, _, d = spec.partition("=")
         sets[name] = points_of(pathlib.Path(d), baseline=False)
-    screens = {}
+    screens: dict = {}
     for spec in args.screen:
         name, _, d = spec.partition("=")
-        screens[name] = points_of(pathlib.Path(d), baseline=False)
+        for cand, pts in screen_points(name, pathlib.Path(d)).items():
+            cand = dict(r.split("=", 1) for r in args.rename).get(cand, cand)
+            screens.setdefault(cand, {}).update(pts)
 
     table = [{"l": l, "seed": s, "preset": name, **point_summary(rows)}
              for name, pts in sets.items() for (l, s), rows in pts.items()]
@@ -169,7 +229,17 @@ def main() -> None:
                 if name not in sets or r["preset"] == name]
         curve = mean_curve(pts, grid)
         upto = grid <= (t_c or grid[-1])
+        same = {}
+        if name not in sets or name != "fast":
+            # the old preset on the same (l, seed) points, over the trials both reached (<= t_c)
+            reach = min(max(x["trials"] for x in rows_) for rows_ in pts.values()) if pts else 0
+            both = upto & (grid <= reach)
+            old = mean_curve({k: v for k, v in sets["fast"].items() if k in pts}, grid)
+            same = {"compared_up_to_trials": int(grid[both][-1]) if both.any() else None,
+                    "mean_reward": float(np.nanmean(curve[both])) if both.any() else None,
+                    "old_fast_same_points_mean_reward": float(np.nanmean(old[both])) if both.any() else None}
         summary["presets"][name] = {
+            "vs_old_fast_same_points": same,
             "points": len(rows), "collapsed": sum(r["collapsed"] for r in rows),
             "diverged": sum(r["diverged"] for r in rows),
             "min_trials": min((r["trials"] for r in rows), default=None),
@@ -179,6 +249,8 @@ def main() -> None:
                            for g, c in zip(grid[::10], curve[::10])},
         }
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    if screens:
+        (out / "screening.md").write_text(screening_table(screens, sets["fast"]))
 
     import matplotlib
 
@@ -199,8 +271,18 @@ def main() -> None:
                 r = np.array([x["avg_reward"] for x in rows])
                 w = min(SMOOTH, len(r))
                 sm = np.convolve(r, np.ones(w) / w, mode="valid")
-                ax.plot(t[w - 1:], sm, color=colors[name], lw=1.2, alpha=0.85,
-                        label=name if s == 0 else None)
+                ax.plot(t[w - 1:], sm, color=colors[name], lw=1.2, alpha=0.85, marker="." if len(sm) < 3 else None,
+                        label=f"{name} (24-point sweep)" if s == 0 else None)
+        for (name, pts), c in zip(screens.items(), ["tab:cyan", "tab:olive", "tab:gray"]):
+            for (pl, s), rows in pts.items():
+                if pl != l:
+                    continue
+                t = [x["trials"] for x in rows]
+                r = np.array([x["avg_reward"] for x in rows])
+                w = min(SMOOTH, len(r))
+                sm = np.convolve(r, np.ones(w) / w, mode="valid")
+                ax.plot(t[w - 1:], sm, color=c, lw=1.4, ls="--", label=f"{name}, screening (seed {s})")
+        ax.legend(loc="lower right", fontsize=7)
         ax.axhline(0, color="k", lw=0.5)
         ax.set_title(f"l = {l}")
         ax.set_ylim(-4, 3.5)
@@ -209,12 +291,12 @@ def main() -> None:
         ax.set_xlabel("trials")
     for ax in axes[:, 0]:
         ax.set_ylabel("avg reward per step (5-chunk mean)")
-    axes.flat[0].legend(loc="lower right", fontsize=8)
-    fig.suptitle("fast presets on the reduced Fig. 3 layout: each seed (64 environments per point)")
+    fig.suptitle("fast presets on the reduced Fig. 3 layout: each seed, 5-chunk running mean (64 environments "
+                 "per point); dashed: screening runs")
     fig.tight_layout()
     fig.savefig(out / "learning_curves.png", dpi=110)
     print(json.dumps({k: {kk: v[kk] for kk in ("points", "collapsed", "diverged", "min_trials",
-                                               "mean_reward_up_to_old_first_collapse")}
+                                               "mean_reward_up_to_old_first_collapse", "vs_old_fast_same_points")}
                       for k, v in summary["presets"].items()} | {"old_first_collapse": t_c}, indent=1))
 
 
