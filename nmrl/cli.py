@@ -1,7 +1,7 @@
 """Command line: ``nmrl train``, ``nmrl sweep``, ``nmrl eval``, ``nmrl study``.
 
 Every field of :class:`nmrl.paper.learner.TrainConfig` is an option of ``train`` and ``sweep``
-(``--beta-theta 2e-6``, ``--num-envs 256``, ...). Bad values exit with status 2 and a message that
+(``--beta-theta 2e-6``, ``--num-envs 256``, ``--actor-opt clip:10,sgd``, ...). Bad values exit with status 2 and a message that
 names the value, before anything is written.
 
 Exit status: 0 done, 2 bad input (one line ``nmrl: error: ...`` on stderr, nothing written),
@@ -42,13 +42,19 @@ def _field_type(f: dataclasses.Field) -> type:
 
 
 def add_config_options(p: argparse.ArgumentParser, skip: set[str] = frozenset()) -> None:
-    from nmrl.paper.learner import PRESETS, TrainConfig
+    from nmrl.paper.learner import OPT_HELP, PRESETS, TrainConfig
 
+    docs = {"preset": f"step-size and update-rule preset: {', '.join(sorted(PRESETS))}",
+            "actor_opt": f"actor update rule: {OPT_HELP} (default: the preset's)",
+            "critic_opt": "critic update rule, as --actor-opt (default: the preset's)"}
     for f in dataclasses.fields(TrainConfig):
         if f.name in skip or f.name in _NOT_OPTIONS:
             continue
         t = _field_type(f)
-        doc = {"preset": f"step-size preset: {', '.join(sorted(PRESETS))}"}.get(f.name, "")
+        doc = docs.get(f.name, "")
+        if f.name in ("actor_opt", "critic_opt"):
+            p.add_argument("--" + f.name.replace("_", "-"), dest=f.name, type=t, default=None, help=doc)
+            continue
         p.add_argument("--" + f.name.replace("_", "-"), dest=f.name, type=t, default=None,
                        help=f"{doc} (default: {f.default})".strip())
 
@@ -150,7 +156,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         return _fail(str(e))
     try:
         sweep.run_sweep(spec, args.out, resume=args.resume, progress=not args.quiet,
-                        checkpoint_every=args.checkpoint_every, group=args.group, devices=n_dev)
+                        checkpoint_every=args.checkpoint_every, group=args.group, devices=n_dev,
+                        given=given_options(args, skip=_SWEEP_FIELDS) if args.resume else None)
     except (sweep.SweepError, driver.RunError, checkpoint.CheckpointError, ValueError) as e:
         return _fail(str(e))
     except driver.Stopped as e:

@@ -141,13 +141,18 @@ def _write_spec(out: pathlib.Path, spec: SweepSpec) -> None:
 
 def run_sweep(spec: SweepSpec, out: str | os.PathLike, *, resume: bool = False, progress: bool = True,
               keep: int = 2, max_chunks: int | None = None, plot: bool = True,
-              checkpoint_every: int = 1, group: int = 1, devices: int | None = None) -> list[dict]:
+              checkpoint_every: int = 1, group: int = 1, devices: int | None = None,
+              given: dict | None = None) -> list[dict]:
     """Run (or resume) the sweep into ``out`` (nmrl.runs.driver.run_points); returns the results rows.
 
     A resume uses the saved spec (``sweep.json``); a budget given in ``spec.base`` replaces the saved
     one, in sweep.json and (as a resume of :func:`nmrl.runs.driver.train` does) in every point's
     config.json, with a line in its resumes.jsonl. Raises :class:`Stopped` after SIGINT/SIGTERM
-    (every active point saved; results.csv and fig3.png written)."""
+    (every active point saved; results.csv and fig3.png written).
+
+    ``given`` (the config options given on the command line with a resume) may change only the
+    budget: any other that differs from the saved base config (e.g. another ``actor_opt`` chain) is
+    refused (SweepError naming them), before anything is written."""
     spec.validate()
     out = pathlib.Path(out)
     if resume:
@@ -155,6 +160,11 @@ def run_sweep(spec: SweepSpec, out: str | os.PathLike, *, resume: bool = False, 
             raise SweepError(f"--resume: {out / SPEC_FILE} not found; is {out} a sweep directory?")
         saved = json.loads((out / SPEC_FILE).read_text())
         base = TrainConfig(**saved["base"])
+        if given:
+            try:
+                driver._given_changes(base, given, out)
+            except driver.RunError as e:
+                raise SweepError(str(e).replace("the run in", "the sweep in")) from e
         if spec.base.steps is not None or spec.base.trials is not None:  # the budget may be extended
             base = dataclasses.replace(base, steps=spec.base.steps, trials=spec.base.trials)
         spec = SweepSpec(ls=tuple(saved["ls"]), seeds=saved["seeds"], base=base,

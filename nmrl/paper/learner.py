@@ -49,6 +49,15 @@ period); at other steps the parameters and the optimizer states stay as they are
 changes nothing (the summed update is zero there); a stateful optimizer does not see zero
 gradients in between.
 
+Other update rules (issue 16, part 2). ``actor_opt`` and ``critic_opt`` name an optax chain per
+network from a small vocabulary (:data:`OPT_VOCAB`: ``sgd``, ``adam``, ``clip`` = clip by global
+norm; :func:`parse_opt`), e.g. ``"clip:1000,sgd"`` or ``"sgd,clip:1"`` or ``"adam:b1=0.8"``;
+exactly one element (sgd or adam) takes the traced step size. The chain is compiled into the
+program (a sweep's points share it) and recorded in canonical form in the config, so it is part
+of the run's identity; its state (e.g. Adam's moments) is in ``opt_theta`` / ``opt_v``. The
+presets name ``sgd`` for both networks, and a chain of one ``sgd`` is ``optax.sgd`` itself (no
+``optax.chain`` around it): the same program and optimizer state as before the vocabulary.
+
 Bit identity with the hand-written update ``theta + beta * sum_e d_e z_e`` of the code before
 issue 16 (measured by scripts/check_optax_update.py: Half-Cheetah, the paper's networks and
 preset, N = 1 and 8, and the tiny test environment): the parameters after every chunk are equal
@@ -88,10 +97,130 @@ OPT_FIELDS = ("opt_theta", "opt_v")
 #: The budget of a run given none (control steps per environment): a few minutes on 2 CPU cores.
 DEFAULT_STEPS = 4000
 
-PRESETS: dict[str, dict[str, float]] = {
-    "paper": {"beta_theta": 2e-6, "beta_v": 1e-5},
-    "fast": {"beta_theta": 1e-5, "beta_v": 5e-4},
+#: Each preset also names the update rule of actor and critic (an optimizer chain, see
+#: :func:`parse_opt`); "paper" and "fast" use the paper's rule, plain sgd.
+PRESETS: dict[str, dict[str, Any]] = {
+    "paper": {"beta_theta": 2e-6, "beta_v": 1e-5, "actor_opt": "sgd", "critic_opt": "sgd"},
+    "fast": {"beta_theta": 1e-5, "beta_v": 5e-4, "actor_opt": "sgd", "critic_opt": "sgd"},
+    #: the fast step sizes with every update clipped by global norm (issue 16, results/fast_preset/):
+    #: in the fast preset's collapses the critic blows up first (|v| 90 -> 58,000 within one chunk,
+    #: TD errors x10^4, the actor then takes one huge step). The bounds are in parameter units (after
+    #: sgd): the actor's summed update had a mean norm of ~0.01 per control step, the critic's ~0.3-1.5
+    #: (l = 1, 2 highest), with outliers of 0.1-0.2 and 10-100 in the first chunk.
+    "fast_clip": {"beta_theta": 1e-5, "beta_v": 5e-4, "actor_opt": "sgd,clip:0.03", "critic_opt": "sgd,clip:1"},
 }
+
+# ------------------------------------------------------------------------ optimizer vocabulary
+#: The update rules a config may name for the actor (``actor_opt``) and the critic (``critic_opt``):
+#: a chain of optax transformations, written ``name[:param[:param...]][,name...]``, applied left to
+#: right to the negated pseudo-gradient (module docstring). Parameters are given in the order
+#: below or as ``key=value``; omitted ones take the defaults (None: required). Exactly one element
+#: is a *step* (sgd or adam): its learning rate is the traced step size of ``Hyper``
+#: (beta_theta / beta_v). ``clip`` before the step bounds the global norm of the summed
+#: pseudo-gradient sum_e d_e z_e; after it, the global norm of the update itself (parameter units).
+OPT_VOCAB: dict[str, dict[str, float | None]] = {
+    "sgd": {},  #: optax.sgd(beta): p += beta * sum_e d_e z_e, the paper's rule
+    "adam": {"b1": 0.9, "b2": 0.999, "eps": 1e-8},  #: optax.adam(beta, b1, b2, eps)
+    "clip": {"max_norm": None},  #: optax.clip_by_global_norm(max_norm)
+}
+#: The elements that take the step size (one per chain).
+OPT_STEPS = ("sgd", "adam")
+OPT_HELP = ("optimizer chain, e.g. 'sgd' (the paper's rule), 'clip:10,sgd' (clip the summed pseudo-gradient "
+            "by global norm 10, then sgd), 'sgd,clip:0.01' (clip the update), 'adam' or "
+            "'adam:b1=0.9:b2=0.999:eps=1e-8'; elements: sgd, adam[:b1:b2:eps], clip:max_norm; exactly one "
+            "sgd or adam, whose step size is --beta-theta / --beta-v")
+
+
+class OptStep(NamedTuple):
+    """One element of an optimizer chain: a name of :data:`OPT_VOCAB` and its parameters (all given)."""
+
+    name: str
+    params: tuple[tuple[str, float], ...]
+
+
+def _opt_error(field: str, spec: Any, why: str) -> ValueError:
+    return ValueError(f"{field}={spec!r} is invalid: {why}")
+
+
+def parse_opt(spec: Any, field: str = "opt") -> tuple[OptStep, ...]:
+    """The chain an optimizer spec names (see :data:`OPT_VOCAB`); ValueError naming the bad part and
+    listing what is allowed."""
+    allowed = ", ".join(f"{n}" + "".join(f"[:{k}]" if d is not None else f":{k}" for k, d in ps.items())
+                        for n, ps in OPT_VOCAB.items())
+    if not isinstance(spec, str) or not spec.strip():
+        raise _opt_error(field, spec, f"must be a chain of {allowed} separated by commas, e.g. 'clip:10,sgd'")
+    chain = []
+    for part in spec.split(","):
+        name, *args = [a.strip() for a in part.strip().split(":")]
+        if name not in OPT_VOCAB:
+            raise _opt_error(field, spec, f"unknown optimizer {name!r}; allowed: {allowed} (e.g. 'clip:10,sgd')")
+        defaults = OPT_VOCAB[name]
+        keys = list(defaults)
+        given: dict[str, float] = {}
+        if len(args) > len(keys):
+            raise _opt_error(field, spec, f"{name} takes {len(keys)} parameter(s) ({', '.join(keys) or 'none'}), "
+                                          f"got {len(args)}")
+        for i, a in enumerate(args):
+            k, eq, v = a.partition("=")
+            k, v = (k.strip(), v.strip()) if eq else (keys[i], a)
+            if k not in defaults:
+                raise _opt_error(field, spec, f"{name} has no parameter {k!r}; its parameters: "
+                                              f"{', '.join(keys) or 'none'}")
+            if k in given:
+                raise _opt_error(field, spec, f"{name}'s parameter {k} is given twice")
+            try:
+                x = float(v)
+            except ValueError:
+                raise _opt_error(field, spec, f"{name}'s {k}={v!r} is not a number") from None
+            if not math.isfinite(x):
+                raise _opt_error(field, spec, f"{name}'s {k}={v!r} must be finite")
+            given[k] = x
+        params = []
+        for k, d in defaults.items():
+            x = given.get(k, d)
+            if x is None:
+                raise _opt_error(field, spec, f"{name} needs {k} (e.g. '{name}:10')")
+            ok = {"max_norm": x > 0, "eps": x > 0, "b1": 0 <= x < 1, "b2": 0 <= x < 1}[k]
+            if not ok:
+                rng = {"max_norm": "> 0", "eps": "> 0", "b1": "in [0, 1)", "b2": "in [0, 1)"}[k]
+                raise _opt_error(field, spec, f"{name}'s {k}={x!r} must be {rng}")
+            params.append((k, x))
+        chain.append(OptStep(name, tuple(params)))
+    steps = [s.name for s in chain if s.name in OPT_STEPS]
+    if len(steps) != 1:
+        raise _opt_error(field, spec, f"needs exactly one step element ({' or '.join(OPT_STEPS)}, which takes the "
+                                      f"step size beta), got {len(steps)}")
+    return tuple(chain)
+
+
+def format_opt(chain: tuple[OptStep, ...]) -> str:
+    """The canonical spec of a chain (every parameter spelled out): what config.json records."""
+    return ",".join(s.name + "".join(f":{k}={x!r}" for k, x in s.params) for s in chain)
+
+
+def canonical_opt(spec: str, field: str = "opt") -> str:
+    return format_opt(parse_opt(spec, field))
+
+
+def opt_rule(chain: tuple[OptStep, ...]) -> Callable[[jax.Array], optax.GradientTransformation]:
+    """``learning_rate -> GradientTransformation`` of a parsed chain. A chain of one ``sgd`` is exactly
+    :func:`sgd_rule` (the paper's rule, the same state as before the vocabulary)."""
+
+    def rule(learning_rate: jax.Array) -> optax.GradientTransformation:
+        parts = []
+        for s in chain:
+            p = dict(s.params)
+            if s.name == "sgd":
+                parts.append(sgd_rule(learning_rate))
+            elif s.name == "adam":
+                parts.append(optax.adam(learning_rate, b1=p["b1"], b2=p["b2"], eps=p["eps"]))
+            elif s.name == "clip":
+                parts.append(optax.clip_by_global_norm(p["max_norm"]))
+            else:  # pragma: no cover - parse_opt admits only the vocabulary
+                raise ValueError(s.name)
+        return parts[0] if len(parts) == 1 else optax.chain(*parts)
+
+    return rule
 
 
 @dataclasses.dataclass(frozen=True)
@@ -107,6 +236,9 @@ class TrainConfig:
     lam: float = 0.5  #: lambda of the TD(lambda) traces
     beta_theta: float | None = None  #: actor step size; None = the preset's
     beta_v: float | None = None  #: critic step size; None = the preset's
+    #: actor update rule, an optimizer chain such as "clip:10,sgd" (:data:`OPT_VOCAB`); None = the preset's
+    actor_opt: str | None = None
+    critic_opt: str | None = None  #: critic update rule (as ``actor_opt``); None = the preset's
     preset: str = "paper"
     hidden_actor: int = 100  #: M^A
     hidden_critic: int = 200  #: M^C
@@ -135,6 +267,8 @@ class TrainConfig:
             self,
             beta_theta=p["beta_theta"] if self.beta_theta is None else self.beta_theta,
             beta_v=p["beta_v"] if self.beta_v is None else self.beta_v,
+            actor_opt=canonical_opt(p["actor_opt"] if self.actor_opt is None else self.actor_opt, "actor_opt"),
+            critic_opt=canonical_opt(p["critic_opt"] if self.critic_opt is None else self.critic_opt, "critic_opt"),
         )
         if out.steps is None and out.trials is None:
             out = dataclasses.replace(out, steps=DEFAULT_STEPS)
@@ -157,6 +291,9 @@ class TrainConfig:
             v = getattr(self, name)
             if v is not None and not (isinstance(v, (int, float)) and v >= 0 and math.isfinite(v)):
                 raise bad(name, "must be a finite number >= 0")
+        for name in ("actor_opt", "critic_opt"):
+            if getattr(self, name) is not None:
+                parse_opt(getattr(self, name), name)
         for name in ("hidden_actor", "hidden_critic", "num_envs", "chunk_steps"):
             v = getattr(self, name)
             if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
@@ -295,9 +432,10 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
     critic = networks.make_critic(cfg.hidden_critic)
     N = cfg.num_envs
     N_local = N // num_shards
-    # The update rules of actor and critic (the paper's: sgd). Only the structure of these
-    # transformations is used; the step size comes from the state, i.e. from Hyper.
-    rule_theta, rule_v = sgd_rule, sgd_rule
+    # The update rules of actor and critic (the paper's: sgd; cfg.actor_opt / cfg.critic_opt). Only
+    # the structure of these transformations is used; the step size comes from the state (Hyper).
+    rule_theta = opt_rule(parse_opt(cfg.actor_opt, "actor_opt"))
+    rule_v = opt_rule(parse_opt(cfg.critic_opt, "critic_opt"))
     tx_theta, tx_v = injected(rule_theta, 0.0), injected(rule_v, 0.0)
 
     def init_opt(theta: Params, v: Params, hyper: Hyper) -> tuple[OptState, OptState]:
@@ -406,6 +544,13 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
             "td_sum": psum(jnp.sum(d)),
             "td_sq": psum(jnp.sum(d * d)),
             "td_absmax": pmax(jnp.max(jnp.abs(d))),
+            # global norms of the summed pseudo-gradients sum_e d_e z_e, sum_e d_e y_e (0 where no
+            # period ended) and of the updates the optimizers made of them
+            "gnorm_theta": networks.global_norm(g_theta),
+            "gnorm_v": networks.global_norm(g_v),
+            "unorm_theta": jnp.where(take, networks.global_norm(u_theta), 0.0),
+            "unorm_v": jnp.where(take, networks.global_norm(u_v), 0.0),
+            "learn": take,
         }
         if cfg.grad_stats:
             # g_e = d_e grad ln pi_e for every period that ended here (d_e = 0 otherwise), unflattened
@@ -429,6 +574,12 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
             "td_mean": td_mean,
             "td_std": jnp.sqrt(jnp.maximum(jnp.sum(stats["td_sq"]) / n - td_mean**2, 0.0)),
             "td_absmax": jnp.max(stats["td_absmax"]),
+            # the summed pseudo-gradients' and the updates' global norms over the chunk's update
+            # instants: mean and max (what clipping by global norm would act on)
+            **{f"{k}_{f}": fn(stats[k], jnp.sum(stats["learn"]))
+               for k in ("gnorm_theta", "gnorm_v", "unorm_theta", "unorm_v")
+               for f, fn in (("mean", lambda x, n: jnp.sum(x) / jnp.maximum(n, 1)),
+                             ("max", lambda x, n: jnp.max(x)))},
             "theta_norm": networks.global_norm(ts.theta),
             "v_norm": networks.global_norm(ts.v),
             "diverged": ts.diverged,

@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# The confirmation sweep of a fast preset (issue 16): the reduced Fig. 3 layout of
+# results/fig3_fast/ -- l in {1,2,3,5,10,15,20,30} x 3 seeds, 64 environments per point, 250-step
+# chunks -- to 5,000 trials per point, niced. PRESET picks the preset (default: the new fast one).
+#
+# Resumable, also on a fresh clone: run it again. It continues from the full checkpoints in $OUT
+# when they exist; otherwise it seeds $OUT from the published $PUBLISHED (sweep.json, every point's
+# config, metrics and compact continuation state; scripts/publish_fast_preset.py --state) and
+# continues from the compact states (statistically, not bitwise, equal: every environment starts a
+# new trial). Publish with: .venv/bin/python scripts/publish_fast_preset.py --run $PRESET=$OUT --state $OUT
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PRESET=${PRESET:-fast_clip}
+OUT=${OUT:-runs/fast_preset/$PRESET}
+PUBLISHED=${PUBLISHED:-results/fast_preset/sweep}
+TRIALS=${TRIALS:-5000}
+if [ ! -f "$OUT/sweep.json" ] && [ -f "$PUBLISHED/sweep.json" ] && [ -d "$PUBLISHED/points" ]; then
+  echo "seeding $OUT from the published $PUBLISHED (compact continuation states)" >&2
+  mkdir -p "$OUT"
+  cp "$PUBLISHED/sweep.json" "$OUT/"
+  for p in "$PUBLISHED"/points/*/; do
+    d="$OUT/points/$(basename "$p")"; mkdir -p "$d"
+    for f in config.json metrics.jsonl compact.npz; do
+      if [ -f "$p/$f" ]; then cp "$p/$f" "$d/"; fi
+    done
+  done
+fi
+if [ -f "$OUT/sweep.json" ]; then
+  exec nice -n "${NICE:-19}" .venv/bin/nmrl sweep --resume --l 1 --out "$OUT" --trials "$TRIALS" \
+    --checkpoint-every 4 --quiet
+fi
+exec nice -n "${NICE:-19}" .venv/bin/nmrl sweep --l 1 2 3 5 10 15 20 30 --seeds 3 --num-envs 64 \
+  --chunk-steps 250 --preset "$PRESET" --trials "$TRIALS" --checkpoint-every 4 --out "$OUT" --quiet

@@ -1,0 +1,304 @@
+"""Publish the fast-preset comparison (issue 16): ``results/fast_preset/``.
+
+Reads per-point metrics (``metrics.jsonl``, one row per chunk) of
+
+* the old ``fast`` preset's reduced Fig. 3 sweep, ``results/fig3_fast/metrics/l<l>_s<seed>.jsonl``
+  (8 l x 3 seeds, 64 environments per point, 250-step chunks, ~5,200 trials per point; sgd with
+  beta^theta = 1e-5, beta^v = 5e-4), used as the baseline as it is (not re-run);
+* the candidate sweeps given with ``--run NAME=DIR`` (``DIR/points/l<l>_s<seed>/metrics.jsonl``,
+  e.g. the confirmation sweep of the new preset; a sweep still running is read as far as it got);
+* the screening sweeps given with ``--screen NAME=DIR`` (a few points each).
+
+Writes ``results.csv`` (baseline and ``--run`` sweeps; columns l, seed, preset, trials, avg_reward,
+peak, collapsed, then diverged, first_below_half, chunks), ``screening.csv`` (the same for the
+screening sweeps), ``summary.json`` (per preset: points, collapsed, diverged; the mean learning
+curve over the points on a common trial grid and its mean up to the old preset's first collapse)
+and ``learning_curves.png`` (one panel per l: each seed's curve, old vs new).
+
+Definitions (per point; rows = chunks in order):
+
+* ``avg_reward``: mean of the chunks' average reward per control step over the last tenth of the
+  chunks (as nmrl/sweep.py's results.csv);
+* ``peak``: the maximum of the 5-chunk running mean of the average reward;
+* ``collapsed``: the point diverged, or ``avg_reward`` ended more than half of |peak| below the
+  peak (for peak > 0: below 50% of the peak);
+* ``first_below_half``: the trials at which the 5-chunk running mean first fell below half of the
+  running peak, once that peak exceeded 0.3 (empty if never).
+
+Usage: python scripts/publish_fast_preset.py --run fast_clip=runs/fast_preset/fast_clip \
+           --screen clip=runs/screen/clip --screen clip_bv1e-4=runs/screen/clip_bv1e-4
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import pathlib
+import re
+import shutil
+
+import numpy as np
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+BASELINE = ROOT / "results" / "fig3_fast" / "metrics"
+OUT = ROOT / "results" / "fast_preset"
+COLUMNS = ("l", "seed", "preset", "trials", "avg_reward", "peak", "collapsed", "diverged",
+           "first_below_half", "chunks")
+SMOOTH = 5
+
+
+def _atomic_copy(src: pathlib.Path, dst: pathlib.Path) -> None:
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    tmp = dst.with_name(dst.name + ".tmp")
+    shutil.copy2(src, tmp)
+    os.replace(tmp, dst)
+
+
+def read_rows(path: pathlib.Path) -> list[dict]:
+    if not path.is_file():
+        return []
+    return [json.loads(x) for x in path.read_text().splitlines() if x.strip()]
+
+
+def point_summary(rows: list[dict]) -> dict:
+    r = np.array([x["avg_reward"] for x in rows], float)
+    t = np.array([x["trials"] for x in rows], float)
+    k = max(1, len(r) // 10)
+    end = float(np.mean(r[-k:]))
+    w = min(SMOOTH, len(r))
+    sm = np.convolve(r, np.ones(w) / w, mode="valid")
+    peak = float(np.max(sm))
+    diverged = any(bool(x["diverged"]) for x in rows) or not np.all(np.isfinite(r))
+    run_peak = np.maximum.accumulate(sm)
+    below = np.where((run_peak > 0.3) & (sm < 0.5 * run_peak))[0]
+    first = int(t[below[0] + w - 1]) if len(below) else ""
+    return {"trials": int(t[-1]), "avg_reward": end, "peak": peak,
+            "collapsed": bool(diverged or end < peak - 0.5 * abs(peak)), "diverged": bool(diverged),
+            "first_below_half": first, "chunks": len(rows)}
+
+
+def points_of(src: pathlib.Path, baseline: bool) -> dict[tuple[int, int], list[dict]]:
+    """Every point's metrics rows by (l, seed): ``src/l<l>_s<seed>.jsonl`` (baseline) or
+    ``src/points/l<l>_s<seed>/metrics.jsonl`` (a sweep)."""
+    pat = re.compile(r"l(\d+)_s(\d+)")
+    files = sorted(src.glob("*.jsonl")) if baseline else sorted((src / "points").glob("*/metrics.jsonl"))
+    out = {}
+    for f in files:
+        m = pat.fullmatch(f.stem if baseline else f.parent.name)
+        rows = read_rows(f)
+        if m and rows:
+            out[(int(m.group(1)), int(m.group(2)))] = rows
+    return dict(sorted(out.items()))
+
+
+def screen_points(name: str, src: pathlib.Path) -> dict[str, dict[tuple[int, int], list[dict]]]:
+    """A screening run's points by candidate: ``points/l<l>_s<seed>`` belong to ``name``;
+    ``points/<candidate>__l<l>_s<seed>`` (several candidates in one program) to ``<candidate>``."""
+    pat = re.compile(r"(?:(.+)__)?l(\d+)_s(\d+)")
+    out: dict = {}
+    for f in sorted((src / "points").glob("*/metrics.jsonl")):
+        m = pat.fullmatch(f.parent.name)
+        rows = read_rows(f)
+        if m and rows:
+            out.setdefault(m.group(1) or name, {})[(int(m.group(2)), int(m.group(3)))] = rows
+    return out
+
+
+def write_csv(path: pathlib.Path, table: list[dict]) -> None:
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=COLUMNS)
+        w.writeheader()
+        for row in table:
+            w.writerow({k: (f"{row[k]:.4f}" if isinstance(row[k], float) else row[k]) for k in COLUMNS})
+
+
+def mean_curve(points: dict, grid: np.ndarray) -> np.ndarray:
+    """Mean over the points of each point's average reward interpolated on the trial grid (NaN past
+    a point's last chunk)."""
+    ys = []
+    for rows in points.values():
+        t = np.array([x["trials"] for x in rows], float)
+        r = np.array([x["avg_reward"] for x in rows], float)
+        y = np.interp(grid, t, r, left=np.nan, right=np.nan)
+        ys.append(y)
+    return np.nanmean(np.array(ys), axis=0) if ys else np.full(grid.shape, np.nan)
+
+
+MILESTONES = (500, 1000, 1500, 2000, 2500, 3000, 3500)
+
+
+def at_trials(rows: list[dict], m: int) -> float | None:
+    """The 5-chunk running mean of the average reward at the last chunk with <= m trials (None if
+    the point has not reached m)."""
+    if not rows or rows[-1]["trials"] < m:
+        return None
+    i = max(j for j, x in enumerate(rows) if x["trials"] <= m)
+    return float(np.mean([x["avg_reward"] for x in rows[max(0, i - SMOOTH + 1):i + 1]]))
+
+
+def screening_table(screens: dict, old: dict) -> str:
+    """Markdown: every screened point at the milestones, beside the old preset's same point."""
+    reach = max(x[-1]["trials"] for pts in screens.values() for x in pts.values())
+    ms = [m for m in MILESTONES if m <= reach]
+    lines = ["| candidate | point | " + " | ".join(f"{m:,} trials" for m in ms) + " | end (trials) | collapsed |",
+             "|---|---|" + "---|" * len(ms) + "---|---|"]
+    f = lambda v: "–" if v is None else f"{v:+.2f}"  # noqa: E731
+    pts_all = sorted({k for pts in screens.values() for k in pts})
+    for key in pts_all:
+        if key in old:
+            o = point_summary(old[key])
+            lines.append(f"| fast (results/fig3_fast) | l = {key[0]}, seed {key[1]} | "
+                         + " | ".join(f(at_trials(old[key], m)) for m in ms)
+                         + f" | {o['avg_reward']:+.2f} ({o['trials']:,}) | {'yes' if o['collapsed'] else 'no'} |")
+        for name, pts in screens.items():
+            if key in pts:
+                o = point_summary(pts[key])
+                lines.append(f"| {name} | l = {key[0]}, seed {key[1]} | "
+                             + " | ".join(f(at_trials(pts[key], m)) for m in ms)
+                             + f" | {o['avg_reward']:+.2f} ({o['trials']:,}) | {'yes' if o['collapsed'] else 'no'} |")
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--run", action="append", default=[], help="NAME=SWEEP_DIR of a full candidate sweep")
+    ap.add_argument("--screen", action="append", default=[], help="NAME=SWEEP_DIR of a screening sweep")
+    ap.add_argument("--state", default=None,
+                    help="SWEEP_DIR whose continuation state (sweep.json, results.csv, every point's config, "
+                         "and its metrics and compact.npz once it has one) is copied to OUT/sweep/, so that "
+                         "scripts/fast_preset.sh continues it on a fresh clone")
+    ap.add_argument("--rename", action="append", default=[],
+                    help="OLD=NEW: call the screened candidate OLD (a point-name prefix) NEW")
+    ap.add_argument("--out", default=str(OUT))
+    args = ap.parse_args()
+    out = pathlib.Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    if args.state:
+        src = pathlib.Path(args.state)
+        for f in ("sweep.json", "results.csv"):
+            if (src / f).is_file():
+                _atomic_copy(src / f, out / "sweep" / f)
+        for d in sorted((src / "points").glob("*/")):
+            dest = out / "sweep" / "points" / d.name
+            # a point's metrics only with its compact state: a point with rows but no state cannot be
+            # continued (nmrl.experiments.sweep refuses it); without rows it starts afresh, as in a new sweep
+            names = ("config.json", "metrics.jsonl", "compact.npz") if (d / "compact.npz").is_file() else ("config.json",)
+            for f in ("metrics.jsonl", "compact.npz"):
+                if f not in names and (dest / f).is_file():
+                    (dest / f).unlink()
+            for f in names:
+                _atomic_copy(d / f, dest / f)
+
+    sets = {"fast": points_of(BASELINE, baseline=True)}
+    for spec in args.run:
+        name, _, d = spec.partition("=")
+        sets[name] = points_of(pathlib.Path(d), baseline=False)
+    screens: dict = {}
+    for spec in args.screen:
+        name, _, d = spec.partition("=")
+        for cand, pts in screen_points(name, pathlib.Path(d)).items():
+            cand = dict(r.split("=", 1) for r in args.rename).get(cand, cand)
+            screens.setdefault(cand, {}).update(pts)
+
+    table = [{"l": l, "seed": s, "preset": name, **point_summary(rows)}
+             for name, pts in sets.items() for (l, s), rows in pts.items()]
+    write_csv(out / "results.csv", table)
+    if screens:
+        stable = [{"l": l, "seed": s, "preset": name, **point_summary(rows)}
+                  for name, pts in screens.items() for (l, s), rows in pts.items()]
+        write_csv(out / "screening.csv", stable)
+
+    # the old preset's first collapse: the earliest first_below_half (or divergence) over its points
+    base = [r for r in table if r["preset"] == "fast"]
+    firsts = [r["first_below_half"] for r in base if r["first_below_half"] != ""]
+    t_c = min(firsts) if firsts else None
+    grid = np.arange(100, 5001, 50, dtype=float)
+    summary = {"definitions": {k: v for k, v in (
+        ("avg_reward", "mean over the last tenth of the chunks"),
+        ("peak", f"max of the {SMOOTH}-chunk running mean"),
+        ("collapsed", "diverged, or avg_reward < peak - |peak|/2"),
+        ("speed", "mean over the points of each point's chunk average reward interpolated on a trial "
+                  "grid (every 50 trials from 100), averaged over the grid up to the old preset's first "
+                  "collapse"))},
+               "old_first_collapse_trials": t_c, "presets": {}}
+    for name, pts in {**sets, **{f"screen:{k}": v for k, v in screens.items()}}.items():
+        rows = [r for r in (table if name in sets else
+                            [{"l": l, "s": s, **point_summary(x)} for (l, s), x in pts.items()])
+                if name not in sets or r["preset"] == name]
+        curve = mean_curve(pts, grid)
+        upto = grid <= (t_c or grid[-1])
+        same = {}
+        if name not in sets or name != "fast":
+            # the old preset on the same (l, seed) points, over the trials both reached (<= t_c)
+            reach = min(max(x["trials"] for x in rows_) for rows_ in pts.values()) if pts else 0
+            both = upto & (grid <= reach)
+            old = mean_curve({k: v for k, v in sets["fast"].items() if k in pts}, grid)
+            same = {"compared_up_to_trials": int(grid[both][-1]) if both.any() else None,
+                    "mean_reward": float(np.nanmean(curve[both])) if both.any() else None,
+                    "old_fast_same_points_mean_reward": float(np.nanmean(old[both])) if both.any() else None}
+        summary["presets"][name] = {
+            "vs_old_fast_same_points": same,
+            "points": len(rows), "collapsed": sum(r["collapsed"] for r in rows),
+            "diverged": sum(r["diverged"] for r in rows),
+            "min_trials": min((r["trials"] for r in rows), default=None),
+            "mean_reward_up_to_old_first_collapse": (float(np.nanmean(curve[upto]))
+                                                      if np.any(np.isfinite(curve[upto])) else None),
+            "mean_curve": {int(g): (None if not np.isfinite(c) else round(float(c), 4))
+                           for g, c in zip(grid[::10], curve[::10])},
+        }
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    if screens:
+        (out / "screening.md").write_text(screening_table(screens, sets["fast"]))
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ls = sorted({l for pts in sets.values() for l, _ in pts})
+    cols = 4
+    fig, axes = plt.subplots((len(ls) + cols - 1) // cols, cols, figsize=(4 * cols, 3.2 * ((len(ls) + cols - 1) // cols)),
+                             sharex=True, sharey=True, squeeze=False)
+    colors = dict(zip(sets, ["tab:red", "tab:blue", "tab:green", "tab:purple"]))
+    for ax, l in zip(axes.flat, ls):
+        for name, pts in sets.items():
+            for (pl, s), rows in pts.items():
+                if pl != l:
+                    continue
+                t = [x["trials"] for x in rows]
+                r = np.array([x["avg_reward"] for x in rows])
+                w = min(SMOOTH, len(r))
+                sm = np.convolve(r, np.ones(w) / w, mode="valid")
+                ax.plot(t[w - 1:], sm, color=colors[name], lw=1.2, alpha=0.85, marker="." if len(sm) < 3 else None,
+                        label=f"{name} (24-point sweep)" if s == 0 else None)
+        for (name, pts), c in zip(screens.items(), ["tab:cyan", "tab:olive", "tab:gray"]):
+            for (pl, s), rows in pts.items():
+                if pl != l:
+                    continue
+                t = [x["trials"] for x in rows]
+                r = np.array([x["avg_reward"] for x in rows])
+                w = min(SMOOTH, len(r))
+                sm = np.convolve(r, np.ones(w) / w, mode="valid")
+                ax.plot(t[w - 1:], sm, color=c, lw=1.4, ls="--", label=f"{name}, screening (seed {s})")
+        ax.legend(loc="lower right", fontsize=7)
+        ax.axhline(0, color="k", lw=0.5)
+        ax.set_title(f"l = {l}")
+        ax.set_ylim(-4, 3.5)
+        ax.grid(alpha=0.3)
+    for ax in axes[-1]:
+        ax.set_xlabel("trials")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("avg reward per step (5-chunk mean)")
+    fig.suptitle("fast presets on the reduced Fig. 3 layout: each seed, 5-chunk running mean (64 environments "
+                 "per point); dashed: screening runs")
+    fig.tight_layout()
+    fig.savefig(out / "learning_curves.png", dpi=110)
+    print(json.dumps({k: {kk: v[kk] for kk in ("points", "collapsed", "diverged", "min_trials",
+                                               "mean_reward_up_to_old_first_collapse", "vs_old_fast_same_points")}
+                      for k, v in summary["presets"].items()} | {"old_first_collapse": t_c}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
