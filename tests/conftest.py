@@ -22,7 +22,8 @@ jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 
 
-import pathlib as _pathlib  # noqa: E402
+import pathlib as _pathlib
+import re as _re  # noqa: E402
 
 import pytest  # noqa: E402
 
@@ -37,7 +38,9 @@ def saved_figures(monkeypatch):
     savefig = matplotlib.figure.Figure.savefig
 
     def recording_savefig(self, fname, *args, **kwargs):
-        saved.append((_pathlib.Path(fname), self))
+        path = _pathlib.Path(fname)  # an atomic write saves to ".<stem>.<pid>.tmp<suffix>" first
+        m = _re.fullmatch(r"\.(.+)\.\d+\.tmp(\.[^.]*)?", path.name)
+        saved.append((path.with_name(m[1] + (m[2] or "")) if m else path, self))
         return savefig(self, fname, *args, **kwargs)
 
     monkeypatch.setattr(matplotlib.figure.Figure, "savefig", recording_savefig)
