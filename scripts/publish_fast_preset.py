@@ -25,8 +25,9 @@ Definitions (per point; rows = chunks in order):
 * ``first_below_half``: the trials at which the 5-chunk running mean first fell below half of the
   running peak, once that peak exceeded 0.3 (empty if never).
 
-Usage: python scripts/publish_fast_preset.py --run fast_clip=runs/fast_preset/fast_clip \
-           --screen clip=runs/screen/clip --screen clip_bv1e-4=runs/screen/clip_bv1e-4
+Usage (the full command of this session: results/fast_preset/README.md):
+    python scripts/publish_fast_preset.py --run fast_clip=runs/fast_preset/fast_clip \
+        --state runs/fast_preset/fast_clip [--screen NAME=DIR ...] [--rename OLD=NEW ...]
 """
 
 from __future__ import annotations
