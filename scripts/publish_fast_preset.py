@@ -18,7 +18,7 @@ and ``learning_curves.png`` (one panel per l: each seed's curve, old vs new).
 Definitions (per point; rows = chunks in order):
 
 * ``avg_reward``: mean of the chunks' average reward per control step over the last tenth of the
-  chunks (as nmrl/sweep.py's results.csv);
+  chunks (as nmrl/experiments/sweep.py's results.csv);
 * ``peak``: the maximum of the 5-chunk running mean of the average reward;
 * ``collapsed``: the point diverged, or ``avg_reward`` ended more than half of |peak| below the
   peak (for peak > 0: below 50% of the peak);
