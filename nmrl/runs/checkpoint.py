@@ -706,10 +706,19 @@ def restore_policy(
 # ----------------------------------------------------------------------------- identity
 
 
+#: Identity fields added after checkpoints with an identity digest were written, with the value
+#: every earlier run had: a field at that value is left out of the identity, so the digests (and
+#: identity comparisons) of those runs stay what they were (the optimizer chains of issue 16: every
+#: run before them used the paper's rule, plain sgd).
+LATER_FIELDS: dict[str, object] = {"actor_opt": "sgd", "critic_opt": "sgd"}
+
+
 def identity_config(config: TrainConfig) -> dict:
-    """The fields of a run's identity: the resolved config without the budget (``RESUMABLE_FIELDS``)."""
+    """The fields of a run's identity: the resolved config without the budget (``RESUMABLE_FIELDS``),
+    and without a field of :data:`LATER_FIELDS` at the value every run had before it existed."""
     d = dataclasses.asdict(config.resolved())
-    return {k: v for k, v in d.items() if k not in RESUMABLE_FIELDS}
+    return {k: v for k, v in d.items()
+            if k not in RESUMABLE_FIELDS and not (k in LATER_FIELDS and v == LATER_FIELDS[k])}
 
 
 def identity_digest(config: TrainConfig, model_sha256: str | None) -> str:
@@ -761,8 +770,9 @@ def check_identity(meta: dict, run_config: TrainConfig | None, source: str = "th
                                 f"own config and model hash (edited or corrupted metadata)")
     if run_config is not None:
         theirs = identity_config(run_config)
-        diff = [f"{k}={mine.get(k)!r} in the checkpoint but {theirs[k]!r} in {source}" for k in theirs
-                if mine.get(k) != theirs[k]]
+        diff = [f"{k}={mine.get(k, LATER_FIELDS.get(k))!r} in the checkpoint but "
+                f"{theirs.get(k, LATER_FIELDS.get(k))!r} in {source}"
+                for k in sorted(set(theirs) | set(mine)) if mine.get(k) != theirs.get(k)]
         if diff:
             raise ForeignCheckpoint(f"{path}: checkpoint of another run: " + "; ".join(diff))
     _check_model(meta)
