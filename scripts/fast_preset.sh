@@ -14,17 +14,8 @@ PRESET=${PRESET:-fast_clip}
 OUT=${OUT:-runs/fast_preset/$PRESET}
 PUBLISHED=${PUBLISHED:-results/fast_preset/sweep}
 TRIALS=${TRIALS:-5000}
-if [ ! -f "$OUT/sweep.json" ] && [ -f "$PUBLISHED/sweep.json" ] && [ -d "$PUBLISHED/points" ]; then
-  echo "seeding $OUT from the published $PUBLISHED (compact continuation states)" >&2
-  mkdir -p "$OUT"
-  cp "$PUBLISHED/sweep.json" "$OUT/"
-  for p in "$PUBLISHED"/points/*/; do
-    d="$OUT/points/$(basename "$p")"; mkdir -p "$d"
-    for f in config.json metrics.jsonl compact.npz; do
-      if [ -f "$p/$f" ]; then cp "$p/$f" "$d/"; fi
-    done
-  done
-fi
+. scripts/seed_run.sh
+seed_run "$OUT" "$PUBLISHED"
 if [ -f "$OUT/sweep.json" ]; then
   exec nice -n "${NICE:-19}" .venv/bin/nmrl sweep --resume --l 1 --out "$OUT" --trials "$TRIALS" \
     --checkpoint-every 4 --quiet

@@ -8,7 +8,7 @@
 # checkpoints in $OUT when they exist; otherwise it seeds $OUT from the published, committed
 # $PUBLISHED (sweep.json, every point's config, metrics and compact continuation state) and
 # continues from the compact states (statistically, not bitwise, equal: every environment starts
-# a new trial). Publish the progress with: .venv/bin/python scripts/publish_fig3.py --paper
+# a new trial). Publish the progress with: .venv/bin/python scripts/publish_fig3_paper.py
 #
 # PRESET=fast uses the "fast" step sizes (nmrl/paper/learner.py) instead of the paper's.
 set -euo pipefail
@@ -18,17 +18,8 @@ OUT=${OUT:-runs/fig3_$PRESET}
 PUBLISHED=${PUBLISHED:-results/fig3_$PRESET}
 TRIALS=${TRIALS:-100000}
 NUM_ENVS=${NUM_ENVS:-32}
-if [ ! -f "$OUT/sweep.json" ] && [ -f "$PUBLISHED/sweep.json" ] && [ -d "$PUBLISHED/points" ]; then
-  echo "seeding $OUT from the published $PUBLISHED (compact continuation states)" >&2
-  mkdir -p "$OUT"
-  cp "$PUBLISHED/sweep.json" "$OUT/"
-  for p in "$PUBLISHED"/points/*/; do
-    d="$OUT/points/$(basename "$p")"; mkdir -p "$d"
-    for f in config.json metrics.jsonl compact.npz; do  # a point that never ran has only its config
-      if [ -f "$p/$f" ]; then cp "$p/$f" "$d/"; fi
-    done
-  done
-fi
+. scripts/seed_run.sh
+seed_run "$OUT" "$PUBLISHED"
 if [ -f "$OUT/sweep.json" ]; then
   exec nice -n "${NICE:-19}" .venv/bin/nmrl sweep --resume --l 1 --out "$OUT" --trials "$TRIALS" \
     --checkpoint-every 2

@@ -5,34 +5,48 @@
 Copies results.csv, sweep.json, fig3.png and every point's metrics.jsonl; for each l in --ls takes
 the seed with the highest avg_reward, copies its newest checkpoint's *policy* (actor and critic
 parameters plus metadata, small: ``nmrl eval`` restores it; the full training state stays in the
-sweep directory) and evaluates it with ``nmrl.analysis.evaluate`` (JSON, strobe PNG, GIF).
+sweep directory) and evaluates it with ``nmrl.analysis.evaluate`` (JSON, strobe PNG, GIF). Every
+file is written atomically (a policy directory is built beside its place and renamed into it).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import pathlib
 import shutil
 
+from nmrl.analysis import evaluate
+from nmrl.experiments import sweep
+from nmrl.runs import checkpoint, store
 
-from nmrl.runs import checkpoint  # noqa: E402
-from nmrl.experiments import sweep  # noqa: E402
-from nmrl.analysis import evaluate  # noqa: E402
+
+def _copy(src: pathlib.Path, dst: pathlib.Path) -> None:
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    with store.atomic_path(dst) as tmp:
+        shutil.copy2(src, tmp)
 
 
 def copy_policy(point: pathlib.Path, dest: pathlib.Path) -> pathlib.Path:
+    """The point's newest checkpoint (policy and metadata), config and metrics as ``dest``: built in a
+    temporary directory beside it and renamed into place, so ``dest`` is either the old or the new copy."""
     step = checkpoint.latest_step(point)
     src = checkpoint.checkpoint_dir(point) / str(step)
-    out = checkpoint.checkpoint_dir(dest) / str(step)
-    if dest.exists():
-        shutil.rmtree(dest)
+    tmp = dest.with_name(f".{dest.name}.{os.getpid()}.tmp")
+    shutil.rmtree(tmp, ignore_errors=True)
+    out = checkpoint.checkpoint_dir(tmp) / str(step)
     out.mkdir(parents=True)
     for name in ("policy", "meta", "_CHECKPOINT_METADATA", "commit_success.txt"):
         p = src / name
         (shutil.copytree if p.is_dir() else shutil.copy2)(p, out / name)
-    shutil.copy2(point / "config.json", dest / "config.json")
-    shutil.copy2(point / "metrics.jsonl", dest / "metrics.jsonl")
+    shutil.copy2(point / "config.json", tmp / "config.json")
+    shutil.copy2(point / "metrics.jsonl", tmp / "metrics.jsonl")
+    old = dest.with_name(f".{dest.name}.{os.getpid()}.old")
+    if dest.exists():
+        os.replace(dest, old)
+    os.replace(tmp, dest)
+    shutil.rmtree(old, ignore_errors=True)
     return dest
 
 
@@ -47,12 +61,11 @@ def main() -> None:
     dest.mkdir(parents=True, exist_ok=True)
     results = sweep.write_results(src, sweep.SweepSpec(**_spec(src)))
     for name in (sweep.RESULTS_FILE, sweep.SPEC_FILE):
-        shutil.copy2(src / name, dest / name)
+        _copy(src / name, dest / name)
     sweep.draw(src, results, dest / "fig3.png")
     for r in results:
-        d = dest / "metrics" / f"l{r['l']}_s{r['seed']}.jsonl"
-        d.parent.mkdir(exist_ok=True)
-        shutil.copy2(sweep.point_dir(src, r["l"], r["seed"]) / "metrics.jsonl", d)
+        _copy(sweep.point_dir(src, r["l"], r["seed"]) / "metrics.jsonl",
+              dest / "metrics" / f"l{r['l']}_s{r['seed']}.jsonl")
     summary = {}
     for l in args.ls:
         rows = [r for r in results if r["l"] == l and not r["diverged"] and r["checkpoint"]]
@@ -64,7 +77,7 @@ def main() -> None:
         summary[f"l{l}"] = {"seed": best["seed"], "sweep_avg_reward": best["avg_reward"], "eval": ev}
         print(f"l={l} seed={best['seed']}: deterministic {ev['deterministic']['avg_reward']:+.3f} "
               f"({ev['deterministic']['forward_speed']:+.2f} m/s), exploring {ev['exploring']['avg_reward']:+.3f}")
-    (dest / "best_policies.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
+    store.atomic_write_text(dest / "best_policies.json", json.dumps(summary, indent=2, default=str) + "\n")
 
 
 def _spec(src: pathlib.Path) -> dict:

@@ -422,6 +422,7 @@ def _same_state(a, b) -> bool:
                             for x, y in zip(la, lb))
 
 
+@pytest.mark.slow  # a real process (~50 s); the in-process signal tests above cover the handler by default
 def test_sigterm_to_an_nmrl_train_process_saves_exits_143_and_resume_is_bit_identical(tmp_path):
     """A real ``nmrl train`` process gets SIGTERM from outside while it trains: it exits 143 after the
     chunk in flight is saved (the newest checkpoint is its last metrics row), and ``--resume``

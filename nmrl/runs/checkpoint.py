@@ -292,24 +292,9 @@ def _fsync_tree(path: pathlib.Path) -> None:
     """Flush the files and directories of a finished checkpoint (and its parent entry) to disk."""
     for root, _dirs, files in os.walk(path):
         for f in files:
-            with contextlib.suppress(OSError):
-                fd = os.open(os.path.join(root, f), os.O_RDONLY)
-                try:
-                    os.fsync(fd)
-                finally:
-                    os.close(fd)
-        with contextlib.suppress(OSError):
-            fd = os.open(root, os.O_RDONLY)
-            try:
-                os.fsync(fd)
-            finally:
-                os.close(fd)
-    with contextlib.suppress(OSError):
-        fd = os.open(path.parent, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
+            store.fsync_path(os.path.join(root, f))
+        store.fsync_path(root)
+    store.fsync_path(path.parent)
 
 
 def _policy_template(meta: dict) -> dict[str, Params]:

@@ -44,13 +44,15 @@ RUN_FILES = (CONFIG_FILE, METRICS_FILE, CHECKPOINTS, COMPACT_FILE, RESUMES_FILE)
 # ----------------------------------------------------------------------------- atomic files
 
 
-def _fsync_dir(d: pathlib.Path) -> None:
+def fsync_path(path: str | os.PathLike) -> None:
+    """Flush a file's data or a directory's entries to disk (best effort: an OSError is ignored)."""
     with contextlib.suppress(OSError):
-        fd = os.open(d, os.O_RDONLY)
+        fd = os.open(path, os.O_RDONLY)
         try:
             os.fsync(fd)
         finally:
             os.close(fd)
+
 
 
 @contextlib.contextmanager
@@ -62,14 +64,9 @@ def atomic_path(path: str | os.PathLike) -> Iterator[pathlib.Path]:
     tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
     try:
         yield tmp
-        with contextlib.suppress(OSError):
-            fd = os.open(tmp, os.O_RDONLY)
-            try:
-                os.fsync(fd)
-            finally:
-                os.close(fd)
+        fsync_path(tmp)
         os.replace(tmp, path)
-        _fsync_dir(path.parent)
+        fsync_path(path.parent)
     finally:
         tmp.unlink(missing_ok=True)
 
