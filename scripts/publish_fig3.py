@@ -22,12 +22,6 @@ from nmrl.experiments import sweep
 from nmrl.runs import checkpoint, store
 
 
-def _copy(src: pathlib.Path, dst: pathlib.Path) -> None:
-    dst.parent.mkdir(parents=True, exist_ok=True)
-    with store.atomic_path(dst) as tmp:
-        shutil.copy2(src, tmp)
-
-
 def copy_policy(point: pathlib.Path, dest: pathlib.Path) -> pathlib.Path:
     """The point's newest checkpoint (policy and metadata), config and metrics as ``dest``: built in a
     temporary directory beside it and renamed into place, so ``dest`` is either the old or the new copy."""
@@ -61,10 +55,10 @@ def main() -> None:
     dest.mkdir(parents=True, exist_ok=True)
     results = sweep.write_results(src, sweep.SweepSpec(**_spec(src)))
     for name in (sweep.RESULTS_FILE, sweep.SPEC_FILE):
-        _copy(src / name, dest / name)
+        store.atomic_copy(src / name, dest / name)
     sweep.draw(src, results, dest / "fig3.png")
     for r in results:
-        _copy(sweep.point_dir(src, r["l"], r["seed"]) / "metrics.jsonl",
+        store.atomic_copy(sweep.point_dir(src, r["l"], r["seed"]) / "metrics.jsonl",
               dest / "metrics" / f"l{r['l']}_s{r['seed']}.jsonl")
     summary = {}
     for l in args.ls:

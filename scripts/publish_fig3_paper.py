@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import json
 import pathlib
-import shutil
 
 import numpy as np
 
@@ -32,12 +31,6 @@ from nmrl.paper.learner import TrainConfig
 from nmrl.runs import store
 
 MILESTONES = (10_000, 20_000, 30_000, 100_000)  # 2*10^4: the intermediate comparison issue 14 asks for
-
-
-def _atomic_copy(src: pathlib.Path, dst: pathlib.Path) -> None:
-    dst.parent.mkdir(parents=True, exist_ok=True)
-    with store.atomic_path(dst) as tmp:
-        shutil.copy2(src, tmp)
 
 
 def progress(src: pathlib.Path, spec: sweep.SweepSpec) -> dict:
@@ -149,13 +142,13 @@ def main() -> None:
                            first=tuple(s.get("first", ())))
     dest.mkdir(parents=True, exist_ok=True)
     results = sweep.write_results(src, spec)
-    _atomic_copy(src / sweep.SPEC_FILE, dest / sweep.SPEC_FILE)
-    _atomic_copy(src / sweep.RESULTS_FILE, dest / sweep.RESULTS_FILE)
+    store.atomic_copy(src / sweep.SPEC_FILE, dest / sweep.SPEC_FILE)
+    store.atomic_copy(src / sweep.RESULTS_FILE, dest / sweep.RESULTS_FILE)
     for l, seed in spec.points():
         p = sweep.point_dir(src, l, seed)
         for name in ("config.json", "metrics.jsonl", "compact.npz"):
             if (p / name).is_file():
-                _atomic_copy(p / name, sweep.point_dir(dest, l, seed) / name)
+                store.atomic_copy(p / name, sweep.point_dir(dest, l, seed) / name)
     sweep.draw(src, results, dest / "fig3.png")
     learning_curves(src, spec, dest / "learning_curves.png")
     p = progress(src, spec)

@@ -27,6 +27,7 @@ import math
 import os
 import pathlib
 import re
+import shutil
 from typing import Any, Iterator, Sequence
 
 import numpy as np
@@ -69,6 +70,14 @@ def atomic_path(path: str | os.PathLike) -> Iterator[pathlib.Path]:
         fsync_path(path.parent)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def atomic_copy(src: str | os.PathLike, dst: str | os.PathLike) -> None:
+    """Copy the file ``src`` to ``dst`` (parents created) atomically: ``dst`` is the old or the new file."""
+    dst = pathlib.Path(dst)
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(dst) as tmp:
+        shutil.copy2(src, tmp)
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:
@@ -115,11 +124,16 @@ def to_python(m: dict) -> dict:
     return out
 
 
-def read_metrics(run_dir: str | os.PathLike) -> list[dict]:
-    p = pathlib.Path(run_dir) / METRICS_FILE
+def read_jsonl(path: str | os.PathLike) -> list[dict]:
+    """The JSON objects of a JSON-lines file, one per non-empty line ([] if there is no file)."""
+    p = pathlib.Path(path)
     if not p.exists():
         return []
     return [json.loads(line) for line in p.read_text().splitlines() if line.strip()]
+
+
+def read_metrics(run_dir: str | os.PathLike) -> list[dict]:
+    return read_jsonl(pathlib.Path(run_dir) / METRICS_FILE)
 
 
 def append_metrics(run_dir: str | os.PathLike, row: dict) -> None:
