@@ -3,19 +3,14 @@
 # results/fig3_fast/ -- l in {1,2,3,5,10,15,20,30} x 3 seeds, 64 environments per point, 250-step
 # chunks -- to 5,000 trials per point, niced. PRESET picks the preset (default: the new fast one).
 #
-# Resumable, also on a fresh clone: run it again. It continues from the full checkpoints in $OUT
-# when they exist; otherwise it seeds $OUT from the published $PUBLISHED (sweep.json, every point's
-# config, metrics and compact continuation state; scripts/publish_fast_preset.py --state) and
-# continues from the compact states (statistically, not bitwise, equal: every environment starts a
-# new trial). Publish with: .venv/bin/python scripts/publish_fast_preset.py --run $PRESET=$OUT --state $OUT
+# Resumable: run it again; it continues from the checkpoints in $OUT (runs/ is not in git: on a
+# fresh clone it starts over, ~1 h of a quiet 2-core machine). Publish with:
+#   .venv/bin/python scripts/publish_fast_preset.py --run $PRESET=$OUT
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PRESET=${PRESET:-fast_clip}
 OUT=${OUT:-runs/fast_preset/$PRESET}
-PUBLISHED=${PUBLISHED:-results/fast_preset/sweep}
 TRIALS=${TRIALS:-5000}
-. scripts/seed_run.sh
-seed_run "$OUT" "$PUBLISHED"
 if [ -f "$OUT/sweep.json" ]; then
   exec nice -n "${NICE:-19}" .venv/bin/nmrl sweep --resume --l 1 --out "$OUT" --trials "$TRIALS" \
     --checkpoint-every 4 --quiet

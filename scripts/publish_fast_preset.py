@@ -27,20 +27,19 @@ Definitions (per point; rows = chunks in order):
 
 Usage (the full command of this session: results/fast_preset/README.md):
     python scripts/publish_fast_preset.py --run fast_clip=runs/fast_preset/fast_clip \
-        --state runs/fast_preset/fast_clip [--screen NAME=DIR ...] [--rename OLD=NEW ...]
+        [--screen NAME=DIR ...] [--rename OLD=NEW ...]
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
 import json
-import os
 import pathlib
 import re
-import shutil
 
 import numpy as np
+
+from nmrl.runs import store
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 BASELINE = ROOT / "results" / "fig3_fast" / "metrics"
@@ -50,17 +49,12 @@ COLUMNS = ("l", "seed", "preset", "trials", "avg_reward", "peak", "collapsed", "
 SMOOTH = 5
 
 
-def _atomic_copy(src: pathlib.Path, dst: pathlib.Path) -> None:
-    dst.parent.mkdir(parents=True, exist_ok=True)
-    tmp = dst.with_name(dst.name + ".tmp")
-    shutil.copy2(src, tmp)
-    os.replace(tmp, dst)
-
-
-def read_rows(path: pathlib.Path) -> list[dict]:
-    if not path.is_file():
-        return []
-    return [json.loads(x) for x in path.read_text().splitlines() if x.strip()]
+def running_mean(rows: list[dict]) -> tuple[list, np.ndarray]:
+    """(trials, the SMOOTH-chunk running mean of the average reward) of a point's chunks, the mean
+    over up to SMOOTH chunks ending at each (only full windows: the first SMOOTH - 1 chunks have none)."""
+    r = np.array([x["avg_reward"] for x in rows], float)
+    w = min(SMOOTH, len(r))
+    return [x["trials"] for x in rows][w - 1:], np.convolve(r, np.ones(w) / w, mode="valid")
 
 
 def point_summary(rows: list[dict]) -> dict:
@@ -69,7 +63,7 @@ def point_summary(rows: list[dict]) -> dict:
     k = max(1, len(r) // 10)
     end = float(np.mean(r[-k:]))
     w = min(SMOOTH, len(r))
-    sm = np.convolve(r, np.ones(w) / w, mode="valid")
+    _, sm = running_mean(rows)
     peak = float(np.max(sm))
     diverged = any(bool(x["diverged"]) for x in rows) or not np.all(np.isfinite(r))
     run_peak = np.maximum.accumulate(sm)
@@ -88,7 +82,7 @@ def points_of(src: pathlib.Path, baseline: bool) -> dict[tuple[int, int], list[d
     out = {}
     for f in files:
         m = pat.fullmatch(f.stem if baseline else f.parent.name)
-        rows = read_rows(f)
+        rows = store.read_jsonl(f)
         if m and rows:
             out[(int(m.group(1)), int(m.group(2)))] = rows
     return dict(sorted(out.items()))
@@ -101,18 +95,15 @@ def screen_points(name: str, src: pathlib.Path) -> dict[str, dict[tuple[int, int
     out: dict = {}
     for f in sorted((src / "points").glob("*/metrics.jsonl")):
         m = pat.fullmatch(f.parent.name)
-        rows = read_rows(f)
+        rows = store.read_jsonl(f)
         if m and rows:
             out.setdefault(m.group(1) or name, {})[(int(m.group(2)), int(m.group(3)))] = rows
     return out
 
 
 def write_csv(path: pathlib.Path, table: list[dict]) -> None:
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=COLUMNS)
-        w.writeheader()
-        for row in table:
-            w.writerow({k: (f"{row[k]:.4f}" if isinstance(row[k], float) else row[k]) for k in COLUMNS})
+    store.write_csv(path, COLUMNS, [{k: (f"{row[k]:.4f}" if isinstance(row[k], float) else row[k]) for k in COLUMNS}
+                                    for row in table])
 
 
 def mean_curve(points: dict, grid: np.ndarray) -> np.ndarray:
@@ -166,32 +157,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--run", action="append", default=[], help="NAME=SWEEP_DIR of a full candidate sweep")
     ap.add_argument("--screen", action="append", default=[], help="NAME=SWEEP_DIR of a screening sweep")
-    ap.add_argument("--state", default=None,
-                    help="SWEEP_DIR whose continuation state (sweep.json, results.csv, every point's config, "
-                         "and its metrics and compact.npz once it has one) is copied to OUT/sweep/, so that "
-                         "scripts/fast_preset.sh continues it on a fresh clone")
     ap.add_argument("--rename", action="append", default=[],
                     help="OLD=NEW: call the screened candidate OLD (a point-name prefix) NEW")
     ap.add_argument("--out", default=str(OUT))
     args = ap.parse_args()
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    if args.state:
-        src = pathlib.Path(args.state)
-        for f in ("sweep.json", "results.csv"):
-            if (src / f).is_file():
-                _atomic_copy(src / f, out / "sweep" / f)
-        for d in sorted((src / "points").glob("*/")):
-            dest = out / "sweep" / "points" / d.name
-            # a point's metrics only with its compact state: a point with rows but no state cannot be
-            # continued (nmrl.experiments.sweep refuses it); without rows it starts afresh, as in a new sweep
-            names = ("config.json", "metrics.jsonl", "compact.npz") if (d / "compact.npz").is_file() else ("config.json",)
-            for f in ("metrics.jsonl", "compact.npz"):
-                if f not in names and (dest / f).is_file():
-                    (dest / f).unlink()
-            for f in names:
-                _atomic_copy(d / f, dest / f)
-
     sets = {"fast": points_of(BASELINE, baseline=True)}
     for spec in args.run:
         name, _, d = spec.partition("=")
@@ -249,9 +220,9 @@ def main() -> None:
             "mean_curve": {int(g): (None if not np.isfinite(c) else round(float(c), 4))
                            for g, c in zip(grid[::10], curve[::10])},
         }
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    store.atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
     if screens:
-        (out / "screening.md").write_text(screening_table(screens, sets["fast"]))
+        store.atomic_write_text(out / "screening.md", screening_table(screens, sets["fast"]))
 
     import matplotlib
 
@@ -268,21 +239,15 @@ def main() -> None:
             for (pl, s), rows in pts.items():
                 if pl != l:
                     continue
-                t = [x["trials"] for x in rows]
-                r = np.array([x["avg_reward"] for x in rows])
-                w = min(SMOOTH, len(r))
-                sm = np.convolve(r, np.ones(w) / w, mode="valid")
-                ax.plot(t[w - 1:], sm, color=colors[name], lw=1.2, alpha=0.85, marker="." if len(sm) < 3 else None,
+                t, sm = running_mean(rows)
+                ax.plot(t, sm, color=colors[name], lw=1.2, alpha=0.85, marker="." if len(sm) < 3 else None,
                         label=f"{name} (24-point sweep)" if s == 0 else None)
         for (name, pts), c in zip(screens.items(), ["tab:cyan", "tab:olive", "tab:gray"]):
             for (pl, s), rows in pts.items():
                 if pl != l:
                     continue
-                t = [x["trials"] for x in rows]
-                r = np.array([x["avg_reward"] for x in rows])
-                w = min(SMOOTH, len(r))
-                sm = np.convolve(r, np.ones(w) / w, mode="valid")
-                ax.plot(t[w - 1:], sm, color=c, lw=1.4, ls="--", label=f"{name}, screening (seed {s})")
+                t, sm = running_mean(rows)
+                ax.plot(t, sm, color=c, lw=1.4, ls="--", label=f"{name}, screening (seed {s})")
         ax.legend(loc="lower right", fontsize=7)
         ax.axhline(0, color="k", lw=0.5)
         ax.set_title(f"l = {l}")
@@ -295,7 +260,8 @@ def main() -> None:
     fig.suptitle("fast presets on the reduced Fig. 3 layout: each seed, 5-chunk running mean (64 environments "
                  "per point); dashed: screening runs")
     fig.tight_layout()
-    fig.savefig(out / "learning_curves.png", dpi=110)
+    with store.atomic_path(out / "learning_curves.png") as tmp:
+        fig.savefig(tmp, dpi=110)
     print(json.dumps({k: {kk: v[kk] for kk in ("points", "collapsed", "diverged", "min_trials",
                                                "mean_reward_up_to_old_first_collapse", "vs_old_fast_same_points")}
                       for k, v in summary["presets"].items()} | {"old_first_collapse": t_c}, indent=1))
