@@ -13,7 +13,9 @@ Benchmarks (each module has ``run(quick) -> dict``):
 * ``likelihood`` tridiagonal vs dense likelihood ratio (benchmarks/bench_likelihood.py);
 * ``sweep``      the paper's 24-point sweep with learning: the layout of ``nmrl sweep`` (points over
                  every core, one at a time per core) vs one vmap on one device vs MuJoCo C (bench_sweep.py);
-* ``scaling``    training chunk on 1 vs 2 CPU devices, the sweep's shard_map path (bench_scaling.py).
+* ``scaling``    training chunk on 1 vs 2 CPU devices, the sweep's shard_map path (bench_scaling.py);
+* ``distributed`` ``nmrl train`` as 2 processes (jax.distributed, 1 device each) vs 1 process with
+                 2 devices, end to end through the CLI (bench_distributed.py).
 
 Every comparison is a ratio measured within one run, the contenders interleaved, so that a
 background load affects both alike; absolute numbers are reported beside the machine description
@@ -47,7 +49,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # see benchmarks/bench_likel
 HERE = pathlib.Path(__file__).resolve().parent
 ROOT = HERE.parent
 
-SECTIONS = ("env", "learning", "likelihood", "sweep", "scaling")
+SECTIONS = ("env", "learning", "likelihood", "sweep", "scaling", "distributed")
 TOP_KEYS = ("meta", "machine", *SECTIONS, "summary")
 
 # env: control steps (batch x T) per timed MJX call, the same in quick and full mode so that a quick
@@ -133,6 +135,10 @@ def run_section(name: str, quick: bool) -> dict:
         from benchmarks import bench_scaling
 
         return bench_scaling.run(quick)
+    if name == "distributed":
+        from benchmarks import bench_distributed
+
+        return bench_distributed.run(quick)
     raise ValueError(name)
 
 
@@ -190,6 +196,9 @@ def summary(res: dict) -> dict:
     if sc and "hung_or_failed" in sc:
         s["scaling_2dev_over_1dev"] = sc.get("speedup_2dev_over_1dev")
         s["scaling_hung_or_failed"] = sc.get("hung_or_failed")
+    di = res.get("distributed")
+    if di and "runs" in di:
+        s["distributed_2proc_over_1proc_2dev"] = di.get("two_processes_over_one_process")
     li = res.get("likelihood")
     if li and "results" in li:
         by = {(r["method"], r["l"]): r["median_s"] for r in li["results"]}
@@ -273,6 +282,17 @@ def table(res: dict) -> str:
                          _f(m["2dev"]["control_steps_per_s"]), _f(m["1dev"]["control_steps_per_s"]),
                          _f(sc["speedup_2dev_over_1dev"], 2, "×"),
                          f"{m['2dev']['compile_s']:.1f} / {m['1dev']['compile_s']:.1f}"))
+    di = res.get("distributed")
+    if di and "runs" in di:
+        c = di["config"]
+        a = [r for r in di["runs"]["two_processes_one_device_each"] if "error" not in r]
+        b = [r for r in di["runs"]["one_process_two_devices"] if "error" not in r]
+        med = lambda rs, k: statistics.median([r[k] for r in rs if r.get(k) is not None]) if rs else None  # noqa: E731
+        rows.append(("nmrl train ctrl steps/s, processes",
+                     f"N={c['num_envs']}: 2 processes × 1 dev (jax.distributed, gloo) vs 1 process × 2 dev",
+                     _f(med(a, "control_steps_per_s")), _f(med(b, "control_steps_per_s")),
+                     _f(di["two_processes_over_one_process"], 2, "×"),
+                     f"{_f(med(a, 'compile_s'), 1)} / {_f(med(b, 'compile_s'), 1)}"))
     widths = [max(len(str(r[i])) for r in rows) for i in range(len(rows[0]))]
     line = lambda r: "| " + " | ".join(str(x).ljust(w) for x, w in zip(r, widths)) + " |"  # noqa: E731
     out = [line(rows[0]), "|" + "|".join("-" * (w + 2) for w in widths) + "|"]

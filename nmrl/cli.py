@@ -5,8 +5,15 @@ Every field of :class:`nmrl.paper.learner.TrainConfig` is an option of ``train``
 names the value, before anything is written.
 
 Exit status: 0 done, 2 bad input (one line ``nmrl: error: ...`` on stderr, nothing written),
-3 diverged (the last good checkpoint is kept), 128 + the signal when SIGINT (130) or SIGTERM (143)
-stopped ``train`` or ``sweep`` (after the chunk in flight was saved; ``--resume`` continues it).
+3 diverged (the last good checkpoint is kept), 4 another process of a distributed run failed
+(nmrl/runs/distributed.py; the newest checkpoint is kept), 128 + the signal when SIGINT (130) or
+SIGTERM (143) stopped ``train`` or ``sweep`` (after the chunk in flight was saved; ``--resume``
+continues it).
+
+Several processes (``--coordinator HOST:PORT --num-processes P --process-id I``, or
+``--coordinator auto`` under SLURM/Open MPI): every process runs the same command; each is watched
+by nmrl/runs/launch.py, which reports JAX's aborts (an unreachable coordinator, a dead peer) as
+clear errors.
 
 The benchmarks are not a command: they live in the checkout (``python -m benchmarks``, which
 writes its measurements beside itself in benchmarks/), not in the installed package.
@@ -18,10 +25,12 @@ import argparse
 import dataclasses
 import json
 import math
+import os
 import sys
 import typing
 
 from nmrl.runs import devices as _devices
+from nmrl.runs import launch as _launch
 
 # nmrl.paper.learner (and with it JAX) is imported only after nmrl.runs.devices.configure has set the host
 # device count (main()). The budget of a run given none is TrainConfig's (nmrl.paper.learner.DEFAULT_STEPS).
@@ -78,6 +87,69 @@ def _fail(msg: str) -> int:
     return 2
 
 
+def add_distributed_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("several processes (jax.distributed; nmrl/runs/distributed.py)")
+    g.add_argument("--coordinator", default=None,
+                   help="HOST:PORT of process 0's coordinator (every process gives the same), or 'auto' to let "
+                        "JAX detect the cluster (SLURM, Open MPI); default: one process")
+    g.add_argument("--num-processes", type=int, default=None, help="how many processes run this command")
+    g.add_argument("--process-id", type=int, default=None, help="this process's id, 0..num-processes-1")
+    g.add_argument("--dist-timeout", type=int, default=_launch.DEFAULT_TIMEOUT_S,
+                   help="seconds a process waits for the others (to connect, at a barrier, a silent peer) "
+                        f"before it exits with an error (default {_launch.DEFAULT_TIMEOUT_S})")
+
+
+def _cluster(args: argparse.Namespace) -> "_launch.Cluster | None":
+    if args.coordinator is None:
+        for o in ("num_processes", "process_id"):
+            if getattr(args, o) is not None:
+                raise ValueError(f"--{o.replace('_', '-')} needs --coordinator (HOST:PORT or auto)")
+        return None
+    c = _launch.Cluster(args.coordinator, args.num_processes, args.process_id, args.dist_timeout)
+    c.validate()
+    return c
+
+
+def _join(args: argparse.Namespace) -> int | None:
+    """Several processes: join the run before JAX computes anything, and check that every process
+    was given the same command. Returns an exit status when that fails (nothing written), else None."""
+    cluster = _cluster(args)
+    if cluster is None:
+        return None
+    from nmrl.runs import distributed
+
+    try:
+        distributed.initialize(cluster)
+        distributed.agree("command line", distributed.fingerprint(args.argv))
+    except distributed.DistributedError as e:
+        return _fail(f"{e}; nothing was written")
+    except distributed.PeerFailed as e:
+        print(_launch.peer_failed_message(cluster.who(), str(e), None), file=sys.stderr)
+        return _launch.PEER_FAILED
+    return None
+
+
+def _is_process_zero(args: argparse.Namespace) -> bool:
+    if getattr(args, "coordinator", None) is None:
+        return True
+    import jax
+
+    return jax.process_index() == 0
+
+
+def _peer_failure(args: argparse.Namespace, e: BaseException) -> int | None:
+    """The exit status for an exception that means another process of the run is gone (else None)."""
+    if getattr(args, "coordinator", None) is None:
+        return None
+    from nmrl.runs import distributed
+
+    if isinstance(e, distributed.PeerFailed) or distributed.is_peer_failure(e):
+        print(_launch.peer_failed_message(_cluster(args).who(), str(e).splitlines()[0][:400], args.out),
+              file=sys.stderr, flush=True)
+        return _launch.PEER_FAILED
+    return None
+
+
 def cmd_train(args: argparse.Namespace) -> int:
     from nmrl.runs import checkpoint, driver as run, store
 
@@ -88,8 +160,12 @@ def cmd_train(args: argparse.Namespace) -> int:
         if args.step is not None and args.step < 0:
             raise ValueError(f"--step={args.step} is invalid: a checkpoint step is >= 0")
         n_dev = _devices.parse(args.devices)
+        _cluster(args)
     except (ValueError, TypeError) as e:
         return _fail(str(e))
+    joined = _join(args)
+    if joined is not None:
+        return joined
     status = 0
     try:
         run.train(cfg, args.out, resume=args.resume, progress=not args.quiet, devices=n_dev,
@@ -105,8 +181,13 @@ def cmd_train(args: argparse.Namespace) -> int:
         print(f"nmrl: stopped at once; the newest checkpoint in {args.out} is intact (saves are atomic); "
               f"continue with: nmrl train --resume --out {args.out}", file=sys.stderr)
         return 130
+    except Exception as e:  # noqa: BLE001 - several processes: a peer that is gone
+        peer = _peer_failure(args, e)
+        if peer is None:
+            raise
+        return peer
     rows = store.read_metrics(args.out)  # the run's, not only this session's
-    if rows:
+    if rows and _is_process_zero(args):
         first, last = rows[0], rows[-1]
         print(json.dumps({"out": args.out, "step": last["step"], "trials": last["trials"],
                           "avg_reward_first_chunk": first["avg_reward"], "avg_reward": last["avg_reward"],
@@ -152,8 +233,12 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         if args.group < 1:
             raise ValueError(f"--group={args.group} is invalid: points vmapped together must be >= 1")
         n_dev = _devices.parse(args.devices)
+        _cluster(args)
     except (ValueError, TypeError) as e:
         return _fail(str(e))
+    joined = _join(args)
+    if joined is not None:
+        return joined
     try:
         sweep.run_sweep(spec, args.out, resume=args.resume, progress=not args.quiet,
                         checkpoint_every=args.checkpoint_every, group=args.group, devices=n_dev,
@@ -164,6 +249,11 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         print(f"nmrl: sweep stopped by signal {e.signum}; every active point was saved. Continue with: nmrl sweep "
               f"--resume --l 1 --out {args.out}", file=sys.stderr)
         return e.exit_status
+    except Exception as e:  # noqa: BLE001 - several processes: a peer that is gone
+        peer = _peer_failure(args, e)
+        if peer is None:
+            raise
+        return peer
     return 0
 
 
@@ -183,6 +273,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--devices", default=_devices.AUTO,
                    help="host (CPU) devices to split the work over: 'auto' = every core (default), 1 = off")
     p.add_argument("--quiet", action="store_true", help="no progress display")
+    add_distributed_options(p)
     p.set_defaults(func=cmd_train)
 
     p = sub.add_parser("sweep", help="the sweep over l and seeds as one vmapped program (Fig. 3)")
@@ -200,6 +291,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True)
     p.add_argument("--resume", action="store_true")
     p.add_argument("--quiet", action="store_true")
+    add_distributed_options(p)
     p.set_defaults(func=cmd_sweep)
 
     p = sub.add_parser("eval", help="restore a policy, roll it out, print JSON, render the gait")
@@ -227,8 +319,39 @@ def main(argv: list[str] | None = None) -> int:
         from nmrl.experiments import study
 
         return study.main(argv[1:])
+    if argv[:1] in (["train"], ["sweep"]) and os.environ.get(_launch.CHILD_ENV) != "1":
+        watched = _watch(argv)
+        if watched is not None:
+            return watched
     args = build_parser().parse_args(argv)
-    return args.func(args)
+    args.argv = argv
+    status = args.func(args)
+    if getattr(args, "coordinator", None) is not None and "jax" in sys.modules:
+        from nmrl.runs import distributed
+
+        sys.stdout.flush()
+        sys.stderr.flush()
+        if status == _launch.PEER_FAILED:  # the run is broken: leave at once, waiting for no one
+            os._exit(status)
+        distributed.leave()  # every process leaves here together (the end, a signal, a refusal)
+    return status
+
+
+def _watch(argv: list[str]) -> int | None:
+    """A distributed ``train``/``sweep`` (``--coordinator`` given): run it in a watched child process
+    (nmrl/runs/launch.py) and return its status; None for a 1-process command. Only the options of
+    several processes are read here (no JAX); the child checks the rest before it connects."""
+    pre = argparse.ArgumentParser(prog=f"nmrl {argv[0]}", add_help=False, allow_abbrev=False)
+    add_distributed_options(pre)
+    pre.add_argument("--out", default=None)
+    ns, _ = pre.parse_known_args(argv[1:])
+    if ns.coordinator is None:
+        return None
+    try:
+        cluster = _cluster(ns)
+    except ValueError as e:
+        return _fail(str(e))
+    return _launch.supervise(argv, cluster, ns.out)
 
 
 if __name__ == "__main__":

@@ -135,6 +135,8 @@ def test_imports_point_down_only():
     ("nmrl.paper", {"orbax", "matplotlib", "imageio", "rich", "csv", "json", "subprocess", "signal"}),
     # nmrl.runs.devices decides the device count before JAX starts
     ("nmrl.runs.devices", {"jax", "jaxlib"}),
+    # the watcher of a distributed process stays small: it never starts JAX
+    ("nmrl.runs.launch", {"jax", "jaxlib", "numpy"}),
     # statistics do not pull in matplotlib
     ("nmrl.analysis.stats", {"matplotlib"}),
 ])

@@ -42,7 +42,7 @@ from typing import Sequence
 
 from nmrl.analysis import plots, stats
 from nmrl.paper.learner import TrainConfig
-from nmrl.runs import driver, store
+from nmrl.runs import distributed as dist, driver, store
 from nmrl.runs.driver import Stopped  # noqa: F401  (raised by run_sweep after a signal)
 from nmrl.runs.points import slot_order, stack_trees  # noqa: F401  (the sweep's layout, nmrl/runs/points.py)
 
@@ -176,8 +176,11 @@ def run_sweep(spec: SweepSpec, out: str | os.PathLike, *, resume: bool = False, 
     new_spec = not resume or base != TrainConfig(**saved["base"])
     spec = dataclasses.replace(spec, base=base)
     last_plot = [0.0]
+    writer = dist.is_writer()  # several processes (nmrl/runs/distributed.py): only process 0 writes
 
     def on_chunk():
+        if not writer:
+            return
         results = write_results(out, spec)
         if plot and time.time() - last_plot[0] >= PLOT_EVERY_S:
             draw(out, results)
@@ -187,16 +190,17 @@ def run_sweep(spec: SweepSpec, out: str | os.PathLike, *, resume: bool = False, 
     begun: list[bool] = []
 
     def before_start() -> None:  # every check passed: the sweep's own files
-        if new_spec:
+        if new_spec and writer:
             _write_spec(out, spec)
         begun.append(True)
 
+    results: list[dict] = []  # (a process other than 0 writes and returns none)
     try:
         driver.run_points(out, names, spec.point_configs(), resume=resume, progress=progress, keep=keep,
                           max_chunks=max_chunks, checkpoint_every=checkpoint_every, on_chunk=on_chunk,
                           priority=spec.stages(), group=group, devices=devices, before_start=before_start)
     finally:
-        if begun:
+        if begun and writer:
             results = write_results(out, spec)
             if plot and (out / "points").is_dir():
                 draw(out, results)

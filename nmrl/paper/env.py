@@ -204,8 +204,11 @@ class HalfCheetah:
             )
         self.n_substeps = int(round(n_sub))
         self.mj_model = mj
-        self.model = mjx.put_model(mj)
-        d = mjx.make_data(self.model)
+        # This process's own device: MJX's default, jax.devices()[0], belongs to process 0 in a
+        # multi-process run (nmrl/runs/distributed.py); in a 1-process run the two are the same.
+        dev = jax.local_devices()[0]
+        self.model = mjx.put_model(mj, device=dev)
+        d = mjx.make_data(self.model, device=dev)
         d = jax.jit(mjx.forward)(self.model, d)
         # Rows of the constraint Jacobian that are joint limits (static layout in MJX).
         efc_type = np.asarray(d._impl.efc_type)

@@ -204,13 +204,23 @@ def _quiet_absl() -> Iterator[None]:
 def _manager(directory: pathlib.Path, *, keep: int | None = None, read_only: bool = False,
              save_interval_steps: int | None = None):
     ocp = _ocp()
+    extra: dict[str, Any] = {} if save_interval_steps is None else {"save_interval_steps": save_interval_steps}
+    create = not read_only
+    if jax.process_count() > 1:
+        # A multi-process run (nmrl/runs/distributed.py): checkpoints hold host arrays gathered from
+        # every process and only process 0 saves, so each process's manager works alone (no barriers).
+        me = jax.process_index()
+        extra["multiprocessing_options"] = ocp.options.MultiprocessingOptions(primary_host=me, active_processes={me})
+        if create:
+            directory.mkdir(parents=True, exist_ok=True)
+        create = False
     opts = ocp.CheckpointManagerOptions(
         max_to_keep=keep,
-        create=not read_only,
+        create=create,
         read_only=read_only,
         enable_async_checkpointing=False,
         cleanup_tmp_directories=not read_only,
-        **({} if save_interval_steps is None else {"save_interval_steps": save_interval_steps}),
+        **extra,
     )
     return ocp.CheckpointManager(directory, options=opts, item_names=ITEMS)
 
@@ -316,7 +326,7 @@ def _policy_template(meta: dict) -> dict[str, Params]:
 
 
 def _abstract(tree: Any) -> Any:
-    sharding = jax.sharding.SingleDeviceSharding(jax.devices()[0])
+    sharding = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
     return jax.tree.map(lambda s: jax.ShapeDtypeStruct(s.shape, s.dtype, sharding=sharding), tree)
 
 
@@ -598,7 +608,7 @@ def _check_config(meta: dict, config: TrainConfig) -> None:
 
 
 def _to_device(x: np.ndarray) -> jax.Array:
-    return jax.device_put(x, jax.devices()[0])
+    return jax.device_put(x, jax.local_devices()[0])
 
 
 def restore(run_dir: str | os.PathLike, trainer: Trainer, step: int | None = None) -> TrainState:
@@ -648,12 +658,12 @@ def restore(run_dir: str | os.PathLike, trainer: Trainer, step: int | None = Non
     if _digest(host) != meta["state_digest"]:
         raise CorruptCheckpoint(f"{path}: the state data does not match its digest (corrupted checkpoint)")
     leaves = [
-        _to_device(host[n]) if n in host else jax.device_put(jnp.zeros(t.shape, t.dtype), jax.devices()[0])
+        _to_device(host[n]) if n in host else jax.device_put(jnp.zeros(t.shape, t.dtype), jax.local_devices()[0])
         for n, t in zip(names, tleaves)
     ]
     ts = jax.tree_util.tree_unflatten(treedef, leaves)
     if migrate and opt_names:
-        opt_theta, opt_v = jax.device_put(trainer.init_opt(ts.theta, ts.v, ts.hyper), jax.devices()[0])
+        opt_theta, opt_v = jax.device_put(trainer.init_opt(ts.theta, ts.v, ts.hyper), jax.local_devices()[0])
         ts = ts.replace(opt_theta=opt_theta, opt_v=opt_v)
     return ts
 

@@ -44,7 +44,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from nmrl.paper.learner import Hyper, TrainConfig, Trainer, make_train
-from nmrl.runs import checkpoint, sharding, store
+from nmrl.runs import checkpoint, distributed as dist, sharding, store
 from nmrl.runs import points as pts
 from nmrl.runs.store import (CONFIG_FILE, METRICS_FILE, RESUMES_FILE, RUN_FILES, append_metrics,  # noqa: F401
                              is_diverged, read_metrics, to_python, truncate_metrics)
@@ -143,16 +143,29 @@ def existing_step(run_dir: pathlib.Path) -> int | None:
         return None
 
 
-def _num_shards(cfg: TrainConfig, devices: int | None = None) -> int:
-    """Local devices the environment batch is split over: ``devices`` (default: all local devices),
-    lowered to the largest count that divides N."""
+def _train_devices(cfg: TrainConfig, devices: int | None = None) -> list:
+    """The devices the environment batch is split over: ``devices`` per process (default: all local
+    devices). One process lowers the count to the largest that divides N; several processes
+    (nmrl/runs/distributed.py) use the same count on each and need N to be a multiple of the total."""
     avail = len(jax.local_devices())
     if devices is not None and not (isinstance(devices, int) and 1 <= devices <= avail):
         raise RunError(f"devices={devices!r} is invalid: this process has {avail} local device(s)")
     n = avail if devices is None else devices
-    while cfg.num_envs % n:
-        n -= 1
-    return n
+    if not dist.active():
+        while cfg.num_envs % n:
+            n -= 1
+        return jax.local_devices()[:n]
+    devs = sharding.process_devices(n)
+    if cfg.num_envs % len(devs):
+        raise RunError(f"num_envs={cfg.num_envs} is invalid for {jax.process_count()} processes with {n} device(s) "
+                       f"each: the environments are split over all {len(devs)} devices, so N must be a multiple "
+                       f"of {len(devs)}")
+    return devs
+
+
+def _num_shards(cfg: TrainConfig, devices: int | None = None) -> int:
+    """How many devices (of every process) the environment batch is split over (:func:`_train_devices`)."""
+    return len(_train_devices(cfg, devices))
 
 
 def _sharded_trainer(cfg: TrainConfig, trainer, devices: int | None = None):
@@ -395,14 +408,15 @@ def _begin_resumed(p: _Point) -> None:
 
 
 class _OneRun:
-    """Layout of :func:`train`: one point, its environments split over ``n_dev`` devices."""
+    """Layout of :func:`train`: one point, its environments split over ``n_dev`` devices (of every
+    process in a multi-process run)."""
 
     def __init__(self, p: _Point, devices: int | None):
-        self.n_dev = n_dev = _num_shards(p.cfg, devices)
+        devs = _train_devices(p.cfg, devices)
+        self.n_dev = n_dev = len(devs)
         trainer = _sharded_trainer(p.cfg, p.trainer, devices)
         if n_dev > 1:
-            program, self.place = sharding.shard_train_chunk(trainer.chunk, p.ts,
-                                                             sharding.make_mesh(jax.local_devices()[:n_dev]))
+            program, self.place = sharding.shard_train_chunk(trainer.chunk, p.ts, sharding.make_mesh(devs))
         else:
             program, self.place = trainer.chunk, jax.device_put
         self.ts = self.place(p.ts)  # committed inputs: no second, hidden compile of the chunk
@@ -414,47 +428,62 @@ class _OneRun:
 
     def run(self, active: np.ndarray) -> list[dict | None]:
         ts_new, m = self.chunk(self.ts)
-        m = to_python(jax.device_get(m))
+        m = to_python(dist.host(m))
         self.ts = self.place(ts_new)
         return [m]
 
     def state(self, i: int):
-        return self.ts
+        """The state to checkpoint (several processes: gathered to the host, a collective)."""
+        return dist.host(self.ts) if dist.active() else self.ts
 
     def counters(self, i: int) -> tuple[int, int, bool]:
-        return int(self.ts.step), int(self.ts.trials), bool(self.ts.diverged)
+        step, trials, div = dist.host((self.ts.step, self.ts.trials, self.ts.diverged))
+        return int(step), int(trials), bool(div)
 
 
 class _Points:
     """Layout of :func:`run_points`: the stacked points over ``n_dev`` devices (nmrl/runs/points.py)."""
 
-    def __init__(self, ps: Sequence[_Point], n_dev: int, group: int, order: Sequence[int]):
-        self.n_dev = n_dev
+    def __init__(self, ps: Sequence[_Point], n_dev: int, group: int, order: Sequence[int],
+                 devices: Sequence | None = None):
+        self.n_dev, self.devices = n_dev, devices
         self.slots = pts.slot_order(len(ps), n_dev, order)
         self.slot_of = {i: j for j, i in enumerate(self.slots) if i >= 0}
-        self.ts = pts.place_points(pts.stack_trees([ps[i if i >= 0 else 0].ts for i in self.slots]), n_dev)
-        self.program = pts.points_program(ps[0].trainer.chunk, n_dev, group)
+        self.ts = self._place(pts.stack_trees([ps[i if i >= 0 else 0].ts for i in self.slots]))
+        self.program = pts.points_program(ps[0].trainer.chunk, n_dev, group, devices=devices)
         self.per_dev = len(self.slots) // n_dev
+        self._host = None  # the host copy of the states gathered for this chunk's saves (several processes)
+
+    def _place(self, tree):
+        return pts.place_points(tree, self.n_dev, devices=self.devices)
 
     def compile(self) -> float:
         t0 = time.time()
-        active_like = pts.place_points(jnp.zeros(len(self.slots), bool), self.n_dev)
+        active_like = self._place(np.zeros(len(self.slots), bool))
         self.chunk = jax.jit(self.program, donate_argnums=0).lower(self.ts, active_like).compile()
         return time.time() - t0
 
     def run(self, active: np.ndarray) -> list[dict | None]:
         act_slots = np.array([i >= 0 and active[i] for i in self.slots])
-        self.ts, m = self.chunk(self.ts, pts.place_points(jnp.asarray(act_slots), self.n_dev))
-        m = jax.device_get(m)
+        self.ts, m = self.chunk(self.ts, self._place(jnp.asarray(act_slots)))
+        self._host = None
+        m = dist.host(m)
         return [to_python({k: v[self.slot_of[i]] for k, v in m.items()}) if a else None
                 for i, a in enumerate(active)]
 
     def state(self, i: int):
-        return pts.unstack(self.ts, self.slot_of[i])
+        """Point ``i``'s state (several processes: from one host copy of every point per chunk,
+        gathered at the first save -- a collective every process makes at the same save)."""
+        if not dist.active():
+            return pts.unstack(self.ts, self.slot_of[i])
+        if self._host is None:
+            self._host = dist.host(self.ts)
+        return pts.unstack(self._host, self.slot_of[i])
 
     def counters(self, i: int) -> tuple[int, int, bool]:
         j = self.slot_of[i]
-        return int(self.ts.step[j]), int(self.ts.trials[j]), bool(self.ts.diverged[j])
+        step, trials, div = dist.host((self.ts.step, self.ts.trials, self.ts.diverged))
+        return int(step[j]), int(trials[j]), bool(div[j])
 
 
 def _drive(ps: Sequence[_Point], layout, *, stages: list[list[int]], checkpoint_every: int, keep: int,
@@ -464,9 +493,11 @@ def _drive(ps: Sequence[_Point], layout, *, stages: list[list[int]], checkpoint_
     their metrics rows, checkpoint them, report progress, stop on signals. Returns the rows written
     (every point's, in order). A diverged point raises :class:`Diverged` (``freeze_diverged`` False)
     or is frozen at its last good checkpoint while the others go on."""
+    writer = dist.is_writer()  # several processes: only process 0 writes (nmrl/runs/distributed.py)
     ckpts = [checkpoint.Checkpointer(p.dir, keep=keep, every_steps=checkpoint_every * p.cfg.chunk_steps)
-             for p in ps]
+             if writer else None for p in ps]
     done = np.zeros(len(ps), bool)
+    dist.barrier("drive")  # several processes: every one has compiled (counters() may gather)
     for i, p in enumerate(ps):
         step, trials, div = layout.counters(i)
         done[i] = budget_done(p.cfg, step, trials) or (freeze_diverged and (div or p.frozen))
@@ -475,15 +506,19 @@ def _drive(ps: Sequence[_Point], layout, *, stages: list[list[int]], checkpoint_
     n_chunks = 0
 
     def save(i: int) -> None:
-        one = layout.state(i)
-        ckpts[i].save(one, ps[i].cfg)
-        if compact:
-            checkpoint.save_compact(ps[i].dir, one, ps[i].cfg)
+        one = layout.state(i)  # every process (a gather when there are several)
+        if writer:
+            ckpts[i].save(one, ps[i].cfg)
+            if compact:
+                checkpoint.save_compact(ps[i].dir, one, ps[i].cfg)
         unsaved.discard(i)
 
     stop, restore_signals = stop_on_signals()
     try:
         while not done.all():
+            # several processes: start every chunk together (their compiles and process 0's saves take
+            # different times; the collectives inside a chunk would wait only gloo's own 30 s)
+            dist.barrier(f"chunk-{n_chunks}")
             stage = next(st for st in stages if not all(done[i] for i in st))
             active = np.zeros(len(ps), bool)
             active[[i for i in stage if not done[i]]] = True
@@ -492,33 +527,45 @@ def _drive(ps: Sequence[_Point], layout, *, stages: list[list[int]], checkpoint_
             wall = time.time() - t0
             n_active = int(active.sum())
             new: dict[int, dict] = {}
+            want = np.zeros(len(ps), bool)  # the points this process would checkpoint now
             for i, p in enumerate(ps):
                 if not active[i]:
                     continue
                 row = metrics_row(p.cfg, ms[i], wall, points=n_active)
-                append_metrics(p.dir, row)
+                if writer:
+                    append_metrics(p.dir, row)
                 rows.append(row)
                 new[i] = row
                 if is_diverged(row):
                     done[i] = True  # its last good checkpoint is kept; frozen from now on
                     if not freeze_diverged:
+                        last = ckpts[i].latest_step() if writer else "the newest"
                         raise Diverged(
                             f"training diverged at step {row['step']} (theta norm {row['theta_norm']:.3g}, v norm "
                             f"{row['v_norm']:.3g}, limit {p.cfg.max_param_norm:g}); the last good checkpoint "
-                            f"(step {ckpts[i].latest_step()}) is kept in {p.dir}. Try smaller step sizes.")
+                            f"(step {last}) is kept in {p.dir}. Try smaller step sizes.")
                     continue
                 finished = budget_done(p.cfg, row["step"], row["trials"])
-                if (finished or checkpoint_every == 1 or stop["signal"] is not None
-                        or ckpts[i].should_save(row["step"])):
+                want[i] = (finished or checkpoint_every == 1 or stop["signal"] is not None
+                           or (writer and ckpts[i].should_save(row["step"])))
+                if finished:
+                    done[i] = True
+            # several processes: process 0's checkpoint decisions, and a signal that reached any of them
+            signum, want = _agreed(stop["signal"], want)
+            for i, row in new.items():
+                if is_diverged(row):
+                    continue
+                if want[i] or signum is not None:
                     save(i)
                 else:
                     unsaved.add(i)
-                if finished:
-                    done[i] = True
             if on_chunk is not None:
                 on_chunk(new)
             n_chunks += 1
-            if stop["signal"] is not None:
+            if not dist.active():  # one process: a signal during on_chunk stops now, too
+                signum = stop["signal"]
+            if signum is not None:
+                stop["signal"] = signum
                 for i in sorted(unsaved):  # the signal came after this chunk's saves
                     save(i)
                 step = max(r["step"] for r in new.values()) if new else 0
@@ -529,8 +576,20 @@ def _drive(ps: Sequence[_Point], layout, *, stages: list[list[int]], checkpoint_
     finally:
         restore_signals()
         for c in ckpts:
-            c.close()
+            if c is not None:
+                c.close()
     return rows
+
+
+def _agreed(signum: int | None, want: np.ndarray) -> tuple[int | None, np.ndarray]:
+    """``(signal, save mask)`` every process acts on after a chunk: the largest signal number any
+    process received (None: none) and process 0's checkpoint decisions (one small collective; one
+    process: its own)."""
+    if not dist.active():
+        return signum, want
+    table = dist.exchange(np.concatenate([[signum or 0], want.astype(np.int32)]))
+    s = int(table[:, 0].max())
+    return (s or None), table[0, 1:].astype(bool)
 
 
 # ----------------------------------------------------------------------------- one run
@@ -570,15 +629,19 @@ def train(cfg: TrainConfig, out: str | os.PathLike, *, resume: bool = False, pro
                   f"--steps or --trials to continue", file=sys.stderr, flush=True)
             return []
         p = _Point(out.name, out, cfg, trainer, ts, record=record)
-        _begin_resumed(p)
+        dist.barrier("train-checked")  # several processes: all have read the run before process 0 writes
+        if dist.is_writer():
+            _begin_resumed(p)
     else:
         check_config(cfg)
         cfg = cfg.resolved()
         _fresh_out(out)
         trainer = make_train(cfg)
         _num_shards(cfg, devices)
-        _create_dir(out)
-        store.write_config(out, cfg)
+        dist.barrier("train-checked")
+        if dist.is_writer():
+            _create_dir(out)
+            store.write_config(out, cfg)
         p = _Point(out.name, out, cfg, trainer, jax.jit(trainer.init)(jax.random.PRNGKey(cfg.seed)))
     if cfg.steps is not None and cfg.steps % cfg.chunk_steps:
         end = math.ceil(cfg.steps / cfg.chunk_steps) * cfg.chunk_steps
@@ -586,9 +649,11 @@ def train(cfg: TrainConfig, out: str | os.PathLike, *, resume: bool = False, pro
               f"the run stops after whole chunks, at step {end}", file=sys.stderr, flush=True)
     layout = _OneRun(p, devices)
     n_dev = layout.n_dev
+    progress = progress and dist.is_writer()
     if progress:
+        procs = f", {jax.process_count()} processes" if dist.active() else ""
         print(f"train: {cfg.num_envs} environments on {n_dev} device(s), {cfg.num_envs // n_dev} per device "
-              f"({len(jax.local_devices())} local {jax.local_devices()[0].platform} device(s))",
+              f"({len(jax.local_devices())} local {jax.local_devices()[0].platform} device(s){procs})",
               file=sys.stderr, flush=True)
     compile_s = layout.compile()
     if progress:
@@ -659,7 +724,12 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[T
     n_dev = n_avail if devices is None else devices
     if not (isinstance(n_dev, int) and 1 <= n_dev <= n_avail):
         raise ValueError(f"devices={devices!r} is invalid: this process has {n_avail} local device(s)")
-    n_dev = min(n_dev, P_)
+    mesh_devices = None
+    if dist.active():  # every process's devices; a process may hold only idle slots
+        mesh_devices = sharding.process_devices(n_dev)
+        n_dev = len(mesh_devices)
+    else:
+        n_dev = min(n_dev, P_)
     dirs = [out / "points" / n for n in names]
 
     env = None
@@ -672,10 +742,12 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[T
             env = env or tr.env
             ps.append(_Point(n, d, cfg, tr, ts, frozen=frozen, record=record))
         pts.check_one_program(names, [p.cfg for p in ps])
+        dist.barrier("points-checked")  # several processes: all have read the points before process 0 writes
         if before_start is not None:
             before_start()
-        for p in ps:  # every point's checks passed: now write
-            _begin_resumed(p)
+        if dist.is_writer():
+            for p in ps:  # every point's checks passed: now write
+                _begin_resumed(p)
     else:
         trainers = [make_train(configs[0])]
         trainers += [make_train(c, env=trainers[0].env) for c in configs[1:]]
@@ -684,13 +756,16 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[T
         ts = init(keys, pts.stack_trees([Hyper.from_config(c) for c in configs]))
         ps = [_Point(n, d, c, tr, pts.unstack(ts, i)) for i, (n, d, c, tr) in enumerate(zip(names, dirs, configs, trainers))]
         del ts
+        dist.barrier("points-checked")
         if before_start is not None:
             before_start()
-        for p in ps:
-            _begin_fresh(p)
-    layout = _Points(ps, n_dev, group, [i for st in stages for i in st])
+        if dist.is_writer():
+            for p in ps:
+                _begin_fresh(p)
+    layout = _Points(ps, n_dev, group, [i for st in stages for i in st], devices=mesh_devices)
     for p in ps:
         p.ts = None  # the layout holds the states now
+    progress = progress and dist.is_writer()
     if progress:
         print(f"sweep: {P_} points x {configs[0].num_envs} environments on {n_dev} "
               f"{jax.local_devices()[0].platform} device(s), {layout.per_dev} point(s) per device stepped "

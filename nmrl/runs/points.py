@@ -80,7 +80,7 @@ def slot_order(num_points: int, num_devices: int, priority: Sequence[int] | None
     return slots
 
 
-def points_program(chunk: Callable, num_devices: int, group: int = 1) -> Callable:
+def points_program(chunk: Callable, num_devices: int, group: int = 1, devices: Sequence | None = None) -> Callable:
     """The points' layout: ``program(ts, active) -> (ts, metrics)`` for stacked point states.
 
     The points are split over ``num_devices`` devices with ``shard_map`` (no communication at all).
@@ -88,7 +88,8 @@ def points_program(chunk: Callable, num_devices: int, group: int = 1) -> Callabl
     groups of that many), so a device only ever works on one point's environments at a time: MJX's
     cost per environment step on a CPU grows with the batch one device holds (benchmarks/bench_sweep.py).
     A point whose ``active`` flag is False is skipped (``lax.cond``; with ``group`` > 1 it is computed
-    and discarded) and comes back unchanged, with zero metrics.
+    and discarded) and comes back unchanged, with zero metrics. ``devices`` (default: the first
+    ``num_devices`` local devices) may span several processes (nmrl/runs/distributed.py).
     """
     if not (isinstance(group, int) and not isinstance(group, bool) and group >= 1):
         raise ValueError(f"group={group!r} is invalid: points vmapped together must be an integer >= 1")
@@ -103,15 +104,16 @@ def points_program(chunk: Callable, num_devices: int, group: int = 1) -> Callabl
 
         return jax.lax.map(one, (ts, active), batch_size=None if group == 1 else group)
 
-    if num_devices == 1:
+    if num_devices == 1 and devices is None:
         return per_device
-    mesh = sharding.make_mesh(jax.local_devices()[:num_devices])
+    mesh = sharding.make_mesh(jax.local_devices()[:num_devices] if devices is None else devices)
     return jax.shard_map(per_device, mesh=mesh, in_specs=(P(sharding.AXIS), P(sharding.AXIS)),
                          out_specs=P(sharding.AXIS), check_vma=False)
 
 
-def place_points(tree, num_devices: int):
+def place_points(tree, num_devices: int, devices: Sequence | None = None):
     """Lay a stacked pytree out as :func:`points_program` expects (its slots over the devices)."""
-    if num_devices == 1:
+    if num_devices == 1 and devices is None:
         return jax.device_put(tree, jax.local_devices()[0])
-    return sharding.shard_batch(tree, sharding.make_mesh(jax.local_devices()[:num_devices]))
+    return sharding.shard_batch(tree, sharding.make_mesh(jax.local_devices()[:num_devices] if devices is None
+                                                         else devices))

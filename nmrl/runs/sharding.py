@@ -41,6 +41,38 @@ def make_mesh(devices=None) -> Mesh:
     return Mesh(np.array(devs), (AXIS,))
 
 
+def process_devices(per_process: int | None = None) -> list:
+    """The first ``per_process`` devices of every process (default: all), in process order.
+
+    In a 1-process run these are the local devices; in a multi-process run (nmrl/runs/distributed.py)
+    the mesh over them spans every process, each contributing the same number of devices.
+    """
+    out = []
+    for p in range(jax.process_count()):
+        mine = sorted((d for d in jax.devices() if d.process_index == p), key=lambda d: d.id)
+        out += mine if per_process is None else mine[:per_process]
+    return out
+
+
+def put(tree: Any, shardings: Any) -> Any:
+    """``jax.device_put(tree, shardings)``, also where the shardings span several processes.
+
+    Across processes every process passes the same (host or local) values; each keeps the shards
+    of its own devices (``jax.make_array_from_callback``). An array already laid out as asked is
+    passed through.
+    """
+    if jax.process_count() == 1:
+        return jax.device_put(tree, shardings)
+
+    def one(x, s):
+        if isinstance(x, jax.Array) and x.sharding == s:
+            return x
+        h = np.asarray(x)
+        return jax.make_array_from_callback(h.shape, s, lambda idx: h[idx])
+
+    return jax.tree.map(one, tree, shardings)
+
+
 def _sharding(x, mesh: Mesh) -> NamedSharding:
     shape = np.shape(x)
     if len(shape) == 0 or int(np.prod(shape)) == 0:
@@ -53,7 +85,7 @@ def _sharding(x, mesh: Mesh) -> NamedSharding:
 def shard_batch(tree: Any, mesh: Mesh | None = None) -> Any:
     """Place a batched pytree (leading axis = batch) split over ``mesh``; zero-size leaves replicated."""
     mesh = make_mesh() if mesh is None else mesh
-    return jax.device_put(tree, jax.tree.map(lambda x: _sharding(x, mesh), tree))
+    return put(tree, jax.tree.map(lambda x: _sharding(x, mesh), tree))
 
 
 def shard_map_batch(f: Callable, mesh: Mesh | None = None, jit: bool = True) -> Callable:
@@ -81,6 +113,6 @@ def shard_train_chunk(chunk: Callable, ts: Any, mesh: Mesh) -> tuple[Callable, C
     program = jax.shard_map(chunk, mesh=mesh, in_specs=(specs,), out_specs=(specs, P()), check_vma=False)
 
     def place(t: Any) -> Any:
-        return jax.device_put(t, shardings)
+        return put(t, shardings)
 
     return program, place

@@ -1,0 +1,116 @@
+"""``nmrl train`` as 2 processes (1 CPU device each, jax.distributed over 127.0.0.1) vs 1 process
+with 2 devices: the same mesh size, the same program but for where the psum of the summed update
+runs (gloo over TCP between processes vs in-process), measured end to end through the CLI.
+
+Each contender is a real ``nmrl train`` run (the paper preset, ``NUM_ENVS`` environments, chunks
+of ``CHUNK_STEPS`` control steps) into a fresh run directory; its steady-state speed is the median
+of the per-chunk ``steps_per_s`` in metrics.jsonl (chunk 1 left out: its first call), its compile
+time the "compiled the training chunk in X s" line (reported apart; the persistent compile cache
+may make it a cache hit). The contenders alternate (1 process, 2 processes, 1 process, ...) and the
+ratio is the median over rounds of the per-round ratio, so a background load affects both alike.
+
+``run(quick) -> dict``; ``python -m benchmarks.bench_distributed [--quick]`` prints it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pathlib
+import re
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+NUM_ENVS = 64
+CHUNK_STEPS = 100
+COMMON = ["--num-envs", str(NUM_ENVS), "--chunk-steps", str(CHUNK_STEPS)]
+_COMPILED = re.compile(r"compiled the training chunk .* in ([\d.]+) s")
+
+
+def _port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _env() -> dict:
+    env = dict(os.environ)
+    env.pop("XLA_FLAGS", None)
+    env["JAX_PLATFORMS"] = "cpu"
+    env.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.expanduser("~/.cache/nmrl/xla"))
+    return env
+
+
+def one_run(processes: int, steps: int, timeout: float) -> dict:
+    """One ``nmrl train`` of ``steps`` control steps as ``processes`` processes (1: with 2 devices)."""
+    with tempfile.TemporaryDirectory(prefix="nmrl_bench_dist_") as tmp:
+        out = pathlib.Path(tmp) / "run"
+        base = [sys.executable, "-m", "nmrl.cli", "train", *COMMON, "--steps", str(steps), "--out", str(out)]
+        if processes == 1:
+            cmds = [base + ["--devices", "2"]]
+        else:
+            port = _port()
+            cmds = [base + ["--devices", "1", "--coordinator", f"127.0.0.1:{port}", "--num-processes",
+                            str(processes), "--process-id", str(i), "--dist-timeout", "120"] for i in range(processes)]
+        t0 = time.perf_counter()
+        ps = [subprocess.Popen(c, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for c in cmds]
+        try:
+            res = [p.communicate(timeout=timeout) for p in ps]
+        except subprocess.TimeoutExpired:
+            for p in ps:
+                p.kill()
+            return {"processes": processes, "error": f"timeout after {timeout:.0f} s"}
+        wall = time.perf_counter() - t0
+        if any(p.returncode for p in ps):
+            return {"processes": processes, "error": f"exit status {[p.returncode for p in ps]}",
+                    "stderr_tail": res[0][1][-1500:]}
+        rows = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
+        m = _COMPILED.search(res[0][1])
+        rates = [r["steps_per_s"] for r in rows[1:]]
+        return {"processes": processes, "devices_per_process": 2 if processes == 1 else 1, "chunks": len(rows),
+                "compile_s": float(m.group(1)) if m else None, "control_steps_per_s": statistics.median(rates),
+                "per_chunk_steps_per_s": rates, "wall_s": wall}
+
+
+def run(quick: bool = False) -> dict:
+    rounds = 1 if quick else 3
+    steps = CHUNK_STEPS * (4 if quick else 8)
+    timeout = 900
+    t0 = time.perf_counter()
+    runs = {"one_process_two_devices": [], "two_processes_one_device_each": []}
+    ratios = []
+    for _ in range(rounds):
+        a = one_run(1, steps, timeout)
+        b = one_run(2, steps, timeout)
+        runs["one_process_two_devices"].append(a)
+        runs["two_processes_one_device_each"].append(b)
+        if "error" not in a and "error" not in b:
+            ratios.append(b["control_steps_per_s"] / a["control_steps_per_s"])
+    out = {
+        "benchmark": "nmrl train: 2 processes x 1 CPU device (jax.distributed, gloo) vs 1 process x 2 devices",
+        "quick": quick,
+        "config": {"num_envs": NUM_ENVS, "chunk_steps": CHUNK_STEPS, "steps": steps, "rounds": rounds,
+                   "preset": "paper", "statistic": "median over rounds of the per-round ratio of the runs' "
+                   "median per-chunk control steps/s (first chunk left out)"},
+        "runs": runs,
+        "two_processes_over_one_process": statistics.median(ratios) if ratios else None,
+        "failed": len(ratios) < rounds,
+        "load_avg": list(os.getloadavg()),
+        "wall_s": time.perf_counter() - t0,
+    }
+    r = out["two_processes_over_one_process"]
+    print(f"distributed: 2 processes / 1 process with 2 devices = {r:.2f}x" if r else "distributed: failed",
+          file=sys.stderr, flush=True)
+    return out
+
+
+if __name__ == "__main__":
+    import argparse
+
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--quick", action="store_true")
+    print(json.dumps(run(ap.parse_args().quick), indent=1))
