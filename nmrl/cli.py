@@ -341,7 +341,7 @@ def _watch(argv: list[str]) -> int | None:
     """A distributed ``train``/``sweep`` (``--coordinator`` given): run it in a watched child process
     (nmrl/runs/launch.py) and return its status; None for a 1-process command. Only the options of
     several processes are read here (no JAX); the child checks the rest before it connects."""
-    pre = argparse.ArgumentParser(prog=f"nmrl {argv[0]}", add_help=False, allow_abbrev=False)
+    pre = argparse.ArgumentParser(prog=f"nmrl {argv[0]}", add_help=False)
     add_distributed_options(pre)
     pre.add_argument("--out", default=None)
     ns, _ = pre.parse_known_args(argv[1:])

@@ -242,22 +242,34 @@ def test_two_process_sweep_equals_one_process(tmp_path, env):
         assert np.isclose(x["avg_reward"], y["avg_reward"], rtol=1e-5, atol=1e-6)
 
 
+def start_long_run(out: pathlib.Path, env: dict, timeout: int, rows: int) -> list[subprocess.Popen]:
+    """A 2-process ``train`` with a budget it will not reach, once it has written ``rows`` chunks."""
+    port = free_port()
+    ps = [nmrl(["train", *TINY, "--steps", "100000", "--out", str(out)] + dist_args(port, i, 2, timeout), env)
+          for i in range(2)]
+    t_end = time.time() + 600
+    while time.time() < t_end and not ((out / "metrics.jsonl").exists() and len(metrics(out)) >= rows):
+        if not all(p.poll() is None for p in ps):
+            for p in ps:
+                p.kill()
+            raise AssertionError([p.communicate() for p in ps])
+        time.sleep(0.5)
+    if not (out / "metrics.jsonl").exists() or len(metrics(out)) < rows:
+        for p in ps:
+            p.kill()
+        raise AssertionError(f"no {rows} chunks within 600 s")
+    return ps
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("victim", [1, 0])
 def test_killed_process_stops_the_other(train_runs, tmp_path, env, victim):
     """(c) SIGKILL one process's worker mid-run: the other exits 4 with a clear error well within
     the timeout (no hang), and the newest checkpoint resumes in 1 process."""
     out = tmp_path / "run"
-    port = free_port()
     # the program of train_runs' 2-process run: a compilation-cache hit
-    ps = [nmrl(["train", *TINY, "--steps", "100000", "--out", str(out)] + dist_args(port, i, 2, 30), env)
-          for i in range(2)]
+    ps = start_long_run(out, env, timeout=30, rows=2)
     try:
-        t_end = time.time() + 600
-        while time.time() < t_end and not ((out / "metrics.jsonl").exists() and len(metrics(out)) >= 2):
-            assert all(p.poll() is None for p in ps), [p.communicate() for p in ps]
-            time.sleep(0.5)
-        assert len(metrics(out)) >= 2
         # the worker's pid is on its "connected" line; the watcher (ps[victim]) would forward signals
         with open(f"/proc/{ps[victim].pid}/task/{ps[victim].pid}/children") as f:
             child = int(f.read().split()[0])
@@ -284,14 +296,8 @@ def test_killed_process_stops_the_other(train_runs, tmp_path, env, victim):
 def test_sigterm_to_one_process_stops_both_after_the_same_chunk(train_runs, tmp_path, env):
     """A signal that reaches only process 1 stops both after one chunk, every process saved (143)."""
     out = tmp_path / "run"
-    port = free_port()
-    ps = [nmrl(["train", *TINY, "--steps", "100000", "--out", str(out)] + dist_args(port, i, 2, 60), env)
-          for i in range(2)]
+    ps = start_long_run(out, env, timeout=60, rows=1)
     try:
-        t_end = time.time() + 600
-        while time.time() < t_end and not ((out / "metrics.jsonl").exists() and len(metrics(out)) >= 1):
-            assert all(p.poll() is None for p in ps)
-            time.sleep(0.5)
         ps[1].send_signal(signal.SIGTERM)  # the watcher passes it on to its worker
         res = [p.communicate(timeout=120) for p in ps]
     finally:
