@@ -13,6 +13,10 @@ the loop) and shows progress. Two layouts of the same loop:
   (nmrl/runs/points.py: the points over the devices, one at a time per device). A diverged point
   is frozen at its last good checkpoint and the others go on; ``priority`` stages the points.
 
+Several processes (nmrl/runs/distributed.py) run the same loop in lockstep: each chunk starts at
+a barrier, after it they agree on the signal and on process 0's checkpoint decisions, and only
+process 0 writes; every process reads the run directory before that (a barrier in between).
+
 SIGINT/SIGTERM stop either after the chunk in flight, every active point saved (:class:`Stopped`;
 a second signal stops at once; the last checkpoints are intact because checkpoints are written
 atomically).
