@@ -204,12 +204,14 @@ def cmd_eval(args: argparse.Namespace) -> int:
         return _fail(f"--seed={args.seed} is invalid: must be an integer in [0, {SEED_MAX}]")
     if args.step is not None and args.step < 0:
         return _fail(f"--step={args.step} is invalid: a checkpoint step is >= 0")
+    if args.out is not None and os.path.exists(args.out) and not os.path.isdir(args.out):
+        return _fail(f"--out={args.out!r} is invalid: it exists and is not a directory")
     from nmrl.runs import checkpoint
     from nmrl.analysis import evaluate
 
     try:
         result = evaluate.evaluate(args.run, step=args.step, seconds=args.seconds, seed=args.seed,
-                                   render=not args.no_render,
+                                   render=not args.no_render, out_dir=args.out,
                                    warn=lambda m: print(f"nmrl: warning: {m}", file=sys.stderr, flush=True))
     except checkpoint.CheckpointError as e:
         return _fail(str(e))
@@ -295,13 +297,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_sweep)
 
     p = sub.add_parser("eval", help="restore a policy, roll it out, print JSON, render the gait")
-    p.add_argument("run", help="run directory written by nmrl train")
+    p.add_argument("run", help="run directory written by nmrl train or nmrl sweep (a point), or a published "
+                   "policy directory (compact.npz)")
     p.add_argument("--step", type=int, default=None,
                    help="checkpoint step (default: the newest; a corrupted newest one is skipped with a warning)")
     p.add_argument("--seconds", type=float, default=10.0,
                    help=f"simulated seconds per rollout (at most {MAX_EVAL_SECONDS:g})")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-render", action="store_true", help="skip the strobe PNG and the GIF")
+    p.add_argument("--out", default=None, metavar="DIR",
+                   help="where eval.json, strobe.png and gait.gif go (default: RUN/eval)")
     p.set_defaults(func=cmd_eval)
 
     sub.add_parser("study", help="the finer-delta study: nmrl study --help (nmrl/experiments/study.py)", add_help=False)

@@ -3,9 +3,9 @@
     python scripts/publish_fig3.py runs/fig3_fast results/fig3_fast [--ls 1 10] [--seconds 10]
 
 Copies results.csv, sweep.json, fig3.png and every point's metrics.jsonl; for each l in --ls takes
-the seed with the highest avg_reward, copies its newest checkpoint's *policy* (actor and critic
-parameters plus metadata, small: ``nmrl eval`` restores it; the full training state stays in the
-sweep directory) and evaluates it with ``nmrl.analysis.evaluate`` (JSON, strobe PNG, GIF). Every
+the seed with the highest avg_reward, publishes its newest checkpoint's *policy* (actor and critic
+parameters and counters as ``compact.npz``, ~40 kB: ``nmrl eval`` restores it; the full training
+state stays in the sweep directory) and evaluates it with ``nmrl.analysis.evaluate`` (JSON, strobe PNG, GIF). Every
 file is written atomically (a policy directory is built beside its place and renamed into it).
 """
 
@@ -23,17 +23,16 @@ from nmrl.runs import checkpoint, store
 
 
 def copy_policy(point: pathlib.Path, dest: pathlib.Path) -> pathlib.Path:
-    """The point's newest checkpoint (policy and metadata), config and metrics as ``dest``: built in a
-    temporary directory beside it and renamed into place, so ``dest`` is either the old or the new copy."""
-    step = checkpoint.latest_step(point)
-    src = checkpoint.checkpoint_dir(point) / str(step)
+    """The point's newest checkpoint's policy (actor and critic parameters, step and trials) as
+    ``dest/compact.npz`` (:func:`nmrl.runs.checkpoint.save_compact_policy`, ~40 kB; ``nmrl eval``
+    reads it), with the point's config and metrics: built in a temporary directory beside ``dest``
+    and renamed into place, so ``dest`` is either the old or the new copy. The full training state
+    stays in the sweep directory."""
+    meta = checkpoint.load_metadata(point)
+    config, theta, v = checkpoint.restore_policy(point)
     tmp = dest.with_name(f".{dest.name}.{os.getpid()}.tmp")
     shutil.rmtree(tmp, ignore_errors=True)
-    out = checkpoint.checkpoint_dir(tmp) / str(step)
-    out.mkdir(parents=True)
-    for name in ("policy", "meta", "_CHECKPOINT_METADATA", "commit_success.txt"):
-        p = src / name
-        (shutil.copytree if p.is_dir() else shutil.copy2)(p, out / name)
+    checkpoint.save_compact_policy(tmp, config, theta, v, step=int(meta["step"]), trials=int(meta["trials"]))
     shutil.copy2(point / "config.json", tmp / "config.json")
     shutil.copy2(point / "metrics.jsonl", tmp / "metrics.jsonl")
     old = dest.with_name(f".{dest.name}.{os.getpid()}.old")

@@ -48,3 +48,23 @@ def test_resume_rules(tmp_path, capsys):
     assert cli.main(["train", *TINY, "--steps", "5", "--out", str(tmp_path / "r")]) == 0
     assert cli.main(["train", *TINY, "--steps", "5", "--out", str(tmp_path / "r")]) == 2
     assert "--resume" in capsys.readouterr().err
+
+
+def test_eval_a_published_policy_without_touching_it(tmp_path, capsys):
+    """``nmrl eval`` on a policy published under results/ (compact.npz, no checkpoints) with --out:
+    the output goes to --out, the published eval.json stays as it is, and the policy is the
+    published one (its step, trials and l); an --out that is a file is refused."""
+    import pathlib
+
+    pub = pathlib.Path(__file__).resolve().parents[1] / "results" / "fig3_fast" / "policies" / "l10_best"
+    before = (pub / "eval" / "eval.json").read_bytes()
+    published = json.loads(before)
+    assert cli.main(["eval", str(pub), "--seconds", "1", "--no-render", "--out", str(tmp_path / "ev")]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert (out["step"], out["trials"], out["l"]) == (published["step"], published["trials"], 10)
+    assert json.loads((tmp_path / "ev" / "eval.json").read_text()) == out
+    assert (pub / "eval" / "eval.json").read_bytes() == before
+    assert not (pub / "checkpoints").exists()
+    (tmp_path / "file").write_text("x")
+    assert cli.main(["eval", str(pub), "--out", str(tmp_path / "file")]) == 2
+    assert "--out=" in capsys.readouterr().err

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -132,6 +133,68 @@ def test_bad_path(tmp_path, run):
         evaluate.evaluate(run, step=7, seconds=SECONDS)
     with pytest.raises(ValueError, match="seconds"):
         evaluate.evaluate(run, seconds=0.0)
+
+
+@pytest.fixture(scope="module")
+def compact_run(run, tmp_path_factory):
+    """The newest state of ``run`` published as a compact state only (``compact.npz`` and the run's
+    config.json, no checkpoints directory), as ``results/`` keeps its policies."""
+    out = tmp_path_factory.mktemp("compact_run")
+    trainer = make_train(CFG)
+    ts = checkpoint.restore(run, trainer)
+    checkpoint.save_compact(out, ts, trainer.config)
+    (out / checkpoint.RUN_CONFIG).write_text(json.dumps(dataclasses.asdict(CFG)))
+    return out
+
+
+def test_compact_policy_evaluates_like_its_checkpoint(run, compact_run, result):
+    """A published compact state evaluates exactly as the checkpoint it was made from: the same
+    parameters (bit for bit), the same step and trials, the same deterministic and exploring trials."""
+    assert not checkpoint.checkpoint_dir(compact_run).exists()
+    cfg_a, theta_a, v_a = checkpoint.restore_policy(run)
+    cfg_b, theta_b, v_b = checkpoint.restore_policy(compact_run)
+    assert cfg_a == cfg_b
+    for a, b in ((theta_a, theta_b), (v_a, v_b)):
+        assert jax.tree.structure(a) == jax.tree.structure(b)
+        for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)):
+            assert x.dtype == y.dtype
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    r = evaluate.evaluate(compact_run, seconds=SECONDS, seed=0, render=False)
+    assert r["step"] == result["step"] == 10 and r["trials"] == result["trials"]
+    assert r["deterministic"] == result["deterministic"]
+    assert r["exploring"] == result["exploring"]
+    assert (compact_run / "eval" / "eval.json").is_file()
+
+
+def test_compact_policy_bad_step_and_foreign_config(compact_run, tmp_path):
+    with pytest.raises(CheckpointError, match="compact state is at step 10, not 5"):
+        evaluate.evaluate(compact_run, step=5, seconds=SECONDS, render=False)
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / checkpoint.COMPACT_FILE).write_bytes((compact_run / checkpoint.COMPACT_FILE).read_bytes())
+    (other / checkpoint.RUN_CONFIG).write_text(json.dumps(dataclasses.asdict(dataclasses.replace(CFG, l=7))))
+    with pytest.raises(checkpoint.ForeignCheckpoint, match="l=10 in the checkpoint but 7"):
+        evaluate.evaluate(other, seconds=SECONDS, render=False)
+    data = bytearray((compact_run / checkpoint.COMPACT_FILE).read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    (other / checkpoint.COMPACT_FILE).write_bytes(bytes(data))
+    (other / checkpoint.RUN_CONFIG).unlink()
+    with pytest.raises(CheckpointError, match="compact"):
+        evaluate.evaluate(other, seconds=SECONDS, render=False)
+
+
+def test_published_policy_only_evaluates_like_its_checkpoint_and_cannot_be_trained_on(run, result, tmp_path):
+    """``save_compact_policy`` (a policy copied out of a checkpoint, as results/ publishes it) gives the
+    checkpoint's evaluation; continuing training from it is refused with a clear error."""
+    meta = checkpoint.load_metadata(run)
+    config, theta, v = checkpoint.restore_policy(run)
+    out = tmp_path / "published"
+    checkpoint.save_compact_policy(out, config, theta, v, step=meta["step"], trials=meta["trials"])
+    r = evaluate.evaluate(out, seconds=SECONDS, seed=0, render=False)
+    assert (r["step"], r["trials"]) == (result["step"], result["trials"])
+    assert r["deterministic"] == result["deterministic"] and r["exploring"] == result["exploring"]
+    with pytest.raises(CheckpointError, match="evaluation only"):
+        checkpoint.restore_compact(out, make_train(CFG))
 
 
 def test_initial_pose_is_the_models_reset_pose(run):

@@ -180,9 +180,16 @@ def evaluate(
 
 def select_policy(run: pathlib.Path, step: int | None = None):
     """``(step, (meta, (config, theta, v)), skipped)`` of the checkpoint ``step`` of ``run``, or of its newest
-    good one (skipping corrupted ones: ``skipped``); refuses a checkpoint of another run."""
+    good one (skipping corrupted ones: ``skipped``); refuses a checkpoint of another run.
+
+    A run without checkpoints but with a compact state (a published policy: ``compact.npz``) is
+    evaluated from that state (:func:`nmrl.runs.checkpoint.restore_compact_policy`)."""
     run_cfg = checkpoint.load_run_config(run)
     source = str(run / checkpoint.RUN_CONFIG)
+    if checkpoint.uses_compact(run):
+        meta, config, theta, v = checkpoint.restore_compact_policy(run, step)
+        checkpoint.check_identity(meta, run_cfg, source)
+        return meta["step"], (meta, (config, theta, v)), []
 
     def load(s: int):
         meta = checkpoint.load_metadata(run, s)

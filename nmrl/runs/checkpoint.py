@@ -95,6 +95,9 @@ __all__ = [
     "load_compact",
     "restore_compact",
     "has_compact",
+    "uses_compact",
+    "save_compact_policy",
+    "restore_compact_policy",
     "CorruptCheckpoint",
     "ForeignCheckpoint",
     "RUN_CONFIG",
@@ -673,8 +676,14 @@ def restore_policy(
 ) -> tuple[TrainConfig, Params, Params]:
     """(config, theta, v) of a checkpoint for evaluation; reads only the small ``policy`` item.
 
-    With ``check_model`` (default) a checkpoint trained on another model file raises CheckpointError.
+    A run directory without checkpoints but with a compact state (``compact.npz``, as published
+    under ``results/``) gives that state's policy instead (:func:`restore_compact_policy`; ``step``
+    must then be None or the compact state's step). With ``check_model`` (default) a checkpoint
+    trained on another model file raises CheckpointError.
     """
+    if uses_compact(run_dir):
+        meta, config, theta, v = restore_compact_policy(run_dir, step, check_model=check_model)
+        return config, theta, v
     meta = load_metadata(run_dir, step)
     path = pathlib.Path(meta["path"])
     if check_model:
@@ -807,6 +816,8 @@ if __name__ == "__main__":  # pragma: no cover - `python -m nmrl.runs.checkpoint
 
 COMPACT_FORMAT = "nmrl-compact"
 COMPACT_SCHEMA = 1
+#: ``kind`` of a compact file that holds a policy for evaluation only (:func:`save_compact_policy`).
+POLICY_ONLY = "policy"
 
 
 def compact_path(run_dir: str | os.PathLike) -> pathlib.Path:
@@ -824,23 +835,48 @@ def save_compact(run_dir: str | os.PathLike, ts: TrainState, config: TrainConfig
     enough to commit for every point of a sweep, so that a sweep can continue on a fresh clone
     (:func:`restore_compact`). Written atomically (a temporary file renamed into place).
     """
-    run_dir = pathlib.Path(run_dir)
-    arrays = {}
-    for part in ("theta", "v"):
-        names, leaves, _ = _flatten(getattr(ts, part))
-        arrays.update({f"{part}{_SEP}{n}": np.asarray(x) for n, x in zip(names, leaves)})
+    arrays = _param_arrays(ts.theta, ts.v)
     arrays["key"] = np.asarray(jax.random.key_data(ts.key) if jnp.issubdtype(ts.key.dtype, jax.dtypes.prng_key)
                                else ts.key)
     for k in ("step", "trials", "periods", "diverged"):
         arrays[k] = np.asarray(getattr(ts, k))
-    meta = {"format": COMPACT_FORMAT, "schema": COMPACT_SCHEMA, "config": dataclasses.asdict(config),
-            "model_sha256": _sha256_file(MODEL_PATH), "versions": _versions(),
-            "digest": _digest(arrays)}
-    arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
+    return _write_compact(run_dir, arrays, config, {})
+
+
+def _param_arrays(theta: Params, v: Params) -> dict[str, np.ndarray]:
+    arrays = {}
+    for part, tree in (("theta", theta), ("v", v)):
+        names, leaves, _ = _flatten(tree)
+        arrays.update({f"{part}{_SEP}{n}": np.asarray(x) for n, x in zip(names, leaves)})
+    return arrays
+
+
+def _write_compact(run_dir: str | os.PathLike, arrays: dict[str, np.ndarray], config: TrainConfig,
+                   extra: dict) -> pathlib.Path:
+    """``arrays`` and their metadata (config, model hash, versions, digest, ``extra``) as one npz,
+    written atomically into ``run_dir`` (created if missing)."""
+    meta = {"format": COMPACT_FORMAT, "schema": COMPACT_SCHEMA, **extra, "config": dataclasses.asdict(config),
+            "model_sha256": _sha256_file(MODEL_PATH), "versions": _versions(), "digest": _digest(arrays)}
+    arrays = {**arrays, "meta": np.frombuffer(json.dumps(meta).encode(), np.uint8)}
     path = compact_path(run_dir)
+    path.parent.mkdir(parents=True, exist_ok=True)
     with store.atomic_path(path) as tmp:
         np.savez(tmp, **arrays)
     return path
+
+
+def save_compact_policy(run_dir: str | os.PathLike, config: TrainConfig, theta: Params, v: Params, *,
+                        step: int, trials: int) -> pathlib.Path:
+    """Write a policy (actor and critic parameters, the step and trial counters) in the compact format,
+    for evaluation only: it has no PRNG key, so :func:`restore_compact` refuses to continue from it.
+
+    This is how ``results/`` publishes a policy whose full training state is not kept (e.g. one
+    copied out of an orbax checkpoint's ``policy`` item). Written atomically.
+    """
+    arrays = _param_arrays(theta, v)
+    arrays["step"] = np.asarray(step, np.int32)
+    arrays["trials"] = np.asarray(trials, np.int32)
+    return _write_compact(run_dir, arrays, config, {"kind": POLICY_ONLY})
 
 
 def load_compact(run_dir: str | os.PathLike) -> tuple[dict, dict[str, np.ndarray]]:
@@ -873,6 +909,9 @@ def restore_compact(run_dir: str | os.PathLike, trainer: Trainer) -> TrainState:
     loses nothing, its state holds no statistics; see the module docstring).
     """
     meta, arrays = load_compact(run_dir)
+    if meta.get("kind") == POLICY_ONLY:
+        raise CheckpointError(f"{meta['path']}: holds a published policy for evaluation only (no PRNG key), "
+                              f"not a continuation state; training cannot continue from it")
     _check_model(meta)
     _check_config(meta, trainer.config)
     key = jnp.asarray(arrays["key"])
@@ -894,3 +933,44 @@ def restore_compact(run_dir: str | os.PathLike, trainer: Trainer) -> TrainState:
                       step=jnp.asarray(arrays["step"], jnp.int32), trials=jnp.asarray(arrays["trials"], jnp.int32),
                       periods=jnp.asarray(arrays["periods"], jnp.int32),
                       diverged=jnp.asarray(arrays["diverged"], bool))
+
+
+def uses_compact(run_dir: str | os.PathLike) -> bool:
+    """Whether evaluating ``run_dir`` reads its compact state: it has one and no checkpoints directory
+    (a published policy; a run with checkpoints is always read from them)."""
+    run = pathlib.Path(run_dir)
+    return has_compact(run) and not checkpoint_dir(run).exists()
+
+
+def restore_compact_policy(run_dir: str | os.PathLike, step: int | None = None, *, check_model: bool = True
+                           ) -> tuple[dict, TrainConfig, Params, Params]:
+    """``(meta, config, theta, v)`` of a run's compact state, for evaluation (no trainer, no MJX).
+
+    ``meta`` is the compact state's metadata with ``step`` and ``trials`` (the saved counters) and
+    ``path``. The parameter tree is rebuilt from the saved names; its shapes are checked against
+    the saved config's networks by the caller's use (``rollout`` applies them). CheckpointError if
+    ``step`` is given and is not the saved step, if the state is corrupted, or (``check_model``)
+    trained on another model file.
+    """
+    meta, arrays = load_compact(run_dir)
+    saved = int(arrays["step"])
+    if step is not None and int(step) != saved:
+        raise CheckpointError(f"{meta['path']}: the compact state is at step {saved}, not {int(step)} "
+                              f"(a compact state holds one step only)")
+    if check_model:
+        _check_model(meta)
+    config = _config_from_meta(meta)
+    parts: dict[str, dict] = {"theta": {}, "v": {}}
+    for name, a in arrays.items():
+        head, _, rest = name.partition(_SEP)
+        if head not in parts or not rest:
+            continue
+        node = parts[head]
+        *parents, leaf = rest.split(_SEP)
+        for k in parents:
+            node = node.setdefault(k, {})
+        node[leaf] = _to_device(a)
+    if not parts["theta"] or not parts["v"]:
+        raise CorruptCheckpoint(f"{meta['path']}: the compact state has no actor/critic parameters")
+    meta.update(step=saved, trials=int(arrays["trials"]))
+    return meta, config, parts["theta"], parts["v"]
