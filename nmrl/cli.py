@@ -1,4 +1,4 @@
-"""Command line: ``nmrl train``, ``nmrl sweep``, ``nmrl eval``, ``nmrl study``.
+"""Command line: ``nmrl train``, ``nmrl sweep``, ``nmrl eval``, ``nmrl study``, ``nmrl baseline``.
 
 Every field of :class:`nmrl.paper.learner.TrainConfig` is an option of ``train`` and ``sweep``
 (``--beta-theta 2e-6``, ``--num-envs 256``, ``--actor-opt clip:10,sgd``, ...). Bad values exit with status 2 and a message that
@@ -110,10 +110,10 @@ def _cluster(args: argparse.Namespace) -> "_launch.Cluster | None":
     return c
 
 
-def _join(args: argparse.Namespace) -> int | None:
-    """Several processes: join the run before JAX computes anything, and check that every process
-    was given the same command. Returns an exit status when that fails (nothing written), else None."""
-    cluster = _cluster(args)
+def _join(args: argparse.Namespace, cluster: "_launch.Cluster | None") -> int | None:
+    """Several processes (``cluster``, from :func:`_cluster`): join the run before JAX computes anything,
+    and check that every process was given the same command. Returns an exit status when that fails
+    (nothing written), else None."""
     if cluster is None:
         return None
     from nmrl.runs import distributed
@@ -160,10 +160,10 @@ def cmd_train(args: argparse.Namespace) -> int:
         if args.step is not None and args.step < 0:
             raise ValueError(f"--step={args.step} is invalid: a checkpoint step is >= 0")
         n_dev = _devices.parse(args.devices)
-        _cluster(args)
+        cluster = _cluster(args)
     except (ValueError, TypeError) as e:
         return _fail(str(e))
-    joined = _join(args)
+    joined = _join(args, cluster)
     if joined is not None:
         return joined
     status = 0
@@ -235,10 +235,10 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         if args.group < 1:
             raise ValueError(f"--group={args.group} is invalid: points vmapped together must be >= 1")
         n_dev = _devices.parse(args.devices)
-        _cluster(args)
+        cluster = _cluster(args)
     except (ValueError, TypeError) as e:
         return _fail(str(e))
-    joined = _join(args)
+    joined = _join(args, cluster)
     if joined is not None:
         return joined
     try:
@@ -309,6 +309,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="where eval.json, strobe.png and gait.gif go (default: RUN/eval)")
     p.set_defaults(func=cmd_eval)
 
+    sub.add_parser("baseline", help="Brax PPO on the paper's robot: nmrl baseline --help "
+                   "(nmrl/experiments/baseline_ppo.py)", add_help=False)
     sub.add_parser("study", help="the finer-delta study: nmrl study --help (nmrl/experiments/study.py)", add_help=False)
     return ap
 
@@ -320,6 +322,14 @@ def main(argv: list[str] | None = None) -> int:
             _devices.configure(_devices.requested(argv))  # before JAX is imported
         except ValueError as e:
             return _fail(str(e))
+    if argv[:1] == ["baseline"]:  # its own parser (nmrl/experiments/baseline_ppo.py); Brax is optional
+        try:
+            _devices.configure(_devices.requested(argv))  # before JAX is imported
+        except ValueError as e:
+            return _fail(str(e))
+        from nmrl.experiments import baseline_ppo
+
+        return baseline_ppo.main(argv[1:])
     if argv[:1] == ["study"]:  # its own parser (argparse's REMAINDER would not pass --help on)
         from nmrl.experiments import study
 

@@ -150,6 +150,20 @@ def test_forbidden_imports(module, forbidden):
     assert not hit, hit
 
 
+def test_brax_stays_optional():
+    """Brax (an optional extra) is imported only by the adapter and the PPO baseline, and there only
+    inside a guard or a function: importing nmrl never needs it."""
+    mods = _modules()
+    users = sorted(n for n, p in mods.items() if "brax" in _imported(p, n, mods)[1])
+    assert users == ["nmrl.experiments.baseline_ppo", "nmrl.paper.brax_env"], users
+    for n in users:
+        tree = ast.parse(mods[n].read_text())
+        top = [node for node in tree.body if isinstance(node, (ast.Import, ast.ImportFrom))]
+        roots = [(node.module or "").split(".")[0] if isinstance(node, ast.ImportFrom) else a.name.split(".")[0]
+                 for node in top for a in node.names]
+        assert "brax" not in roots, f"{n} imports brax unguarded"
+
+
 def test_gradvar_does_not_pull_in_figures_or_the_sweep():
     graph = _graph()
     seen, todo = set(), ["nmrl.experiments.gradvar"]

@@ -38,7 +38,7 @@ from nmrl.paper.env import ACT_DIM, REWARD_TERMS, EnvConfig, HalfCheetah, forwar
 from nmrl.runs import checkpoint
 from nmrl.runs.store import atomic_path, atomic_write_text
 
-__all__ = ["evaluate", "rollout", "plot_strobe", "write_gif", "GROUND_KEYS"]
+__all__ = ["evaluate", "rollout", "rollout_policy", "summarize", "plot_strobe", "write_gif", "GROUND_KEYS"]
 
 #: ground_share key -> metric of nmrl.paper.env.
 GROUND_KEYS = {"heel": "heel_ground", "knee": "knee_ground", "head": "head_ground"}
@@ -89,6 +89,44 @@ def rollout(config, theta, *, seconds: float, seed: int, exploring: bool) -> dic
     fn = _rollout_fn(float(config.control_dt), int(config.hidden_actor), n_steps)
     traj, pos0, x0 = fn(theta, jax.random.PRNGKey(seed), jnp.float32(1.0 if exploring else 0.0),
                         jnp.float32(config.alpha), jnp.int32(config.l), jnp.float32(config.sigma))
+    out = {k: np.asarray(v) for k, v in jax.device_get(traj).items()}
+    out["pos"] = np.concatenate([np.asarray(pos0)[None], out["pos"]], axis=0)
+    out["x0"] = np.asarray(x0)
+    return out
+
+
+@functools.lru_cache(maxsize=8)
+def _policy_rollout_fn(act: Callable, control_dt: float, n_steps: int):
+    """A jitted (params, key) -> (traj, pos0, x0) for one trial of ``a_t = act(params, s_t)``."""
+    env = _env(control_dt)
+
+    def run(params, key):
+        s0 = env.reset(key)
+
+        def step(s, _):
+            s = env.step(s, act(params, s.obs))
+            pos, _ = forward_kinematics(s.data.qpos)
+            out = {"reward": s.reward, "pos": pos}
+            for k in (*REWARD_TERMS, "forward_speed", "x", "nonfinite", *GROUND_KEYS.values()):
+                out[k] = s.metrics[k]
+            return s, out
+
+        _, traj = jax.lax.scan(step, s0, None, length=n_steps)
+        pos0, _ = forward_kinematics(s0.data.qpos)
+        return traj, pos0, s0.metrics["x"]
+
+    return jax.jit(run)
+
+
+def rollout_policy(act: Callable, params: Any, *, control_dt: float, seconds: float, seed: int = 0
+                   ) -> dict[str, np.ndarray]:
+    """One trial of ``seconds`` of any deterministic policy ``act(params, obs) -> a`` (the paper's
+    action, (6,); ``act`` a module-level function, it keys the compile cache), on the env of
+    :func:`rollout`: no random stop, no reset. Same arrays as :func:`rollout` (see
+    :func:`summarize`). Used for policies that are not the actor of nmrl.paper.networks (the PPO
+    baseline, nmrl/experiments/baseline_ppo.py)."""
+    n_steps = _num_steps(seconds, control_dt)
+    traj, pos0, x0 = _policy_rollout_fn(act, float(control_dt), n_steps)(params, jax.random.PRNGKey(seed))
     out = {k: np.asarray(v) for k, v in jax.device_get(traj).items()}
     out["pos"] = np.concatenate([np.asarray(pos0)[None], out["pos"]], axis=0)
     out["x0"] = np.asarray(x0)

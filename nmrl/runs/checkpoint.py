@@ -974,3 +974,63 @@ def restore_compact_policy(run_dir: str | os.PathLike, step: int | None = None, 
         raise CorruptCheckpoint(f"{meta['path']}: the compact state has no actor/critic parameters")
     meta.update(step=saved, trials=int(arrays["trials"]))
     return meta, config, parts["theta"], parts["v"]
+
+
+# ----------------------------------------------------------- checkpoints of other learners' trees
+
+TREE_FORMAT = "nmrl-tree"
+
+
+def save_tree(run_dir: str | os.PathLike, step: int, tree: Any, meta: dict, *, keep: int = 3) -> pathlib.Path:
+    """Save any pytree of arrays (another learner's state, e.g. the PPO baseline's parameters and
+    observation normalizer) as the orbax checkpoint ``RUN_DIR/checkpoints/STEP``, the run store's
+    layout. ``meta`` (JSON) is stored beside it with the tree's layout and data digest; the newest
+    ``keep`` checkpoints are kept. Synchronous and atomic, like :func:`save`."""
+    names, leaves, _ = _flatten(tree)
+    host = {n: np.asarray(x) for n, x in zip(names, leaves)}
+    full = {"format": TREE_FORMAT, "schema": SCHEMA_VERSION, "step": int(step), **meta,
+            "layout": _layout(names, list(host.values())), "digest": _digest(host),
+            "versions": _versions(), "git_commit": _git_commit(), "saved_unix_time": time.time()}
+    try:
+        json.dumps(full, allow_nan=False)
+    except (TypeError, ValueError) as e:
+        raise TypeError(f"meta must be a JSON-serializable dict: {e}") from e
+    d = checkpoint_dir(run_dir)
+    ocp = _ocp()
+    try:
+        with _quiet_absl(), _manager(d, keep=keep) as m:
+            if int(step) in m.all_steps():
+                m.delete(int(step))
+            m.save(int(step), args=ocp.args.Composite(state=ocp.args.StandardSave(host),
+                                                      meta=ocp.args.JsonSave(full)), force=True)
+            m.wait_until_finished()
+    except Exception as e:  # noqa: BLE001
+        raise _err(d / str(step), "saving the checkpoint failed", e) from e
+    path = d / str(step)
+    _fsync_tree(path)
+    return path
+
+
+def restore_tree(run_dir: str | os.PathLike, template: Any, step: int | None = None) -> tuple[dict, Any]:
+    """``(meta, tree)`` of a :func:`save_tree` checkpoint (the newest if ``step`` is None), the tree
+    with ``template``'s structure; CheckpointError if it is not such a checkpoint, does not fit the
+    template (names, shapes, dtypes: named in the message) or fails its digest."""
+    d, step = _resolve_step(run_dir, step)
+    path = d / str(step)
+    meta = _restore_items(d, step, meta=_ocp().args.JsonRestore()).meta
+    if not isinstance(meta, dict) or meta.get("format") != TREE_FORMAT:
+        raise CheckpointError(f"{path}: not an nmrl tree checkpoint (metadata has no format={TREE_FORMAT!r})")
+    names, tleaves, treedef = _flatten(template)
+    tleaves = [x if hasattr(x, "dtype") else jnp.asarray(x) for x in tleaves]  # Python scalars: JAX's dtype
+    want = _layout(names, tleaves)
+    if meta.get("layout") != want:
+        have = meta.get("layout") or {}
+        diff = sorted(set(want) ^ set(have)) + [n for n in want if n in have and want[n] != have[n]]
+        raise CheckpointError(f"{path}: the saved tree does not fit this learner's: {diff[:5]}")
+    abstract = {n: jax.ShapeDtypeStruct(tuple(t.shape), np.dtype(t.dtype)) for n, t in zip(names, tleaves)}
+    restored = _restore_items(d, step, state=_ocp().args.StandardRestore(_abstract(abstract))).state
+    host = {n: np.asarray(restored[n]) for n in names}
+    if _digest(host) != meta.get("digest"):
+        raise CorruptCheckpoint(f"{path}: the saved tree does not match its digest (corrupted checkpoint)")
+    meta["path"] = str(path)
+    return meta, jax.tree_util.tree_unflatten(treedef, [_to_device(host[n]) for n in names])

@@ -440,9 +440,10 @@ class _OneRun:
         """The state to checkpoint (several processes: gathered to the host, a collective)."""
         return dist.host(self.ts) if dist.active() else self.ts
 
-    def counters(self, i: int) -> tuple[int, int, bool]:
+    def counters(self) -> list[tuple[int, int, bool]]:
+        """(step, trials, diverged) of the one point (several processes: a gather)."""
         step, trials, div = dist.host((self.ts.step, self.ts.trials, self.ts.diverged))
-        return int(step), int(trials), bool(div)
+        return [(int(step), int(trials), bool(div))]
 
 
 class _Points:
@@ -484,10 +485,10 @@ class _Points:
             self._host = dist.host(self.ts)
         return pts.unstack(self._host, self.slot_of[i])
 
-    def counters(self, i: int) -> tuple[int, int, bool]:
-        j = self.slot_of[i]
+    def counters(self) -> list[tuple[int, int, bool]]:
+        """(step, trials, diverged) of every point, in point order (several processes: one gather)."""
         step, trials, div = dist.host((self.ts.step, self.ts.trials, self.ts.diverged))
-        return int(step[j]), int(trials[j]), bool(div[j])
+        return [(int(step[j]), int(trials[j]), bool(div[j])) for _, j in sorted(self.slot_of.items())]
 
 
 def _drive(ps: Sequence[_Point], layout, *, stages: list[list[int]], checkpoint_every: int, keep: int,
@@ -502,8 +503,7 @@ def _drive(ps: Sequence[_Point], layout, *, stages: list[list[int]], checkpoint_
              if writer else None for p in ps]
     done = np.zeros(len(ps), bool)
     dist.barrier("drive")  # several processes: every one has compiled (counters() may gather)
-    for i, p in enumerate(ps):
-        step, trials, div = layout.counters(i)
+    for i, (p, (step, trials, div)) in enumerate(zip(ps, layout.counters(), strict=True)):
         done[i] = budget_done(p.cfg, step, trials) or (freeze_diverged and (div or p.frozen))
     rows: list[dict] = []
     unsaved: set[int] = set()  # points whose newest metrics row has no checkpoint yet

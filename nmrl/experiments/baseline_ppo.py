@@ -1,0 +1,428 @@
+"""The peer on the same robot: Brax's PPO on the paper's Half-Cheetah, at the paper's sample budget.
+
+``run(PPOConfig(seed=s), out)`` trains ``brax.training.agents.ppo.train`` on
+:class:`nmrl.paper.brax_env.BraxHalfCheetah` (the paper's robot, state, reward (8)-(14) and stop
+rule; Brax's wrappers do the auto-reset, the stop is a truncation) for ``num_timesteps`` control
+steps (default 2.5*10^7: the samples of 10^5 trials of ~250 steps, the paper's budget), in a run
+directory of the run store's layout (nmrl/runs/store.py)::
+
+    OUT/config.json     the PPOConfig (resume may change only num_timesteps)
+    OUT/metrics.jsonl   one row per PPO iteration (batch_size * num_minibatches * unroll_length
+                        control steps): env_steps, wall time, Brax's training-episode averages
+                        (the stochastic policy's reward and speed per step, mean of the last 100
+                        finished trials: brax.training.logger), and this policy evaluated
+                        deterministically for ``eval_seconds`` (nmrl.analysis.evaluate.rollout_policy)
+    OUT/checkpoints/N   the normalizer, policy and value parameters after N control steps (orbax,
+                        nmrl.runs.checkpoint.save_tree), every iteration, newest 3 kept
+    OUT/resumes.jsonl   one line per resume
+
+**Hyperparameters.** The starting point is Brax's own PPO setting for its Half-Cheetah (the Brax
+training notebook, ``BRAX_HALFCHEETAH``); :data:`CHANGES` lists every change with its reason.
+
+**Resume** (``resume=True``): Brax's ``ppo.train`` runs as one call that cannot be checkpointed
+mid-way; it can start from given parameters (``restore_params``). An interrupted run therefore
+continues from its newest checkpoint's parameters and normalizer with a fresh Adam state, fresh
+environments (every trial starts anew) and a new PRNG stream (``seed`` folded with the resume
+count): statistically, not bitwise, the uninterrupted run. An uninterrupted run is exactly Brax's
+PPO. SIGINT/SIGTERM stop after the iteration in flight is saved (:class:`nmrl.runs.driver.Stopped`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+import math
+import os
+import pathlib
+import sys
+import time
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from nmrl.analysis import evaluate
+from nmrl.paper import brax_env
+from nmrl.paper.env import EnvConfig
+from nmrl.runs import checkpoint, driver, store
+
+__all__ = ["PPOConfig", "BRAX_HALFCHEETAH", "CHANGES", "run", "load_config", "policy_action",
+           "evaluate_checkpoint"]
+
+#: Brax's PPO setting for its Half-Cheetah (brax/notebooks/training.ipynb, ``train_fn`` for
+#: ``halfcheetah``; networks: ``ppo_networks.make_ppo_networks``' defaults).
+BRAX_HALFCHEETAH = {
+    "num_timesteps": 50_000_000, "num_evals": 20, "reward_scaling": 1, "episode_length": 1000,
+    "normalize_observations": True, "action_repeat": 1, "unroll_length": 20, "num_minibatches": 32,
+    "num_updates_per_batch": 8, "discounting": 0.95, "learning_rate": 3e-4, "entropy_cost": 1e-3,
+    "num_envs": 2048, "batch_size": 512, "policy_hidden": (32, 32, 32, 32), "value_hidden": (256,) * 5,
+}
+
+#: (field, Brax's value, ours, why) for every departure from BRAX_HALFCHEETAH.
+CHANGES = (
+    ("num_timesteps", "5e7", "2.5e7", "the paper's sample budget: 10^5 trials x ~250 control steps"),
+    ("episode_length", "1000 (fixed)", "the paper's stop rule",
+     "a trial stops with probability 1/250 after each step (Sec. V-C), a truncation (Sec. V-D); "
+     "episode_length is only a cap, 10^4 (never reached: P = e^-40)"),
+    ("num_evals", "20 (Brax's evaluator, fixed 1000-step episodes)",
+     "one per iteration, nmrl's evaluation",
+     "a checkpoint per iteration; the deterministic policy is rolled out for 10 s like nmrl eval"),
+    ("num_envs", "2048", "64",
+     "this machine is 2 CPU cores: MJX's step cost per environment grows with the batch per "
+     "device (README, 'Known facts'); the samples per update (batch_size x num_minibatches x "
+     "unroll_length = 327,680) are Brax's"),
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class PPOConfig:
+    """Brax PPO on the paper's Half-Cheetah. Defaults: BRAX_HALFCHEETAH with CHANGES."""
+
+    seed: int = 0
+    num_timesteps: int = 25_000_000
+    num_envs: int = 64
+    batch_size: int = 512
+    num_minibatches: int = 32
+    unroll_length: int = 20
+    num_updates_per_batch: int = 8
+    discounting: float = 0.95
+    learning_rate: float = 3e-4
+    entropy_cost: float = 1e-3
+    reward_scaling: float = 1.0
+    normalize_observations: bool = True
+    policy_hidden: tuple[int, ...] = (32, 32, 32, 32)
+    value_hidden: tuple[int, ...] = (256, 256, 256, 256, 256)
+    episode_cap: int = 10_000
+    control_dt: float = 0.02
+    stop_prob: float = 1 / 250
+    eval_seconds: float = 10.0
+
+    @property
+    def steps_per_iteration(self) -> int:
+        """Control steps (over all environments) per PPO iteration."""
+        return self.batch_size * self.num_minibatches * self.unroll_length
+
+    @property
+    def iterations(self) -> int:
+        """PPO iterations of the budget (rounded up: the run ends at or after num_timesteps)."""
+        return math.ceil(self.num_timesteps / self.steps_per_iteration)
+
+    def validate(self, n_devices: int = 1) -> None:
+        for name in ("num_timesteps", "num_envs", "batch_size", "num_minibatches", "unroll_length",
+                     "num_updates_per_batch", "episode_cap"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or isinstance(v, bool) or v < 1:
+                raise ValueError(f"{name}={v!r} is invalid: must be an integer >= 1")
+        if not 0 <= self.seed < 2**31:
+            raise ValueError(f"seed={self.seed!r} is invalid: must be an integer in [0, 2^31 - 1]")
+        if (self.batch_size * self.num_minibatches) % self.num_envs:
+            raise ValueError(f"num_envs={self.num_envs} is invalid: batch_size x num_minibatches = "
+                             f"{self.batch_size * self.num_minibatches} must be a multiple of it")
+        if self.num_envs % n_devices:
+            raise ValueError(f"num_envs={self.num_envs} is invalid: must be a multiple of the {n_devices} "
+                             f"device(s) Brax splits it over")
+        if not 0 < self.discounting <= 1:
+            raise ValueError(f"discounting={self.discounting!r} is invalid: must be in (0, 1]")
+        for name in ("learning_rate", "reward_scaling", "eval_seconds", "control_dt"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(f"{name}={v!r} is invalid: must be a finite number > 0")
+        if not (math.isfinite(self.entropy_cost) and self.entropy_cost >= 0):
+            raise ValueError(f"entropy_cost={self.entropy_cost!r} is invalid: must be >= 0")
+        for name in ("policy_hidden", "value_hidden"):
+            v = getattr(self, name)
+            if not v or any(not isinstance(h, int) or h < 1 for h in v):
+                raise ValueError(f"{name}={v!r} is invalid: layer sizes must be integers >= 1")
+        EnvConfig(control_dt=self.control_dt, stop_prob=self.stop_prob).validate()
+
+
+RESUMABLE = ("num_timesteps",)
+
+
+def load_config(run_dir: str | os.PathLike) -> PPOConfig:
+    path = pathlib.Path(run_dir) / store.CONFIG_FILE
+    try:
+        d = json.loads(path.read_text())
+        for k in ("policy_hidden", "value_hidden"):
+            d[k] = tuple(d[k])
+        return PPOConfig(**d)
+    except (OSError, json.JSONDecodeError, TypeError, KeyError) as e:
+        raise driver.RunError(f"{path}: not a PPO baseline config ({type(e).__name__}: {e})") from e
+
+
+# ----------------------------------------------------------------------------- Brax pieces
+
+
+def _ppo():
+    brax_env.require_brax()
+    from brax.training.agents.ppo import networks as ppo_networks
+    from brax.training.agents.ppo import train as ppo_train
+    from brax.training.acme import running_statistics
+
+    return ppo_train, ppo_networks, running_statistics
+
+
+@functools.lru_cache(maxsize=4)
+def _networks(policy_hidden: tuple[int, ...], value_hidden: tuple[int, ...], normalize: bool):
+    _, ppo_networks, running_statistics = _ppo()
+    pre = running_statistics.normalize if normalize else (lambda x, y: x)
+    return ppo_networks.make_ppo_networks(brax_env.OBS_DIM, brax_env.ACT_DIM, preprocess_observations_fn=pre,
+                                          policy_hidden_layer_sizes=policy_hidden,
+                                          value_hidden_layer_sizes=value_hidden)
+
+
+def _network_factory(cfg: PPOConfig) -> Callable:
+    def factory(obs_size, act_size, preprocess_observations_fn):
+        _, ppo_networks, _ = _ppo()
+        return ppo_networks.make_ppo_networks(obs_size, act_size, preprocess_observations_fn=preprocess_observations_fn,
+                                              policy_hidden_layer_sizes=cfg.policy_hidden,
+                                              value_hidden_layer_sizes=cfg.value_hidden)
+    return factory
+
+
+@functools.lru_cache(maxsize=4)
+def _actor(policy_hidden: tuple[int, ...], value_hidden: tuple[int, ...], normalize: bool) -> Callable:
+    """A module-level-stable ``act(params, obs) -> a``: the mode of Brax's tanh-Gaussian policy (its
+    deterministic action u), scaled to the paper's action a = ACTION_SCALE u."""
+    nets = _networks(policy_hidden, value_hidden, normalize)
+
+    def act(params, obs):
+        logits = nets.policy_network.apply(params[0], params[1], obs)
+        u = nets.parametric_action_distribution.mode(logits)
+        return brax_env.ACTION_SCALE * jnp.clip(u, -1.0, 1.0)
+
+    return act
+
+
+def policy_action(cfg: PPOConfig) -> Callable:
+    """``act(params, obs)`` of the deterministic PPO policy of ``cfg``'s networks (params =
+    (normalizer, policy, value), as Brax returns and :func:`run` saves them)."""
+    return _actor(tuple(cfg.policy_hidden), tuple(cfg.value_hidden), bool(cfg.normalize_observations))
+
+
+def _train_kwargs(cfg: PPOConfig) -> dict:
+    return dict(
+        num_envs=cfg.num_envs, episode_length=cfg.episode_cap, action_repeat=1,
+        wrap_env_fn=brax_env.wrap_for_training, learning_rate=cfg.learning_rate,
+        entropy_cost=cfg.entropy_cost, discounting=cfg.discounting, unroll_length=cfg.unroll_length,
+        batch_size=cfg.batch_size, num_minibatches=cfg.num_minibatches,
+        num_updates_per_batch=cfg.num_updates_per_batch, normalize_observations=cfg.normalize_observations,
+        reward_scaling=cfg.reward_scaling, network_factory=_network_factory(cfg), run_evals=False,
+        log_training_metrics=True, training_metrics_steps=cfg.steps_per_iteration,
+    )
+
+
+def _env(cfg: PPOConfig) -> brax_env.BraxHalfCheetah:
+    return brax_env.BraxHalfCheetah(EnvConfig(control_dt=cfg.control_dt, stop_prob=cfg.stop_prob))
+
+
+def initial_params(cfg: PPOConfig) -> Any:
+    """Brax's initial (normalizer, policy, value) for ``cfg`` (``ppo.train`` with no steps)."""
+    ppo_train, _, _ = _ppo()
+    _, params, _ = ppo_train.train(_env(cfg), num_timesteps=0, seed=cfg.seed, **_train_kwargs(cfg))
+    return params
+
+
+def evaluate_params(cfg: PPOConfig, params: Any, *, seconds: float | None = None, seed: int = 0) -> dict:
+    """The deterministic policy's rollout of ``seconds`` (default cfg.eval_seconds), summarized as in
+    ``nmrl eval`` (avg_reward per step, forward_speed, terms, ground shares); ``traj`` kept under
+    ``"_traj"`` for pictures."""
+    traj = evaluate.rollout_policy(policy_action(cfg), params, control_dt=cfg.control_dt,
+                                   seconds=cfg.eval_seconds if seconds is None else seconds, seed=seed)
+    out = evaluate.summarize(traj)
+    out["_traj"] = traj
+    return out
+
+
+def evaluate_checkpoint(run_dir: str | os.PathLike, step: int | None = None, *, seconds: float = 10.0,
+                        render: bool = True, out_dir: str | os.PathLike | None = None) -> dict:
+    """Evaluate a PPO baseline checkpoint like ``nmrl eval`` (JSON, strobe, GIF in ``out_dir``,
+    default RUN_DIR/eval)."""
+    run_dir = pathlib.Path(run_dir)
+    cfg = load_config(run_dir)
+    meta, params = checkpoint.restore_tree(run_dir, initial_params(cfg), step)
+    ev = evaluate_params(cfg, params, seconds=seconds)
+    traj = ev.pop("_traj")
+    out_dir = pathlib.Path(out_dir) if out_dir is not None else run_dir / evaluate.EVAL_DIR
+    out_dir.mkdir(parents=True, exist_ok=True)
+    result = {"run_dir": str(run_dir), "step": int(meta["step"]), "seconds": float(seconds),
+              "control_dt": cfg.control_dt, "deterministic": ev}
+    if render:
+        title = f"{run_dir.name} (Brax PPO), {int(meta['step']):,} control steps, deterministic policy"
+        strobe = evaluate.plot_strobe(traj["pos"], cfg.control_dt, out_dir / "strobe.png", title=title)
+        gif = evaluate.write_gif(traj["pos"], cfg.control_dt, out_dir / "gait.gif")
+        result["files"] = {"strobe": str(strobe), "gif": str(gif)}
+    store.atomic_write_text(out_dir / "eval.json", json.dumps(result, indent=2, allow_nan=False) + "\n")
+    return result
+
+
+# ----------------------------------------------------------------------------- the run
+
+
+class _Recorder:
+    """Brax's callbacks for one ``ppo.train`` call: keeps the newest training-episode averages
+    (``progress_fn``) and, after every iteration (``policy_params_fn``), evaluates, checkpoints and
+    appends the metrics row; raises :class:`driver.Stopped` after the save when a signal came."""
+
+    def __init__(self, cfg: PPOConfig, out: pathlib.Path, step0: int, stop: dict, progress: bool):
+        self.cfg, self.out, self.step0, self.stop, self.progress = cfg, out, step0, stop, progress
+        self.episode: dict = {}
+        self.rows: list[dict] = []
+        self.t0 = self.t_last = time.perf_counter()
+
+    def on_progress(self, _num_steps: int, metrics: dict) -> None:
+        episode = {k: float(v) for k, v in metrics.items() if k.startswith("episode/")}
+        if episode:  # Brax also calls it with its loss metrics after an iteration: kept apart
+            self.episode = episode
+
+    def on_params(self, current_step: int, _make_policy: Any, params: Any) -> None:
+        if current_step == 0:
+            if self.step0 == 0:  # the initial policy, evaluated once (fresh run)
+                self._record(0, params, compile_s=time.perf_counter() - self.t0)
+            self.t_last = time.perf_counter()
+            return
+        self._record(self.step0 + int(current_step), params)
+        if self.stop["signal"] is not None:
+            raise driver.Stopped(self.stop["signal"], self.step0 + int(current_step), self.rows)
+
+    def _record(self, step: int, params: Any, compile_s: float | None = None) -> None:
+        now = time.perf_counter()
+        wall = now - self.t_last
+        ev = evaluate_params(self.cfg, params)
+        ev.pop("_traj")
+        row = {"step": step, "iteration": step // self.cfg.steps_per_iteration, "wall_s": wall,
+               "steps_per_s": (self.cfg.steps_per_iteration / wall) if step and wall > 0 else None,
+               "train_reward_per_step": self.episode.get("episode/reward_per_step"),
+               "train_forward_speed": self.episode.get("episode/forward_speed_per_step"),
+               "train_episode_length": self.episode.get("episode/length"),
+               "eval_avg_reward": ev["avg_reward"], "eval_forward_speed": ev["forward_speed"],
+               "eval_nonfinite": ev["nonfinite"], "unix_time": time.time()}
+        if compile_s is not None:
+            row["setup_s"] = compile_s
+        checkpoint.save_tree(self.out, step, params, {"kind": "brax-ppo", "config": _asdict(self.cfg)})
+        store.append_metrics(self.out, row)
+        self.rows.append(row)
+        self.t_last = time.perf_counter()
+        if self.progress:
+            tr = row["train_reward_per_step"]
+            print(f"ppo seed {self.cfg.seed}: {step:>11,} steps  train {tr if tr is None else f'{tr:+.3f}'}  "
+                  f"eval {row['eval_avg_reward']:+.3f} ({row['eval_forward_speed']:+.2f} m/s)  "
+                  f"{row['steps_per_s'] or 0:,.0f} steps/s", file=sys.stderr, flush=True)
+
+
+def _asdict(cfg: PPOConfig) -> dict:
+    d = dataclasses.asdict(cfg)
+    d["policy_hidden"], d["value_hidden"] = list(cfg.policy_hidden), list(cfg.value_hidden)
+    return d
+
+
+def _check_resume(cfg: PPOConfig, saved: PPOConfig, out: pathlib.Path) -> None:
+    a, b = dataclasses.asdict(saved), dataclasses.asdict(cfg)
+    diff = [f"{k}: run {a[k]!r} vs given {b[k]!r}" for k in a if k not in RESUMABLE and a[k] != b[k]]
+    if diff:
+        raise driver.RunError(f"{out}: --resume keeps the run's config; only {RESUMABLE} may change: " + "; ".join(diff))
+
+
+def run(cfg: PPOConfig, out: str | os.PathLike, *, resume: bool = False, progress: bool = True,
+        max_iterations: int | None = None) -> list[dict]:
+    """Train (or, with ``resume``, continue) the PPO baseline in ``out``; returns the rows written.
+
+    ``max_iterations`` stops after that many iterations of this call (for tests and chunked
+    sessions; the run continues with ``resume``). Raises driver.RunError for a bad ``out`` or a
+    resume with another config, driver.Stopped after SIGINT/SIGTERM (everything saved).
+    """
+    brax_env.require_brax()
+    out = pathlib.Path(out)
+    cfg.validate(len(jax.local_devices()))
+    template = None
+    step0, n_resume = 0, 0
+    if resume:
+        saved = load_config(out)
+        _check_resume(cfg, saved, out)
+        template = initial_params(saved)
+        if driver.existing_step(out) is None:
+            raise driver.RunError(f"{out}: no checkpoint to resume from")
+        meta, params = checkpoint.restore_tree(out, template)
+        step0 = int(meta["step"])
+        store.truncate_metrics(out, step0)
+        n_resume = len(store.read_jsonl(out / store.RESUMES_FILE)) + 1
+        store.append_resume(out, {"from_step": step0, "num_timesteps": cfg.num_timesteps,
+                                  "unix_time": time.time()})
+        store.atomic_write_json(out / store.CONFIG_FILE, _asdict(cfg))
+    else:
+        driver._fresh_out(out)
+        driver._create_dir(out)
+        store.atomic_write_json(out / store.CONFIG_FILE, _asdict(cfg))
+        params = None
+    spi = cfg.steps_per_iteration
+    left = cfg.iterations - step0 // spi
+    if max_iterations is not None:
+        left = min(left, max_iterations)
+    if left <= 0:
+        return []
+    ppo_train, _, _ = _ppo()
+    stop, restore_signals = driver.stop_on_signals()
+    rec = _Recorder(cfg, out, step0, stop, progress)
+    seed = cfg.seed if n_resume == 0 else int(jax.random.randint(
+        jax.random.fold_in(jax.random.PRNGKey(cfg.seed), n_resume), (), 0, 2**31 - 1))
+    try:
+        ppo_train.train(_env(cfg), num_timesteps=left * spi, num_evals=left + 1, seed=seed,
+                        restore_params=params, progress_fn=rec.on_progress, policy_params_fn=rec.on_params,
+                        **_train_kwargs(cfg))
+    finally:
+        restore_signals()
+    return rec.rows
+
+
+# ----------------------------------------------------------------------------- command line
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``nmrl baseline ppo ...`` (train or continue) and ``nmrl baseline eval RUN`` (evaluate)."""
+    import argparse
+
+    d = PPOConfig()
+    ap = argparse.ArgumentParser(prog="nmrl baseline", description=__doc__.split("\n\n")[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    p = sub.add_parser("ppo", help="train Brax PPO on the paper's Half-Cheetah (needs pip install -e '.[brax]')")
+    p.add_argument("--out", required=True, help="run directory")
+    p.add_argument("--resume", action="store_true", help="continue the run in --out from its newest checkpoint")
+    p.add_argument("--seed", type=int, default=None, help=f"default {d.seed}")
+    p.add_argument("--num-timesteps", type=int, default=None,
+                   help=f"control steps over all environments (default {d.num_timesteps:.2g})")
+    for name in ("num_envs", "batch_size", "num_minibatches", "unroll_length"):
+        p.add_argument("--" + name.replace("_", "-"), type=int, default=None, help=f"default {getattr(d, name)}")
+    p.add_argument("--max-iterations", type=int, default=None,
+                   help="stop after this many PPO iterations of this call (continue with --resume)")
+    p.add_argument("--devices", default="auto", help="CPU devices Brax splits the environments over")
+    p.add_argument("--quiet", action="store_true")
+    e = sub.add_parser("eval", help="evaluate a PPO baseline checkpoint like nmrl eval (JSON, strobe, GIF)")
+    e.add_argument("run")
+    e.add_argument("--step", type=int, default=None)
+    e.add_argument("--seconds", type=float, default=10.0)
+    e.add_argument("--out", default=None, metavar="DIR", help="default: RUN/eval")
+    e.add_argument("--no-render", action="store_true")
+    a = ap.parse_args(argv)
+    try:
+        if a.cmd == "eval":
+            if not (math.isfinite(a.seconds) and 0 < a.seconds <= 600):
+                raise ValueError(f"--seconds={a.seconds!r} is invalid: must be in (0, 600]")
+            res = evaluate_checkpoint(a.run, a.step, seconds=a.seconds, render=not a.no_render, out_dir=a.out)
+            print(json.dumps(res, indent=2))
+            return 0
+        if a.max_iterations is not None and a.max_iterations < 1:
+            raise ValueError(f"--max-iterations={a.max_iterations} is invalid: must be >= 1")
+        given = {k: getattr(a, k) for k in ("seed", "num_timesteps", "num_envs", "batch_size", "num_minibatches",
+                                             "unroll_length") if getattr(a, k) is not None}
+        base = load_config(a.out) if a.resume else PPOConfig()
+        cfg = dataclasses.replace(base, **given)  # a resume refuses any change but num_timesteps (run)
+        run(cfg, a.out, resume=a.resume, progress=not a.quiet, max_iterations=a.max_iterations)
+    except (ValueError, ImportError, driver.RunError, checkpoint.CheckpointError) as err:
+        print(f"nmrl baseline: error: {err}", file=sys.stderr)
+        return 2
+    except driver.Stopped as err:
+        print(f"nmrl baseline: {err}; saved; continue with --resume", file=sys.stderr)
+        return err.exit_status
+    return 0
