@@ -113,6 +113,27 @@ def test_brax_training_wrappers_auto_reset_and_truncation():
 
 
 @needs_brax
+def test_tally_reports_every_reward_of_the_learning():
+    """brax_env.Tally's sink receives, every ``every`` steps, the sums of exactly the rewards, speeds
+    and stops the wrapped batch produced (compared with the states' own values, step by step)."""
+    got = []
+    env = brax_env.BraxHalfCheetah(EnvConfig(stop_prob=0.05))
+    w = brax_env.wrap_for_training(env, episode_length=1000, tally=lambda *a: got.append(np.array(a, float)),
+                                   tally_every=10)
+    n = 4
+    s = jax.jit(w.reset)(jax.random.split(jax.random.PRNGKey(2), n))
+    step = jax.jit(w.step)
+    want = np.zeros(4)
+    for u in _actions(30, seed=2).reshape(30, 1, 6).repeat(n, axis=1):
+        s = step(s, jnp.asarray(u))
+        want += [float(np.sum(s.reward)), float(np.sum(s.metrics["forward_speed"])), float(np.sum(s.done)), n]
+    jax.effects_barrier()
+    assert len(got) == 3
+    np.testing.assert_allclose(np.sum(got, axis=0), want, rtol=1e-5)
+    assert [g[3] for g in got] == [40, 40, 40]
+
+
+@needs_brax
 def test_ppo_baseline_trains_checkpoints_resumes_and_evaluates(tmp_path, capsys):
     """A tiny Brax PPO run through ``nmrl baseline``: rows per iteration, a checkpoint each, the
     resume continues from the newest step (a changed config is refused by name), evaluation reads it."""
@@ -129,6 +150,8 @@ def test_ppo_baseline_trains_checkpoints_resumes_and_evaluates(tmp_path, capsys)
     assert [r["step"] for r in rows] == [0, 40, 80]
     assert checkpoint.all_steps(out)[-1] == 80
     assert all(np.isfinite(r["eval_avg_reward"]) for r in rows)
+    assert [r["train_steps_tallied"] for r in rows] == [0, 40, 40]  # exactly each iteration's steps
+    assert all(np.isfinite(r["train_reward_per_step"]) for r in rows[1:])
     assert cli.main(["baseline", "ppo", "--out", str(out), "--resume", "--num-envs", "8", *tiny[2:]]) == 2
     assert "num_envs: run 4 vs given 8" in capsys.readouterr().err
     assert cli.main(["baseline", "ppo", "--out", str(out), "--resume", "--quiet"]) == 0

@@ -8,10 +8,11 @@ directory of the run store's layout (nmrl/runs/store.py)::
 
     OUT/config.json     the PPOConfig (resume may change only num_timesteps)
     OUT/metrics.jsonl   one row per PPO iteration (batch_size * num_minibatches * unroll_length
-                        control steps): env_steps, wall time, Brax's training-episode averages
-                        (the stochastic policy's reward and speed per step, mean of the last 100
-                        finished trials: brax.training.logger), and this policy evaluated
-                        deterministically for ``eval_seconds`` (nmrl.analysis.evaluate.rollout_policy)
+                        control steps): step, wall time, the learning's average reward and forward
+                        speed per control step (the exploring policy, every step since the previous
+                        row, the paper's measure: nmrl.paper.brax_env.Tally), the trials ended, and
+                        this policy evaluated deterministically for ``eval_seconds``
+                        (nmrl.analysis.evaluate.rollout_policy)
     OUT/checkpoints/N   the normalizer, policy and value parameters after N control steps (orbax,
                         nmrl.runs.checkpoint.save_tree), every iteration, newest 3 kept
     OUT/resumes.jsonl   one line per resume
@@ -36,6 +37,7 @@ import math
 import os
 import pathlib
 import sys
+import threading
 import time
 from typing import Any, Callable
 
@@ -202,15 +204,25 @@ def policy_action(cfg: PPOConfig) -> Callable:
     return _actor(tuple(cfg.policy_hidden), tuple(cfg.value_hidden), bool(cfg.normalize_observations))
 
 
-def _train_kwargs(cfg: PPOConfig) -> dict:
+def _tally_every(cfg: PPOConfig) -> int:
+    """Steps per environment between two reports of brax_env.Tally: the largest divisor of an
+    iteration's steps per environment up to 256, so that each metrics row sums exactly the steps of
+    its iteration."""
+    per_env = cfg.steps_per_iteration // cfg.num_envs
+    return max(d for d in range(1, min(256, per_env) + 1) if per_env % d == 0)
+
+
+def _train_kwargs(cfg: PPOConfig, tally: Callable | None = None) -> dict:
     return dict(
         num_envs=cfg.num_envs, episode_length=cfg.episode_cap, action_repeat=1,
-        wrap_env_fn=brax_env.wrap_for_training, learning_rate=cfg.learning_rate,
+        wrap_env_fn=(brax_env.wrap_for_training if tally is None
+                     else functools.partial(brax_env.wrap_for_training, tally=tally, tally_every=_tally_every(cfg))),
+        learning_rate=cfg.learning_rate,
         entropy_cost=cfg.entropy_cost, discounting=cfg.discounting, unroll_length=cfg.unroll_length,
         batch_size=cfg.batch_size, num_minibatches=cfg.num_minibatches,
         num_updates_per_batch=cfg.num_updates_per_batch, normalize_observations=cfg.normalize_observations,
         reward_scaling=cfg.reward_scaling, network_factory=_network_factory(cfg), run_evals=False,
-        log_training_metrics=True, training_metrics_steps=cfg.steps_per_iteration,
+        log_training_metrics=False,  # Brax's logger deadlocked with 2 CPU devices: brax_env.Tally instead
     )
 
 
@@ -262,20 +274,26 @@ def evaluate_checkpoint(run_dir: str | os.PathLike, step: int | None = None, *, 
 
 
 class _Recorder:
-    """Brax's callbacks for one ``ppo.train`` call: keeps the newest training-episode averages
-    (``progress_fn``) and, after every iteration (``policy_params_fn``), evaluates, checkpoints and
-    appends the metrics row; raises :class:`driver.Stopped` after the save when a signal came."""
+    """The host side of one ``ppo.train`` call: sums the learning's rewards (``tally``, the sink of
+    brax_env.Tally) and, after every iteration (Brax's ``policy_params_fn``), evaluates, checkpoints
+    and appends the metrics row; raises :class:`driver.Stopped` after the save when a signal came."""
 
     def __init__(self, cfg: PPOConfig, out: pathlib.Path, step0: int, stop: dict, progress: bool):
         self.cfg, self.out, self.step0, self.stop, self.progress = cfg, out, step0, stop, progress
-        self.episode: dict = {}
         self.rows: list[dict] = []
         self.t0 = self.t_last = time.perf_counter()
+        self._lock = threading.Lock()
+        self._sums = np.zeros(4)  # reward, forward speed, stops, steps since the last row
 
-    def on_progress(self, _num_steps: int, metrics: dict) -> None:
-        episode = {k: float(v) for k, v in metrics.items() if k.startswith("episode/")}
-        if episode:  # Brax also calls it with its loss metrics after an iteration: kept apart
-            self.episode = episode
+    def tally(self, reward, speed, stops, steps) -> None:
+        """brax_env.Tally's sink (numpy only: it runs inside the training computation)."""
+        with self._lock:
+            self._sums += np.array([reward, speed, stops, steps], np.float64)
+
+    def _take(self) -> np.ndarray:
+        with self._lock:
+            s, self._sums = self._sums, np.zeros(4)
+        return s
 
     def on_params(self, current_step: int, _make_policy: Any, params: Any) -> None:
         if current_step == 0:
@@ -290,13 +308,14 @@ class _Recorder:
     def _record(self, step: int, params: Any, compile_s: float | None = None) -> None:
         now = time.perf_counter()
         wall = now - self.t_last
+        jax.effects_barrier()  # every report of this iteration's steps has reached tally()
+        r, v, stops, n = self._take()
         ev = evaluate_params(self.cfg, params)
         ev.pop("_traj")
         row = {"step": step, "iteration": step // self.cfg.steps_per_iteration, "wall_s": wall,
                "steps_per_s": (self.cfg.steps_per_iteration / wall) if step and wall > 0 else None,
-               "train_reward_per_step": self.episode.get("episode/reward_per_step"),
-               "train_forward_speed": self.episode.get("episode/forward_speed_per_step"),
-               "train_episode_length": self.episode.get("episode/length"),
+               "train_reward_per_step": r / n if n else None, "train_forward_speed": v / n if n else None,
+               "train_steps_tallied": int(n), "trials_ended": int(stops),
                "eval_avg_reward": ev["avg_reward"], "eval_forward_speed": ev["forward_speed"],
                "eval_nonfinite": ev["nonfinite"], "unix_time": time.time()}
         if compile_s is not None:
@@ -369,8 +388,7 @@ def run(cfg: PPOConfig, out: str | os.PathLike, *, resume: bool = False, progres
         jax.random.fold_in(jax.random.PRNGKey(cfg.seed), n_resume), (), 0, 2**31 - 1))
     try:
         ppo_train.train(_env(cfg), num_timesteps=left * spi, num_evals=left + 1, seed=seed,
-                        restore_params=params, progress_fn=rec.on_progress, policy_params_fn=rec.on_params,
-                        **_train_kwargs(cfg))
+                        restore_params=params, policy_params_fn=rec.on_params, **_train_kwargs(cfg, rec.tally))
     finally:
         restore_signals()
     return rec.rows

@@ -176,13 +176,46 @@ if HAVE_BRAX:
             return state
 
 
+    class Tally(_brax_training.Wrapper):
+        """Reports the learning's own average reward per step to the host, exactly: every ``every``
+        steps of the batch it calls ``sink(reward_sum, forward_speed_sum, stops, steps)`` (numpy
+        values summed over its environments and those steps; one call per device) through
+        ``jax.debug.callback``, and starts its sums anew. ``sink`` must not call JAX (it runs while
+        the devices wait for it). Brax's own training logger is not used for this: it keeps only the
+        last 100 finished episodes and calls jax.numpy inside its callback, which deadlocked here
+        with 2 CPU devices at full size."""
+
+        def __init__(self, env: Any, sink: Any, every: int = 256):
+            super().__init__(env)
+            self.sink, self.every = sink, int(every)
+
+        def reset(self, rng: jax.Array) -> State:
+            state = self.env.reset(rng)
+            z = jnp.zeros_like(state.reward)  # per environment: the wrappers below vmap every leaf
+            state.info["tally"] = {"reward": z, "speed": z, "stops": z, "n": jnp.zeros(z.shape, jnp.int32)}
+            return state
+
+        def step(self, state: State, action: jax.Array) -> State:
+            t = state.info["tally"]
+            state = self.env.step(state, action)
+            t = {"reward": t["reward"] + state.reward, "speed": t["speed"] + state.metrics["forward_speed"],
+                 "stops": t["stops"] + state.done, "n": t["n"] + 1}
+            steps = jnp.sum(t["n"])
+            flush = jnp.max(t["n"]) >= self.every  # every environment has stepped as often
+            jax.lax.cond(flush, lambda a: jax.debug.callback(self.sink, *a), lambda a: None,
+                         (jnp.sum(t["reward"]), jnp.sum(t["speed"]), jnp.sum(t["stops"]), steps))
+            state.info["tally"] = jax.tree.map(lambda x: jnp.where(flush, jnp.zeros_like(x), x), t)
+            return state
+
+
 def wrap_for_training(env: Any, episode_length: int = 1000, action_repeat: int = 1,
-                      randomization_fn: Any = None) -> Any:
+                      randomization_fn: Any = None, *, tally: Any = None, tally_every: int = 256) -> Any:
     """Brax's training wrappers (``brax.envs.training.wrap``: Vmap, Episode, AutoReset) with the
-    paper's stop rule marked as a truncation (:class:`StopIsTruncation`). Pass it to Brax's
+    paper's stop rule marked as a truncation (:class:`StopIsTruncation`), and, with ``tally`` (a
+    host function), the exact training reward reported to it (:class:`Tally`). Pass it to Brax's
     trainers as ``wrap_env_fn``; ``episode_length`` is then only a cap (trials end by the stop rule,
     ~250 steps on average)."""
     require_brax()
-    wrapped = _brax_training.wrap(env, episode_length=episode_length, action_repeat=action_repeat,
-                                           randomization_fn=randomization_fn)
-    return StopIsTruncation(wrapped)
+    wrapped = StopIsTruncation(_brax_training.wrap(env, episode_length=episode_length, action_repeat=action_repeat,
+                                                   randomization_fn=randomization_fn))
+    return wrapped if tally is None else Tally(wrapped, tally, tally_every)
