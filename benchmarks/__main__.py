@@ -15,7 +15,9 @@ Benchmarks (each module has ``run(quick) -> dict``):
                  every core, one at a time per core) vs one vmap on one device vs MuJoCo C (bench_sweep.py);
 * ``scaling``    training chunk on 1 vs 2 CPU devices, the sweep's shard_map path (bench_scaling.py);
 * ``distributed`` ``nmrl train`` as 2 processes (jax.distributed, 1 device each) vs 1 process with
-                 2 devices, end to end through the CLI (bench_distributed.py).
+                 2 devices, end to end through the CLI (bench_distributed.py);
+* ``baseline``   wall time per 10^7 control steps, Brax PPO (``nmrl baseline ppo``) vs the
+                 nm-period actor-critic (``nmrl train``), both on 2 devices (bench_baseline.py; needs Brax).
 
 Every comparison is a ratio measured within one run, the contenders interleaved, so that a
 background load affects both alike; absolute numbers are reported beside the machine description
@@ -49,7 +51,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # see benchmarks/bench_likel
 HERE = pathlib.Path(__file__).resolve().parent
 ROOT = HERE.parent
 
-SECTIONS = ("env", "learning", "likelihood", "sweep", "scaling", "distributed")
+SECTIONS = ("env", "learning", "likelihood", "sweep", "scaling", "distributed", "baseline")
 TOP_KEYS = ("meta", "machine", *SECTIONS, "summary")
 
 # env: control steps (batch x T) per timed MJX call, the same in quick and full mode so that a quick
@@ -139,6 +141,10 @@ def run_section(name: str, quick: bool) -> dict:
         from benchmarks import bench_distributed
 
         return bench_distributed.run(quick)
+    if name == "baseline":
+        from benchmarks import bench_baseline
+
+        return bench_baseline.run(quick)
     raise ValueError(name)
 
 
@@ -199,6 +205,10 @@ def summary(res: dict) -> dict:
     di = res.get("distributed")
     if di and "runs" in di:
         s["distributed_2proc_over_1proc_2dev"] = di.get("two_processes_over_one_process")
+    ba = res.get("baseline")
+    if ba and "runs" in ba:
+        s["baseline_ppo_over_ac_speed"] = ba.get("ppo_over_actor_critic_speed")
+        s["baseline_hours_per_1e7_steps"] = ba.get("hours_per_1e7_steps")
     li = res.get("likelihood")
     if li and "results" in li:
         by = {(r["method"], r["l"]): r["median_s"] for r in li["results"]}

@@ -1,0 +1,184 @@
+"""Publish the PPO baseline against the nm-period actor-critic (issue 18) under results/baseline_ppo/.
+
+    .venv/bin/python scripts/publish_baseline_ppo.py [--src runs/baseline_ppo] [--dest results/baseline_ppo]
+
+Reads every seed's run directory SRC/ppo_s{seed} (``nmrl baseline ppo``), the actor-critic's
+learning curves of l = 1 and l = 10 from results/fig3_paper/points/*/metrics.jsonl (per-point
+control steps = steps per environment x its environments), the actor-critic's deterministic
+evaluations at the budgets (DEST/ac_milestones.json, scripts/ac_milestones.py) and, if present, the
+wall times of benchmarks/results.json's ``baseline`` section. Writes, atomically:
+
+* ``metrics/ppo_s{seed}.jsonl`` and ``config.json`` (the PPO runs' rows and config);
+* ``comparison.png``: the average reward per control step during learning against control steps
+  (PPO's exploring policy, the actor-critic's exploring policy; mean over seeds, each seed thin),
+  and the deterministic policies' evaluations (PPO every iteration, the actor-critic at the budgets);
+* ``summary.json``: per method and budget (10^6, 10^7, 2.5*10^7 control steps), the deterministic
+  policies' average reward per step and forward speed, mean +/- 95% CI over seeds, each seed,
+  and the control steps each was actually taken at (PPO: the iteration boundary nearest the
+  budget); printed as a markdown table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+
+import numpy as np
+
+from nmrl.analysis import stats
+from nmrl.runs import store
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+BUDGETS = {"1e6": 1e6, "1e7": 1e7, "2.5e7": 2.5e7}
+AC_LS = (1, 10)
+
+
+def ppo_runs(src: pathlib.Path) -> dict[int, list[dict]]:
+    runs = {}
+    for d in sorted(src.glob("ppo_s*")):
+        rows = store.read_metrics(d)
+        if rows:
+            runs[int(d.name[len("ppo_s"):])] = rows
+    return runs
+
+
+def ac_curves(points: pathlib.Path) -> dict[int, dict[int, tuple[np.ndarray, np.ndarray]]]:
+    out: dict = {}
+    for l in AC_LS:
+        for d in sorted(points.glob(f"l{l}_s*")):
+            cfg = json.loads((d / store.CONFIG_FILE).read_text())
+            rows = store.read_metrics(d)
+            x = np.array([r["step"] * cfg["num_envs"] for r in rows], float)
+            y = np.array([r["avg_reward"] for r in rows], float)
+            out.setdefault(l, {})[int(d.name.rsplit("_s", 1)[1])] = (x, y)
+    return out
+
+
+def _nearest(rows: list[dict], budget: float) -> dict | None:
+    rows = [r for r in rows if r["step"] > 0]
+    if not rows or rows[-1]["step"] < 0.98 * budget:
+        return None  # not reached yet
+    return min(rows, key=lambda r: abs(r["step"] - budget))
+
+
+def summary(ppo: dict[int, list[dict]], ac: dict) -> dict:
+    out: dict = {"ppo": {}, **{f"ac_l{l}": {} for l in AC_LS}}
+    for name, budget in BUDGETS.items():
+        got = {s: _nearest(rows, budget) for s, rows in ppo.items()}
+        got = {s: r for s, r in got.items() if r is not None}
+        if got:
+            out["ppo"][name] = _entry({s: (r["step"], r["eval_avg_reward"], r["eval_forward_speed"])
+                                       for s, r in got.items()})
+        for l in AC_LS:
+            rows = [r for r in ac.get(name, {}).get("rows", []) if r["l"] == l]
+            if rows:
+                out[f"ac_l{l}"][name] = _entry({r["seed"]: (r["control_steps"], r["avg_reward"], r["forward_speed"])
+                                                for r in rows})
+    return out
+
+
+def _entry(by_seed: dict[int, tuple[int, float, float]]) -> dict:
+    steps, rew, spd = (np.array([v[i] for v in by_seed.values()], float) for i in range(3))
+    m, h = stats.mean_ci95(rew)
+    ms, hs = stats.mean_ci95(spd)
+    return {"seeds": sorted(by_seed), "control_steps": [int(s) for s in steps], "avg_reward": m, "avg_reward_ci95": h,
+            "per_seed": [float(x) for x in rew], "forward_speed": ms, "forward_speed_ci95": hs}
+
+
+def draw(ppo: dict, curves: dict, ac: dict, path: pathlib.Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    fig, (a, b) = plt.subplots(1, 2, figsize=(13, 4.8), dpi=110)
+    colors = {"ppo": "C3", 1: "C0", 10: "C2"}
+    for s, rows in ppo.items():
+        r = [x for x in rows if x.get("train_reward_per_step") is not None]
+        a.plot([x["step"] for x in r], [x["train_reward_per_step"] for x in r], color=colors["ppo"], lw=0.7, alpha=0.4)
+        b.plot([x["step"] for x in rows], [x["eval_avg_reward"] for x in rows], color=colors["ppo"], lw=0.7, alpha=0.4)
+    for l, by_seed in curves.items():
+        for s, (x, y) in by_seed.items():
+            a.plot(x, stats.smooth(y, 5), color=colors[l], lw=0.7, alpha=0.4)
+    _mean_line(a, [[(x["step"], x["train_reward_per_step"]) for x in rows if x.get("train_reward_per_step") is not None]
+                   for rows in ppo.values()], colors["ppo"], "Brax PPO (exploring)")
+    for l, by_seed in curves.items():
+        _mean_line(a, [list(zip(x, stats.smooth(y, 5))) for x, y in by_seed.values()], colors[l],
+                   f"nm-period actor-critic, l = {l} (exploring)")
+    _mean_line(b, [[(x["step"], x["eval_avg_reward"]) for x in rows] for rows in ppo.values()], colors["ppo"],
+               "Brax PPO (every iteration)")
+    for l in AC_LS:
+        pts = [(r["control_steps"], r["avg_reward"]) for v in ac.values() for r in v["rows"] if r["l"] == l]
+        if pts:
+            xs, ys = zip(*pts)
+            b.scatter(xs, ys, color=colors[l], s=18, zorder=3, label=f"actor-critic, l = {l} (each seed)")
+    for ax, title in ((a, "average reward per control step during learning"),
+                      (b, "deterministic policy, 10 s trial: average reward per step")):
+        ax.set_xscale("log")
+        ax.set_xlabel("control steps (all environments)")
+        ax.set_title(title, fontsize=10)
+        ax.axhline(0, color="0.7", lw=0.6)
+        ax.legend(fontsize=8, loc="upper left")
+    for v, l in ((3.28, 1), (4.59, 10)):  # the paper's Fig. 3 after 10^5 trials
+        a.axhline(v, color=colors[l], ls=":", lw=0.8)
+        a.annotate(f"paper, l = {l}: {v}", (1.0, v), xycoords=("axes fraction", "data"), ha="right", va="bottom",
+                   fontsize=7, color=colors[l])
+    fig.tight_layout()
+    with store.atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+
+
+def _mean_line(ax, series: list[list[tuple[float, float]]], color: str, label: str) -> None:
+    """The mean over seeds at the x values every seed has (the seeds share their x grid)."""
+    series = [s for s in series if s]
+    if not series:
+        return
+    n = min(len(s) for s in series)
+    x = np.array([p[0] for p in series[0][:n]])
+    y = np.mean([[p[1] for p in s[:n]] for s in series], axis=0)
+    ax.plot(x, y, color=color, lw=1.8, label=f"{label}, mean of {len(series)}")
+
+
+def table(summ: dict) -> str:
+    lines = ["| method | " + " | ".join(f"{k} steps" for k in BUDGETS) + " |", "|---|" + "---|" * len(BUDGETS)]
+    names = {"ppo": "Brax PPO", **{f"ac_l{l}": f"actor-critic, l = {l}" for l in AC_LS}}
+    for k, label in names.items():
+        cells = []
+        for b in BUDGETS:
+            e = summ[k].get(b)
+            cells.append("—" if e is None else f"{e['avg_reward']:+.2f} ± {e['avg_reward_ci95']:.2f} "
+                         f"({e['forward_speed']:.2f} m/s)")
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--src", type=pathlib.Path, default=ROOT / "runs" / "baseline_ppo")
+    ap.add_argument("--dest", type=pathlib.Path, default=ROOT / "results" / "baseline_ppo")
+    ap.add_argument("--ac-points", type=pathlib.Path, default=ROOT / "results" / "fig3_paper" / "points")
+    a = ap.parse_args()
+    ppo = ppo_runs(a.src)
+    if not ppo:
+        raise SystemExit(f"publish_baseline_ppo: error: no PPO run with metrics under {a.src}")
+    a.dest.mkdir(parents=True, exist_ok=True)
+    for s in ppo:
+        store.atomic_copy(a.src / f"ppo_s{s}" / store.METRICS_FILE, a.dest / "metrics" / f"ppo_s{s}.jsonl")
+    store.atomic_copy(a.src / f"ppo_s{min(ppo)}" / store.CONFIG_FILE, a.dest / store.CONFIG_FILE)
+    ac_file = a.dest / "ac_milestones.json"
+    ac = json.loads(ac_file.read_text()) if ac_file.is_file() else {}
+    summ = summary(ppo, ac)
+    bench = ROOT / "benchmarks" / "results.json"
+    if bench.is_file():
+        ba = json.loads(bench.read_text()).get("baseline") or {}
+        summ["hours_per_1e7_steps"] = ba.get("hours_per_1e7_steps")
+    summ["ppo_steps_reached"] = {s: rows[-1]["step"] for s, rows in ppo.items()}
+    store.atomic_write_json(a.dest / "summary.json", summ)
+    draw(ppo, ac_curves(a.ac_points), ac, a.dest / "comparison.png")
+    print(table(summ))
+
+
+if __name__ == "__main__":
+    main()
