@@ -26,19 +26,13 @@ import sys
 import tempfile
 import time
 
+from benchmarks import subprocess_env
+
 AC_ENVS = 64
 AC_CHUNK = 500
 #: PPO iterations that compile: the first, and the second (Brax's pmapped epoch is compiled again
 #: once its inputs are its own outputs: seen with jax_log_compiles)
 WARMUP = 2
-
-
-def _env() -> dict:
-    env = dict(os.environ)
-    env.pop("XLA_FLAGS", None)
-    env["JAX_PLATFORMS"] = "cpu"
-    env.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.expanduser("~/.cache/nmrl/xla"))
-    return env
 
 
 def _rows(out: pathlib.Path) -> list[dict]:
@@ -47,7 +41,7 @@ def _rows(out: pathlib.Path) -> list[dict]:
 
 def _run(cmd: list[str], timeout: float) -> str | None:
     try:
-        p = subprocess.run(cmd, env=_env(), capture_output=True, text=True, timeout=timeout)
+        p = subprocess.run(cmd, env=subprocess_env(), capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired:
         return f"timeout after {timeout:.0f} s"
     return None if p.returncode == 0 else f"exit status {p.returncode}: {p.stderr[-800:]}"

@@ -25,6 +25,8 @@ import sys
 import tempfile
 import time
 
+from benchmarks import subprocess_env
+
 NUM_ENVS = 64
 CHUNK_STEPS = 100
 COMMON = ["--num-envs", str(NUM_ENVS), "--chunk-steps", str(CHUNK_STEPS)]
@@ -35,14 +37,6 @@ def _port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-def _env() -> dict:
-    env = dict(os.environ)
-    env.pop("XLA_FLAGS", None)
-    env["JAX_PLATFORMS"] = "cpu"
-    env.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.expanduser("~/.cache/nmrl/xla"))
-    return env
 
 
 def one_run(processes: int, steps: int, timeout: float) -> dict:
@@ -57,7 +51,7 @@ def one_run(processes: int, steps: int, timeout: float) -> dict:
             cmds = [base + ["--devices", "1", "--coordinator", f"127.0.0.1:{port}", "--num-processes",
                             str(processes), "--process-id", str(i), "--dist-timeout", "120"] for i in range(processes)]
         t0 = time.perf_counter()
-        ps = [subprocess.Popen(c, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for c in cmds]
+        ps = [subprocess.Popen(c, env=subprocess_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for c in cmds]
         try:
             res = [p.communicate(timeout=timeout) for p in ps]
         except subprocess.TimeoutExpired:
