@@ -3,17 +3,30 @@
 # steps per seed (the samples of 10^5 trials), seeds 0 1 2 one after another, niced (the machine
 # is shared with the paper-scale Fig. 3 run). Needs the optional extra: pip install -e '.[brax]'.
 #
-# Resumable: run the same script again; a seed with a run directory continues from its newest
-# checkpoint (fresh Adam state and environments: statistically, not bitwise, the same run; see
-# nmrl/experiments/baseline_ppo.py), a finished seed is skipped. SIGTERM stops after the PPO
-# iteration in flight is saved (exit 143). Publish with: .venv/bin/python scripts/publish_baseline_ppo.py
+# Resumable, also on a fresh clone: run the same script again. A seed with a run directory in $OUT
+# continues from its newest checkpoint; a seed without one that was published in $PUBLISHED
+# (scripts/publish_baseline_ppo.py: config, metrics, resumes and compact.npz, the newest
+# parameters) is copied there first and continues from its compact.npz, which holds the same arrays
+# as the newest checkpoint. A continuation has a fresh Adam state and environments: statistically,
+# not bitwise, the uninterrupted run (see nmrl/experiments/baseline_ppo.py). A finished seed is
+# skipped. SIGTERM stops after the PPO iteration in flight is saved (exit 143).
+# Publish with: .venv/bin/python scripts/publish_baseline_ppo.py
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${OUT:-runs/baseline_ppo}
+PUBLISHED=${PUBLISHED:-results/baseline_ppo}
 SEEDS=${SEEDS:-0 1 2}
 mkdir -p "$OUT"
 for s in $SEEDS; do
   d="$OUT/ppo_s$s"
+  p="$PUBLISHED/ppo_s$s"
+  if [ ! -f "$d/config.json" ] && [ -f "$p/compact.npz" ]; then
+    echo "seeding $d from the published $p (compact continuation state)" >&2
+    mkdir -p "$d"
+    for f in config.json metrics.jsonl resumes.jsonl compact.npz; do
+      if [ -f "$p/$f" ]; then cp "$p/$f" "$d/"; fi
+    done
+  fi
   if [ -f "$d/config.json" ]; then
     nice -n "${NICE:-19}" .venv/bin/nmrl baseline ppo --resume --out "$d"
   else

@@ -8,7 +8,9 @@ control steps = steps per environment x its environments), the actor-critic's de
 evaluations at the budgets (DEST/ac_milestones.json, scripts/ac_milestones.py) and, if present, the
 wall times of benchmarks/results.json's ``baseline`` section. Writes, atomically:
 
-* ``metrics/ppo_s{seed}.jsonl`` and ``config.json`` (the PPO runs' rows and config);
+* ``ppo_s{seed}/{config.json, metrics.jsonl, resumes.jsonl, compact.npz}``: each PPO run's config,
+  rows per iteration, resumes and newest parameters (nmrl.runs.checkpoint.save_tree_compact, ~1 MB):
+  what a fresh clone needs to continue the run (scripts/baseline_ppo.sh seeds runs/ from it);
 * ``comparison.png``: the average reward per control step during learning against control steps
   (PPO's exploring policy, the actor-critic's exploring policy; mean over seeds, each seed thin),
   and the deterministic policies' evaluations (PPO every iteration, the actor-critic at the budgets);
@@ -165,8 +167,9 @@ def main() -> None:
         raise SystemExit(f"publish_baseline_ppo: error: no PPO run with metrics under {a.src}")
     a.dest.mkdir(parents=True, exist_ok=True)
     for s in ppo:
-        store.atomic_copy(a.src / f"ppo_s{s}" / store.METRICS_FILE, a.dest / "metrics" / f"ppo_s{s}.jsonl")
-    store.atomic_copy(a.src / f"ppo_s{min(ppo)}" / store.CONFIG_FILE, a.dest / store.CONFIG_FILE)
+        for name in (store.CONFIG_FILE, store.METRICS_FILE, store.RESUMES_FILE, store.COMPACT_FILE):
+            if (a.src / f"ppo_s{s}" / name).is_file():
+                store.atomic_copy(a.src / f"ppo_s{s}" / name, a.dest / f"ppo_s{s}" / name)
     ac_file = a.dest / "ac_milestones.json"
     ac = json.loads(ac_file.read_text()) if ac_file.is_file() else {}
     summ = summary(ppo, ac)

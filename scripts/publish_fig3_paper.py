@@ -46,9 +46,12 @@ def progress(src: pathlib.Path, spec: sweep.SweepSpec) -> dict:
             div = next((r for r in rows if store.is_diverged(r)), None)
             if div is not None:
                 out["diverged"].append({"point": name, "trials": div["trials"], "step": div["step"]})
+            peak = float(np.max(stats.smooth(np.array([r["avg_reward"] for r in rows])))) if rows else None
+            final = stats.final_avg(rows, "avg_reward")
             out["points"][name] = {"trials": last["trials"], "steps": last["step"],
                                    "budget_share": last["trials"] / budget if budget else None,
-                                   "final_avg_reward": stats.final_avg(rows, "avg_reward"),
+                                   "final_avg_reward": final, "peak_avg_reward": peak,
+                                   "collapsed": bool(peak is not None and peak > 0 and final < 0.5 * peak),
                                    "diverged": div is not None}
             for m in MILESTONES:
                 per[str(m)].append(stats.at_milestone(rows, m))
@@ -63,6 +66,31 @@ def progress(src: pathlib.Path, spec: sweep.SweepSpec) -> dict:
     # one of them (nmrl.runs.driver.metrics_row(points=...))
     recent = sorted(newest.items())[-10:]
     out["rate_ctrl_steps_per_s"] = float(np.median([v[0] for _, v in recent])) if recent else None
+    out["answers"] = answers(out, spec)
+    return out
+
+
+def answers(p: dict, spec: sweep.SweepSpec) -> dict:
+    """The plain answers of issue 14 at every milestone all the compared points have reached:
+    l = 10 against l = 1 (difference of the seed means with its 95% Welch interval, and the relative
+    difference; paper: 4.59 vs 3.28, +40%), the best l (highest seed mean, among the l whose seeds
+    all reached the milestone) and, for l = 30, divergences and collapses (a seed whose last
+    tenth lies below half its running peak)."""
+    out: dict = {"l10_vs_l1": {}, "best_l": {}}
+    by = p["by_l"]
+    for m in map(str, MILESTONES):
+        if "1" in by and "10" in by and by["1"][m]["mean"] is not None and by["10"][m]["mean"] is not None:
+            a, b = np.array(by["1"][m]["seeds"], float), np.array(by["10"][m]["seeds"], float)
+            d, h = stats.diff_ci95(a, b)
+            out["l10_vs_l1"][m] = {"l1": float(a.mean()), "l10": float(b.mean()), "diff": d, "diff_ci95": h,
+                                   "relative": float(b.mean() / a.mean() - 1) if a.mean() > 0 else None}
+        done = {l: e[m]["mean"] for l, e in by.items() if e[m]["mean"] is not None}
+        if done:
+            best = max(done, key=done.get)
+            out["best_l"][m] = {"l": int(best), "mean": done[best], "among": sorted(map(int, done))}
+    if 30 in spec.ls:
+        out["l30"] = {"diverged": [d for d in p["diverged"] if d["point"].startswith("l30_")],
+                      "collapsed": [n for n, q in p["points"].items() if n.startswith("l30_") and q.get("collapsed")]}
     return out
 
 
@@ -87,6 +115,23 @@ def progress_md(p: dict) -> str:
                  if p["rate_ctrl_steps_per_s"] else "Rate: no chunks yet.")
     lines.append("Diverged: " + (", ".join(f"{d['point']} at {d['trials']:,} trials" for d in p["diverged"])
                                  or "none") + ".")
+    collapsed = [n for n, q in p["points"].items() if q.get("collapsed")]
+    lines.append("Collapsed (last tenth below half the running peak): " + (", ".join(collapsed) or "none") + ".")
+    for l, g in (p.get("gaits") or {}).items():
+        lines.append(f"Gait of l = {l}: {g['point']} at {g['trials']:,} trials, deterministic "
+                     f"{f(g['deterministic']['avg_reward'])} per step ({g['deterministic']['forward_speed']:.2f} m/s), "
+                     f"exploring {f(g['exploring']['avg_reward'])}: {g['dir']}/strobe.png, gait.gif")
+    a = p.get("answers") or {}
+    if a.get("l10_vs_l1"):
+        lines += ["", "l = 10 against l = 1 (paper after 10⁵ trials: 4.59 vs 3.28, +40%):", ""]
+        for m, e in a["l10_vs_l1"].items():
+            rel = "–" if e["relative"] is None else f"{100 * e['relative']:+.0f}%"
+            lines.append(f"- {int(m):,} trials: {f(e['l10'])} vs {f(e['l1'])}, difference {f(e['diff'])} "
+                         f"± {e['diff_ci95']:.2f} (95% Welch interval over the seeds), {rel}")
+    if a.get("best_l"):
+        lines += ["", "Best l (highest mean over the seeds, among the l that reached the milestone):", ""]
+        lines += [f"- {int(m):,} trials: l = {e['l']} ({f(e['mean'])}; among l = {', '.join(map(str, e['among']))})"
+                  for m, e in a["best_l"].items()]
     return "\n".join(lines) + "\n"
 
 
@@ -129,10 +174,45 @@ def learning_curves(src: pathlib.Path, spec: sweep.SweepSpec, path: pathlib.Path
         plt.close(fig)
 
 
+GAIT_LS = (1, 10)
+
+
+def gaits(dest: pathlib.Path, spec: sweep.SweepSpec, p: dict, at_trials: int) -> dict:
+    """The best seed's gait for l = 1 and l = 10 once every seed of that l has ``at_trials`` trials:
+    the seed with the highest average reward per step during learning over its last tenth of chunks
+    (``final_avg_reward``), its published compact state evaluated as ``nmrl eval
+    DEST/points/l{l}_s{seed} --out DEST/gaits/l{l}_best`` (10 s, seed 0: eval.json, strobe.png,
+    gait.gif). An existing evaluation of the same point and step is kept (evaluation is
+    deterministic for a given state)."""
+    from nmrl.analysis import evaluate
+    from nmrl.runs import checkpoint
+
+    out = {}
+    for l in GAIT_LS:
+        names = [f"l{l}_s{s}" for s in range(spec.seeds)]
+        if l not in spec.ls or any(p["points"][n]["trials"] < at_trials for n in names):
+            continue
+        best = max(names, key=lambda n: p["points"][n]["final_avg_reward"])
+        src, d = dest / "points" / best, dest / "gaits" / f"l{l}_best"
+        old = json.loads((d / "eval.json").read_text()) if (d / "eval.json").is_file() else None
+        step = int(checkpoint.load_compact(src)[1]["step"])  # the state nmrl eval reads
+        if old is None or pathlib.Path(old["run_dir"]).name != best or old["step"] != step:
+            old = evaluate.evaluate(src, seconds=10.0, seed=0, render=True, out_dir=d)
+        out[str(l)] = {"point": best, "step": old["step"], "trials": old["trials"],
+                       "final_avg_reward_learning": p["points"][best]["final_avg_reward"],
+                       "deterministic": {k: old["deterministic"][k] for k in ("avg_reward", "forward_speed")},
+                       "exploring": {k: old["exploring"][k] for k in ("avg_reward", "forward_speed")},
+                       "dir": str(d.relative_to(dest))}
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--src", default="runs/fig3_paper")
     ap.add_argument("--dest", default="results/fig3_paper")
+    ap.add_argument("--gait-trials", type=int, default=None,
+                    help="render the best l = 1 and l = 10 gaits once every seed has this many trials "
+                         "(default: the budget, 10^5)")
     args = ap.parse_args()
     src, dest = pathlib.Path(args.src), pathlib.Path(args.dest)
     if not (src / sweep.SPEC_FILE).is_file():
@@ -152,6 +232,7 @@ def main() -> None:
     sweep.draw(src, results, dest / "fig3.png")
     learning_curves(src, spec, dest / "learning_curves.png")
     p = progress(src, spec)
+    p["gaits"] = gaits(dest, spec, p, args.gait_trials if args.gait_trials is not None else spec.base.trials)
     store.atomic_write_text(dest / "progress.json", json.dumps(p, indent=1) + "\n")
     store.atomic_write_text(dest / "progress.md", progress_md(p))
     print(progress_md(p))

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import shutil
 
 import jax
 import jax.numpy as jnp
@@ -154,11 +155,26 @@ def test_ppo_baseline_trains_checkpoints_resumes_and_evaluates(tmp_path, capsys)
     assert all(np.isfinite(r["train_reward_per_step"]) for r in rows[1:])
     assert cli.main(["baseline", "ppo", "--out", str(out), "--resume", "--num-envs", "8", *tiny[2:]]) == 2
     assert "num_envs: run 4 vs given 8" in capsys.readouterr().err
+    # a fresh clone of the published run: no checkpoints/, only the committed files (compact.npz)
+    clone = tmp_path / "clone"
+    clone.mkdir()
+    for name in (store.CONFIG_FILE, store.METRICS_FILE, store.COMPACT_FILE):
+        shutil.copy(out / name, clone / name)
     assert cli.main(["baseline", "ppo", "--out", str(out), "--resume", "--quiet"]) == 0
+    assert cli.main(["baseline", "ppo", "--out", str(clone), "--resume", "--quiet"]) == 0
+    # the compact state holds the newest checkpoint's arrays, so the clone continues exactly as the run
+    keep = ("step", "train_reward_per_step", "trials_ended", "eval_avg_reward", "eval_forward_speed")
+    assert ([{k: r[k] for k in keep} for r in store.read_metrics(clone)]
+            == [{k: r[k] for k in keep} for r in store.read_metrics(out)])
     steps = [r["step"] for r in store.read_metrics(out)]
     assert steps == [0, 40, 80, 120]
     (resume,) = store.read_jsonl(out / store.RESUMES_FILE)
     assert resume["from_step"] == 80
+    # a finished run: --resume has nothing to do and writes nothing (no resume record, same rows)
+    rows_before = (out / store.METRICS_FILE).read_bytes()
+    assert cli.main(["baseline", "ppo", "--out", str(out), "--resume", "--quiet"]) == 0
+    assert len(store.read_jsonl(out / store.RESUMES_FILE)) == 1
+    assert (out / store.METRICS_FILE).read_bytes() == rows_before
     assert cli.main(["baseline", "eval", str(out), "--seconds", "0.5", "--no-render", "--out", str(tmp_path / "ev")]) == 0
     res = json.loads(capsys.readouterr().out)
     assert res["step"] == 120 and np.isfinite(res["deterministic"]["avg_reward"])

@@ -455,3 +455,30 @@ def test_killed_inside_a_save_leaves_the_previous_checkpoint_restorable(ref, cac
         assert checkpoint.latest_step(run) == 10
         assert _same(checkpoint.restore(run, ref.trainer), nxt)
         assert not [p for p in (run / "checkpoints").iterdir() if "tmp" in p.name]
+
+
+def test_tree_compact_restores_what_the_tree_checkpoint_holds(tmp_path):
+    """save_tree_compact (the committed form of another learner's checkpoint, e.g. the PPO
+    baseline's) gives back, bit for bit, the arrays that save_tree's orbax checkpoint gives back;
+    a tree of another layout is refused by leaf name, a corrupted file by its digest."""
+    rng = np.random.default_rng(0)
+    tree = ({"mean": rng.normal(size=(31,)).astype(np.float32), "count": np.asarray(7, np.int32)},
+            {"params": {"w": rng.normal(size=(31, 4)).astype(np.float32), "b": np.zeros(4, np.float32)}})
+    template = jax.tree_util.tree_map(np.zeros_like, tree)
+    checkpoint.save_tree(tmp_path, 40, tree, {"kind": "test"})
+    checkpoint.save_tree_compact(tmp_path, 40, tree, {"kind": "test"})
+    m1, full = checkpoint.restore_tree(tmp_path, template)
+    m2, small = checkpoint.restore_tree_compact(tmp_path, template)
+    assert _same(full, small) and _same(small, jax.tree_util.tree_map(jax.numpy.asarray, tree))
+    assert m1["step"] == m2["step"] == 40 and m2["kind"] == "test" and m1["digest"] == m2["digest"]
+    wrong = ({"mean": np.zeros(30, np.float32), "count": np.asarray(0, np.int32)}, template[1])
+    with pytest.raises(CheckpointError, match="mean"):
+        checkpoint.restore_tree_compact(tmp_path, wrong)
+    with np.load(checkpoint.compact_path(tmp_path)) as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays[next(k for k in arrays if k.endswith("w"))][0, 0] += 1.0
+    np.savez(checkpoint.compact_path(tmp_path), **arrays)
+    with pytest.raises(checkpoint.CorruptCheckpoint, match="digest"):
+        checkpoint.restore_tree_compact(tmp_path, template)
+    with pytest.raises(CheckpointError, match="no compact state"):
+        checkpoint.restore_tree_compact(tmp_path / "nothing", template)

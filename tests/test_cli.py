@@ -51,20 +51,23 @@ def test_resume_rules(tmp_path, capsys):
 
 
 def test_eval_a_published_policy_without_touching_it(tmp_path, capsys):
-    """``nmrl eval`` on a policy published under results/ (compact.npz, no checkpoints) with --out:
-    the output goes to --out, the published eval.json stays as it is, and the policy is the
-    published one (its step, trials and l); an --out that is a file is refused."""
+    """``nmrl eval`` on a policy published under results/ (a Fig. 3 point's compact.npz, no
+    checkpoints) with --out: the output goes to --out, the published directory stays byte for byte
+    as it is, and the policy is the published one (the compact state's step and trials, its l);
+    an --out that is a file is refused."""
     import pathlib
 
-    pub = pathlib.Path(__file__).resolve().parents[1] / "results" / "fig3_fast" / "policies" / "l10_best"
-    before = (pub / "eval" / "eval.json").read_bytes()
-    published = json.loads(before)
+    import numpy as np
+
+    pub = pathlib.Path(__file__).resolve().parents[1] / "results" / "fig3_paper" / "points" / "l10_s0"
+    before = {p.name: p.read_bytes() for p in pub.iterdir()}
+    with np.load(pub / "compact.npz") as z:
+        step, trials = int(z["step"]), int(z["trials"])
     assert cli.main(["eval", str(pub), "--seconds", "1", "--no-render", "--out", str(tmp_path / "ev")]) == 0
     out = json.loads(capsys.readouterr().out)
-    assert (out["step"], out["trials"], out["l"]) == (published["step"], published["trials"], 10)
+    assert (out["step"], out["trials"], out["l"]) == (step, trials, 10)
     assert json.loads((tmp_path / "ev" / "eval.json").read_text()) == out
-    assert (pub / "eval" / "eval.json").read_bytes() == before
-    assert not (pub / "checkpoints").exists()
+    assert {p.name: p.read_bytes() for p in pub.iterdir()} == before
     (tmp_path / "file").write_text("x")
     assert cli.main(["eval", str(pub), "--out", str(tmp_path / "file")]) == 2
     assert "--out=" in capsys.readouterr().err

@@ -20,6 +20,21 @@ def mean_ci95(x: np.ndarray) -> tuple[float, float]:
     return float(x.mean()), float(stats.t.ppf(0.975, x.size - 1) * x.std(ddof=1) / np.sqrt(x.size))
 
 
+def diff_ci95(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
+    """``mean(b) - mean(a)`` and the half-width of its 95% Welch interval (unequal variances,
+    Welch-Satterthwaite degrees of freedom); NaN when either sample has fewer than 2 finite values."""
+    a, b = (np.asarray(x, float) for x in (a, b))
+    a, b = a[np.isfinite(a)], b[np.isfinite(b)]
+    if a.size < 2 or b.size < 2:
+        return float("nan"), float("nan")
+    va, vb = a.var(ddof=1) / a.size, b.var(ddof=1) / b.size
+    se2 = va + vb
+    if se2 == 0:
+        return float(b.mean() - a.mean()), 0.0
+    dof = se2**2 / (va**2 / (a.size - 1) + vb**2 / (b.size - 1))
+    return float(b.mean() - a.mean()), float(stats.t.ppf(0.975, dof) * np.sqrt(se2))
+
+
 def smooth(y: np.ndarray, k: int = 5) -> np.ndarray:
     """Trailing running mean over up to ``k`` points (the first points use what exists)."""
     c = np.cumsum(np.insert(np.asarray(y, float), 0, 0.0))

@@ -15,6 +15,8 @@ directory of the run store's layout (nmrl/runs/store.py)::
                         (nmrl.analysis.evaluate.rollout_policy)
     OUT/checkpoints/N   the normalizer, policy and value parameters after N control steps (orbax,
                         nmrl.runs.checkpoint.save_tree), every iteration, newest 3 kept
+    OUT/compact.npz     the newest of them as one small file (checkpoint.save_tree_compact, ~1 MB):
+                        what results/baseline_ppo/ commits so that a fresh clone continues the run
     OUT/resumes.jsonl   one line per resume
 
 **Hyperparameters.** The starting point is Brax's own PPO setting for its Half-Cheetah (the Brax
@@ -22,7 +24,8 @@ training notebook, ``BRAX_HALFCHEETAH``); :data:`CHANGES` lists every change wit
 
 **Resume** (``resume=True``): Brax's ``ppo.train`` runs as one call that cannot be checkpointed
 mid-way; it can start from given parameters (``restore_params``). An interrupted run therefore
-continues from its newest checkpoint's parameters and normalizer with a fresh Adam state, fresh
+continues from its newest checkpoint's parameters and normalizer (or, with no ``checkpoints/``, from
+``compact.npz``: the same arrays, so the same continuation) with a fresh Adam state, fresh
 environments (every trial starts anew) and a new PRNG stream (``seed`` folded with the resume
 count): statistically, not bitwise, the uninterrupted run. An uninterrupted run is exactly Brax's
 PPO. SIGINT/SIGTERM stop after the iteration in flight is saved (:class:`nmrl.runs.driver.Stopped`).
@@ -320,7 +323,9 @@ class _Recorder:
                "eval_nonfinite": ev["nonfinite"], "unix_time": time.time()}
         if compile_s is not None:
             row["setup_s"] = compile_s
-        checkpoint.save_tree(self.out, step, params, {"kind": "brax-ppo", "config": _asdict(self.cfg)})
+        meta = {"kind": "brax-ppo", "config": _asdict(self.cfg)}
+        checkpoint.save_tree(self.out, step, params, meta)
+        checkpoint.save_tree_compact(self.out, step, params, meta)
         store.append_metrics(self.out, row)
         self.rows.append(row)
         self.t_last = time.perf_counter()
@@ -361,10 +366,15 @@ def run(cfg: PPOConfig, out: str | os.PathLike, *, resume: bool = False, progres
         saved = load_config(out)
         _check_resume(cfg, saved, out)
         template = initial_params(saved)
-        if driver.existing_step(out) is None:
-            raise driver.RunError(f"{out}: no checkpoint to resume from")
-        meta, params = checkpoint.restore_tree(out, template)
+        if driver.existing_step(out) is not None:
+            meta, params = checkpoint.restore_tree(out, template)
+        elif checkpoint.has_compact(out):  # a fresh clone of the published run: the same parameters
+            meta, params = checkpoint.restore_tree_compact(out, template)
+        else:
+            raise driver.RunError(f"{out}: no checkpoint (or compact.npz) to resume from")
         step0 = int(meta["step"])
+        if cfg.iterations - step0 // cfg.steps_per_iteration <= 0:
+            return []  # finished: nothing to continue, nothing written
         store.truncate_metrics(out, step0)
         n_resume = len(store.read_jsonl(out / store.RESUMES_FILE)) + 1
         store.append_resume(out, {"from_step": step0, "num_timesteps": cfg.num_timesteps,

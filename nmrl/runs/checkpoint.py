@@ -106,6 +106,10 @@ __all__ = [
     "identity_digest",
     "check_identity",
     "newest_good",
+    "save_tree",
+    "restore_tree",
+    "save_tree_compact",
+    "restore_tree_compact",
 ]
 
 #: Version of the on-disk layout below; bump when it changes incompatibly.
@@ -1011,13 +1015,9 @@ def save_tree(run_dir: str | os.PathLike, step: int, tree: Any, meta: dict, *, k
     return path
 
 
-def restore_tree(run_dir: str | os.PathLike, template: Any, step: int | None = None) -> tuple[dict, Any]:
-    """``(meta, tree)`` of a :func:`save_tree` checkpoint (the newest if ``step`` is None), the tree
-    with ``template``'s structure; CheckpointError if it is not such a checkpoint, does not fit the
-    template (names, shapes, dtypes: named in the message) or fails its digest."""
-    d, step = _resolve_step(run_dir, step)
-    path = d / str(step)
-    meta = _restore_items(d, step, meta=_ocp().args.JsonRestore()).meta
+def _tree_template(path: pathlib.Path, meta: Any, template: Any) -> tuple[list[str], list[Any], Any]:
+    """(names, leaves, treedef) of ``template`` after checking that the saved tree's ``meta`` is an
+    nmrl tree of exactly its layout (names, shapes, dtypes: the differences named in the error)."""
     if not isinstance(meta, dict) or meta.get("format") != TREE_FORMAT:
         raise CheckpointError(f"{path}: not an nmrl tree checkpoint (metadata has no format={TREE_FORMAT!r})")
     names, tleaves, treedef = _flatten(template)
@@ -1027,10 +1027,63 @@ def restore_tree(run_dir: str | os.PathLike, template: Any, step: int | None = N
         have = meta.get("layout") or {}
         diff = sorted(set(want) ^ set(have)) + [n for n in want if n in have and want[n] != have[n]]
         raise CheckpointError(f"{path}: the saved tree does not fit this learner's: {diff[:5]}")
+    return names, tleaves, treedef
+
+
+def restore_tree(run_dir: str | os.PathLike, template: Any, step: int | None = None) -> tuple[dict, Any]:
+    """``(meta, tree)`` of a :func:`save_tree` checkpoint (the newest if ``step`` is None), the tree
+    with ``template``'s structure; CheckpointError if it is not such a checkpoint, does not fit the
+    template (names, shapes, dtypes: named in the message) or fails its digest."""
+    d, step = _resolve_step(run_dir, step)
+    path = d / str(step)
+    meta = _restore_items(d, step, meta=_ocp().args.JsonRestore()).meta
+    names, tleaves, treedef = _tree_template(path, meta, template)
     abstract = {n: jax.ShapeDtypeStruct(tuple(t.shape), np.dtype(t.dtype)) for n, t in zip(names, tleaves)}
     restored = _restore_items(d, step, state=_ocp().args.StandardRestore(_abstract(abstract))).state
     host = {n: np.asarray(restored[n]) for n in names}
     if _digest(host) != meta.get("digest"):
         raise CorruptCheckpoint(f"{path}: the saved tree does not match its digest (corrupted checkpoint)")
+    meta["path"] = str(path)
+    return meta, jax.tree_util.tree_unflatten(treedef, [_to_device(host[n]) for n in names])
+
+
+def save_tree_compact(run_dir: str | os.PathLike, step: int, tree: Any, meta: dict) -> pathlib.Path:
+    """The same tree and metadata as :func:`save_tree`, as one small npz ``RUN_DIR/compact.npz``
+    (replaced atomically at every call): what a run that is continued across machines commits, since
+    ``checkpoints/`` is not committed. :func:`restore_tree_compact` reads it back exactly."""
+    names, leaves, _ = _flatten(tree)
+    host = {n: np.asarray(x) for n, x in zip(names, leaves)}
+    full = {"format": TREE_FORMAT, "schema": SCHEMA_VERSION, "step": int(step), **meta,
+            "layout": _layout(names, list(host.values())), "digest": _digest(host),
+            "versions": _versions(), "saved_unix_time": time.time()}
+    try:
+        blob = json.dumps(full, allow_nan=False).encode()
+    except (TypeError, ValueError) as e:
+        raise TypeError(f"meta must be a JSON-serializable dict: {e}") from e
+    if "meta" in host:
+        raise ValueError("a tree leaf may not be named 'meta' (the compact file's metadata entry)")
+    path = compact_path(run_dir)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with store.atomic_path(path) as tmp:
+        with open(tmp, "wb") as f:
+            np.savez(f, **host, meta=np.frombuffer(blob, np.uint8))
+    return path
+
+
+def restore_tree_compact(run_dir: str | os.PathLike, template: Any) -> tuple[dict, Any]:
+    """``(meta, tree)`` of a :func:`save_tree_compact` file, checked like :func:`restore_tree`
+    (format, layout against ``template``, digest)."""
+    path = compact_path(run_dir)
+    if not path.is_file():
+        raise CheckpointError(f"{path}: no compact state")
+    try:
+        with np.load(path) as z:
+            host = {k: z[k] for k in z.files}
+        meta = json.loads(host.pop("meta").tobytes().decode())
+    except Exception as e:  # noqa: BLE001
+        raise _err(path, "cannot read the compact state (truncated or corrupted?)", e) from e
+    names, _, treedef = _tree_template(path, meta, template)
+    if _digest({n: host[n] for n in names}) != meta.get("digest"):
+        raise CorruptCheckpoint(f"{path}: the compact state does not match its digest (corrupted)")
     meta["path"] = str(path)
     return meta, jax.tree_util.tree_unflatten(treedef, [_to_device(host[n]) for n in names])
