@@ -883,17 +883,26 @@ def save_compact_policy(run_dir: str | os.PathLike, config: TrainConfig, theta: 
     return _write_compact(run_dir, arrays, config, {"kind": POLICY_ONLY})
 
 
-def load_compact(run_dir: str | os.PathLike) -> tuple[dict, dict[str, np.ndarray]]:
-    """(metadata, arrays) of a compact state; CheckpointError if missing, corrupted or foreign."""
-    path = compact_path(run_dir)
+def _read_npz(path: pathlib.Path, missing: str) -> tuple[dict, dict[str, np.ndarray]]:
+    """(metadata, arrays) of a compact npz (its ``meta`` entry is JSON bytes); CheckpointError
+    ``missing`` if there is no file, or naming the file when it cannot be read."""
     if not path.is_file():
-        raise CheckpointError(f"{path}: no compact continuation state")
+        raise CheckpointError(f"{path}: {missing}")
     try:
         with np.load(path) as z:
             arrays = {k: z[k] for k in z.files}
         meta = json.loads(arrays.pop("meta").tobytes().decode())
     except Exception as e:  # noqa: BLE001
         raise _err(path, "cannot read the compact state (truncated or corrupted?)", e) from e
+    if not isinstance(meta, dict):
+        raise CheckpointError(f"{path}: the compact state's metadata is not an object")
+    return meta, arrays
+
+
+def load_compact(run_dir: str | os.PathLike) -> tuple[dict, dict[str, np.ndarray]]:
+    """(metadata, arrays) of a compact state; CheckpointError if missing, corrupted or foreign."""
+    path = compact_path(run_dir)
+    meta, arrays = _read_npz(path, "no compact continuation state")
     if meta.get("format") != COMPACT_FORMAT or meta.get("schema") != COMPACT_SCHEMA:
         raise CheckpointError(f"{path}: not an nmrl compact state of schema {COMPACT_SCHEMA}")
     if _digest(arrays) != meta.get("digest"):
@@ -985,11 +994,9 @@ def restore_compact_policy(run_dir: str | os.PathLike, step: int | None = None, 
 TREE_FORMAT = "nmrl-tree"
 
 
-def save_tree(run_dir: str | os.PathLike, step: int, tree: Any, meta: dict, *, keep: int = 3) -> pathlib.Path:
-    """Save any pytree of arrays (another learner's state, e.g. the PPO baseline's parameters and
-    observation normalizer) as the orbax checkpoint ``RUN_DIR/checkpoints/STEP``, the run store's
-    layout. ``meta`` (JSON) is stored beside it with the tree's layout and data digest; the newest
-    ``keep`` checkpoints are kept. Synchronous and atomic, like :func:`save`."""
+def _tree_record(step: int, tree: Any, meta: dict) -> tuple[dict[str, np.ndarray], dict]:
+    """(host arrays by leaf name, full metadata) of a tree to save: ``meta`` with the format, step,
+    layout, data digest, versions and commit; TypeError if ``meta`` is not JSON."""
     names, leaves, _ = _flatten(tree)
     host = {n: np.asarray(x) for n, x in zip(names, leaves)}
     full = {"format": TREE_FORMAT, "schema": SCHEMA_VERSION, "step": int(step), **meta,
@@ -999,6 +1006,15 @@ def save_tree(run_dir: str | os.PathLike, step: int, tree: Any, meta: dict, *, k
         json.dumps(full, allow_nan=False)
     except (TypeError, ValueError) as e:
         raise TypeError(f"meta must be a JSON-serializable dict: {e}") from e
+    return host, full
+
+
+def save_tree(run_dir: str | os.PathLike, step: int, tree: Any, meta: dict, *, keep: int = 3) -> pathlib.Path:
+    """Save any pytree of arrays (another learner's state, e.g. the PPO baseline's parameters and
+    observation normalizer) as the orbax checkpoint ``RUN_DIR/checkpoints/STEP``, the run store's
+    layout. ``meta`` (JSON) is stored beside it with the tree's layout and data digest; the newest
+    ``keep`` checkpoints are kept. Synchronous and atomic, like :func:`save`."""
+    host, full = _tree_record(step, tree, meta)
     d = checkpoint_dir(run_dir)
     ocp = _ocp()
     try:
@@ -1051,15 +1067,8 @@ def save_tree_compact(run_dir: str | os.PathLike, step: int, tree: Any, meta: di
     """The same tree and metadata as :func:`save_tree`, as one small npz ``RUN_DIR/compact.npz``
     (replaced atomically at every call): what a run that is continued across machines commits, since
     ``checkpoints/`` is not committed. :func:`restore_tree_compact` reads it back exactly."""
-    names, leaves, _ = _flatten(tree)
-    host = {n: np.asarray(x) for n, x in zip(names, leaves)}
-    full = {"format": TREE_FORMAT, "schema": SCHEMA_VERSION, "step": int(step), **meta,
-            "layout": _layout(names, list(host.values())), "digest": _digest(host),
-            "versions": _versions(), "saved_unix_time": time.time()}
-    try:
-        blob = json.dumps(full, allow_nan=False).encode()
-    except (TypeError, ValueError) as e:
-        raise TypeError(f"meta must be a JSON-serializable dict: {e}") from e
+    host, full = _tree_record(step, tree, meta)
+    blob = json.dumps(full, allow_nan=False).encode()
     if "meta" in host:
         raise ValueError("a tree leaf may not be named 'meta' (the compact file's metadata entry)")
     path = compact_path(run_dir)
@@ -1074,14 +1083,7 @@ def restore_tree_compact(run_dir: str | os.PathLike, template: Any) -> tuple[dic
     """``(meta, tree)`` of a :func:`save_tree_compact` file, checked like :func:`restore_tree`
     (format, layout against ``template``, digest)."""
     path = compact_path(run_dir)
-    if not path.is_file():
-        raise CheckpointError(f"{path}: no compact state")
-    try:
-        with np.load(path) as z:
-            host = {k: z[k] for k in z.files}
-        meta = json.loads(host.pop("meta").tobytes().decode())
-    except Exception as e:  # noqa: BLE001
-        raise _err(path, "cannot read the compact state (truncated or corrupted?)", e) from e
+    meta, host = _read_npz(path, "no compact state")
     names, _, treedef = _tree_template(path, meta, template)
     if _digest({n: host[n] for n in names}) != meta.get("digest"):
         raise CorruptCheckpoint(f"{path}: the compact state does not match its digest (corrupted)")
