@@ -17,7 +17,12 @@ wall times of benchmarks/results.json's ``baseline`` section. Writes, atomically
 * ``summary.json``: per method and budget (10^6, 10^7, 2.5*10^7 control steps), the deterministic
   policies' average reward per step and forward speed, mean +/- 95% CI over seeds, each seed,
   and the control steps each was actually taken at (PPO: the iteration boundary nearest the
-  budget); printed as a markdown table.
+  budget); printed as a markdown table;
+* once every seed has ``--gait-steps`` control steps (default 2.5*10^7): ``gaits/ppo_best/`` (the
+  best seed by its last deterministic evaluation, evaluated from its compact state like ``nmrl
+  baseline eval``: eval.json, strobe.png, gait.gif) and ``gaits.png``, its strobe above those of the
+  actor-critic's best l = 1 and l = 10 seeds at 10^5 trials (results/fig3_paper/gaits/, written by
+  scripts/publish_fig3_paper.py) where they exist.
 """
 
 from __future__ import annotations
@@ -143,6 +148,51 @@ def _mean_line(ax, series: list[list[tuple[float, float]]], color: str, label: s
     ax.plot(x, y, color=color, lw=1.8, label=f"{label}, mean of {len(series)}")
 
 
+def gaits(dest: pathlib.Path, ppo: dict[int, list[dict]], ac_gaits: pathlib.Path, at_steps: float) -> dict:
+    """The best PPO seed's gait and the side-by-side picture (see the module docstring); {} until
+    every seed has ``at_steps`` control steps."""
+    if not ppo or any(rows[-1]["step"] < at_steps for rows in ppo.values()):
+        return {}
+    from nmrl.experiments import baseline_ppo as bp
+
+    best = max(ppo, key=lambda s: ppo[s][-1]["eval_avg_reward"])
+    src, d = dest / f"ppo_s{best}", dest / "gaits" / "ppo_best"
+    old = json.loads((d / "eval.json").read_text()) if (d / "eval.json").is_file() else None
+    if old is None or pathlib.Path(old["run_dir"]).name != src.name or old["step"] != ppo[best][-1]["step"]:
+        old = bp.evaluate_checkpoint(src, seconds=10.0, render=True, out_dir=d)
+    panels = [(f"Brax PPO, seed {best}, {old['step']:,} control steps", d / "strobe.png")]
+    for l in AC_LS:
+        e = ac_gaits / f"l{l}_best" / "eval.json"
+        if e.is_file():
+            ev = json.loads(e.read_text())
+            panels.append((f"nm-period actor-critic, l = {l}, {pathlib.Path(ev['run_dir']).name}, "
+                           f"{ev['trials']:,} trials", e.parent / "strobe.png"))
+    side_by_side(panels, dest / "gaits.png")
+    return {"ppo_best_seed": best, "step": old["step"], "deterministic": old["deterministic"]["avg_reward"],
+            "forward_speed": old["deterministic"]["forward_speed"], "panels": [t for t, _ in panels]}
+
+
+def side_by_side(panels: list[tuple[str, pathlib.Path]], path: pathlib.Path) -> None:
+    """The strobe pictures ``panels`` (title, png) one above the other in one figure."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    imgs = [plt.imread(p) for _, p in panels]
+    width = max(i.shape[1] for i in imgs) / 100
+    fig, axes = plt.subplots(len(imgs), 1, figsize=(width, sum(i.shape[0] / 100 + 0.3 for i in imgs)), dpi=100,
+                             squeeze=False)
+    for ax, (title, _), img in zip(axes[:, 0], panels, imgs):
+        ax.imshow(img)
+        ax.set_axis_off()
+        ax.set_title(title, fontsize=11)
+    fig.tight_layout()
+    with store.atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+
+
 def table(summ: dict) -> str:
     lines = ["| method | " + " | ".join(f"{k} steps" for k in BUDGETS) + " |", "|---|" + "---|" * len(BUDGETS)]
     names = {"ppo": "Brax PPO", **{f"ac_l{l}": f"actor-critic, l = {l}" for l in AC_LS}}
@@ -161,6 +211,9 @@ def main() -> None:
     ap.add_argument("--src", type=pathlib.Path, default=ROOT / "runs" / "baseline_ppo")
     ap.add_argument("--dest", type=pathlib.Path, default=ROOT / "results" / "baseline_ppo")
     ap.add_argument("--ac-points", type=pathlib.Path, default=ROOT / "results" / "fig3_paper" / "points")
+    ap.add_argument("--ac-gaits", type=pathlib.Path, default=ROOT / "results" / "fig3_paper" / "gaits")
+    ap.add_argument("--gait-steps", type=float, default=2.5e7,
+                    help="render the gaits once every PPO seed has this many control steps (default 2.5e7)")
     a = ap.parse_args()
     ppo = ppo_runs(a.src)
     if not ppo:
@@ -178,6 +231,7 @@ def main() -> None:
         ba = json.loads(bench.read_text()).get("baseline") or {}
         summ["hours_per_1e7_steps"] = ba.get("hours_per_1e7_steps")
     summ["ppo_steps_reached"] = {s: rows[-1]["step"] for s, rows in ppo.items()}
+    summ["gaits"] = gaits(a.dest, ppo, a.ac_gaits, a.gait_steps)
     store.atomic_write_json(a.dest / "summary.json", summ)
     draw(ppo, ac_curves(a.ac_points), ac, a.dest / "comparison.png")
     print(table(summ))

@@ -178,6 +178,13 @@ def test_ppo_baseline_trains_checkpoints_resumes_and_evaluates(tmp_path, capsys)
     assert cli.main(["baseline", "eval", str(out), "--seconds", "0.5", "--no-render", "--out", str(tmp_path / "ev")]) == 0
     res = json.loads(capsys.readouterr().out)
     assert res["step"] == 120 and np.isfinite(res["deterministic"]["avg_reward"])
+    # the published form (compact.npz, no checkpoints/) evaluates the same policy
+    shutil.rmtree(clone / "checkpoints")
+    assert cli.main(["baseline", "eval", str(clone), "--seconds", "0.5", "--no-render", "--out", str(tmp_path / "ev2")]) == 0
+    res2 = json.loads(capsys.readouterr().out)
+    assert res2["step"] == 120 and res2["deterministic"] == res["deterministic"]
+    assert cli.main(["baseline", "eval", str(clone), "--step", "80", "--no-render", "--out", str(tmp_path / "ev3")]) == 2
+    assert "not 80" in capsys.readouterr().err
     # the evaluation is the saved policy's: the same rollout from the restored parameters
     meta, params = checkpoint.restore_tree(out, bp.initial_params(cfg))
     again = bp.evaluate_params(cfg, params, seconds=0.5)

@@ -3,8 +3,13 @@
 tests/data/f021abf_train_run and tests/data/f021abf_sweep_run were written by ``nmrl train`` and
 ``nmrl sweep`` at f021abf and stopped after one chunk (tests/data/make_f021abf_runs.py); the same
 code, run on without interruption to step 10, wrote tests/data/expected_*. Resuming them with
-today's code must continue every point from its checkpoint and reproduce those metrics exactly
-(the learner is unchanged, the restored state is the full training state).
+today's code must continue every point from its checkpoint and reproduce those metrics (the
+learner is unchanged, the restored state is the full training state): counters and flags exactly;
+real numbers exactly on the machine that wrote the data, and to float32 rounding elsewhere (XLA's
+CPU code differs between processors: on an AMD EPYC the continued chunk's metrics moved by up to
+2*10^-7 absolute, 1*10^-5 relative on a near-zero speed). A continuation from anything but the
+saved state changes them by far more: continuing the two sweep points from their compact states
+(fresh traces and trials) moved the float metrics by a median 0.02-0.03 and at most 0.56 and 0.89.
 """
 
 from __future__ import annotations
@@ -28,11 +33,21 @@ TIMING = {"wall_s", "steps_per_s"}
 ADDED = {f"{k}_{p}_{s}" for k in ("gnorm", "unorm") for p in ("theta", "v") for s in ("mean", "max")}
 
 
+#: float32 rounding of another processor's XLA code (see the module docstring)
+RTOL = ATOL = 1e-5
+
+
+def _same(g, w) -> bool:
+    if isinstance(w, float) and isinstance(g, float):
+        return bool(np.isclose(g, w, rtol=RTOL, atol=ATOL, equal_nan=True))
+    return g == w
+
+
 def _same_rows(got: list[dict], want: list[dict]) -> None:
     assert [r["step"] for r in got] == [r["step"] for r in want]
     for g, w in zip(got, want):
         assert set(g) - ADDED == set(w), set(g) ^ set(w)
-        diff = {k: (g[k], w[k]) for k in w if k not in TIMING and g[k] != w[k]}
+        diff = {k: (g[k], w[k]) for k in w if k not in TIMING and not _same(g[k], w[k])}
         assert not diff, f"step {w['step']}: {diff}"
 
 

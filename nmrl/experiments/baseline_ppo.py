@@ -254,10 +254,17 @@ def evaluate_params(cfg: PPOConfig, params: Any, *, seconds: float | None = None
 def evaluate_checkpoint(run_dir: str | os.PathLike, step: int | None = None, *, seconds: float = 10.0,
                         render: bool = True, out_dir: str | os.PathLike | None = None) -> dict:
     """Evaluate a PPO baseline checkpoint like ``nmrl eval`` (JSON, strobe, GIF in ``out_dir``,
-    default RUN_DIR/eval)."""
+    default RUN_DIR/eval). A directory with ``compact.npz`` and no ``checkpoints/`` (a published
+    seed, ``results/baseline_ppo/ppo_s{seed}``) is evaluated from its compact state."""
     run_dir = pathlib.Path(run_dir)
     cfg = load_config(run_dir)
-    meta, params = checkpoint.restore_tree(run_dir, initial_params(cfg), step)
+    if checkpoint.uses_compact(run_dir):
+        meta, params = checkpoint.restore_tree_compact(run_dir, initial_params(cfg))
+        if step is not None and int(step) != int(meta["step"]):
+            raise checkpoint.CheckpointError(f"{meta['path']}: the compact state is at step {meta['step']}, "
+                                             f"not {step} (a compact state holds one step only)")
+    else:
+        meta, params = checkpoint.restore_tree(run_dir, initial_params(cfg), step)
     ev = evaluate_params(cfg, params, seconds=seconds)
     traj = ev.pop("_traj")
     out_dir = pathlib.Path(out_dir) if out_dir is not None else run_dir / evaluate.EVAL_DIR
