@@ -14,7 +14,11 @@ Writes into ``dest`` (each file atomically):
   10^4, 2*10^4, 3*10^4 and 10^5 trials (mean over the chunks whose trial count lies in (0.9 M, M], i.e. the
   last tenth before the milestone M), mean +- 95% CI over the seeds and each seed; the share of the
   budget every point has; divergences (point, trials); the measured rate (control steps/s of the
-  whole machine over the last chunks, from metrics ``wall_s``).
+  whole machine over the last chunks, from metrics ``wall_s``); the plain answers at every milestone
+  reached (l = 10 against l = 1: difference of the seed means with its 95% Welch interval and the
+  relative difference; the best l; collapsed points, i.e. last tenth below half the running peak);
+* ``gaits/l{1,10}_best/{eval.json, strobe.png, gait.gif}`` once every seed of that l has
+  ``--gait-trials`` trials (default the budget): the best seed's gait (see :func:`gaits`).
 """
 
 from __future__ import annotations
@@ -214,6 +218,8 @@ def main() -> None:
                     help="render the best l = 1 and l = 10 gaits once every seed has this many trials "
                          "(default: the budget, 10^5)")
     args = ap.parse_args()
+    if args.gait_trials is not None and args.gait_trials < 1:
+        raise SystemExit(f"publish_fig3_paper: error: --gait-trials={args.gait_trials} is invalid: must be >= 1")
     src, dest = pathlib.Path(args.src), pathlib.Path(args.dest)
     if not (src / sweep.SPEC_FILE).is_file():
         raise SystemExit(f"publish_fig3_paper: error: {src / sweep.SPEC_FILE} not found; is {src} a sweep directory?")
