@@ -68,7 +68,9 @@ STAND_TOL_M = 0.01
 FLOOR_FACTOR = 10.0
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-DEFAULT_RUN = ROOT / "results" / "fig3_fast" / "policies" / "l10_best"
+#: a published Fig. 3 point (its compact continuation state; nmrl eval reads it). The README table was
+#: measured on results/fig3_fast/policies/l10_best, whose compact.npz is in git history up to 81c7f70.
+DEFAULT_RUN = ROOT / "results" / "fig3_paper" / "points" / "l10_s0"
 DEFAULT_OUT = ROOT / "results" / "physics_fidelity" / "fidelity.json"
 QUICK_OUT = ROOT / "results" / "physics_fidelity" / "fidelity_quick.json"
 
