@@ -471,6 +471,9 @@ def test_tree_compact_restores_what_the_tree_checkpoint_holds(tmp_path):
     m2, small = checkpoint.restore_tree_compact(tmp_path, template)
     assert _same(full, small) and _same(small, jax.tree_util.tree_map(jax.numpy.asarray, tree))
     assert m1["step"] == m2["step"] == 40 and m2["kind"] == "test" and m1["digest"] == m2["digest"]
+    with pytest.raises(CheckpointError, match="at step 40, not 30"):
+        checkpoint.restore_tree_compact(tmp_path, template, step=30)
+    assert checkpoint.restore_tree_compact(tmp_path, template, step=40)[0]["step"] == 40
     wrong = ({"mean": np.zeros(30, np.float32), "count": np.asarray(0, np.int32)}, template[1])
     with pytest.raises(CheckpointError, match="mean"):
         checkpoint.restore_tree_compact(tmp_path, wrong)

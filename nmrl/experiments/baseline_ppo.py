@@ -258,13 +258,8 @@ def evaluate_checkpoint(run_dir: str | os.PathLike, step: int | None = None, *, 
     seed, ``results/baseline_ppo/ppo_s{seed}``) is evaluated from its compact state."""
     run_dir = pathlib.Path(run_dir)
     cfg = load_config(run_dir)
-    if checkpoint.uses_compact(run_dir):
-        meta, params = checkpoint.restore_tree_compact(run_dir, initial_params(cfg))
-        if step is not None and int(step) != int(meta["step"]):
-            raise checkpoint.CheckpointError(f"{meta['path']}: the compact state is at step {meta['step']}, "
-                                             f"not {step} (a compact state holds one step only)")
-    else:
-        meta, params = checkpoint.restore_tree(run_dir, initial_params(cfg), step)
+    restore = checkpoint.restore_tree_compact if checkpoint.uses_compact(run_dir) else checkpoint.restore_tree
+    meta, params = restore(run_dir, initial_params(cfg), step)
     ev = evaluate_params(cfg, params, seconds=seconds)
     traj = ev.pop("_traj")
     out_dir = pathlib.Path(out_dir) if out_dir is not None else run_dir / evaluate.EVAL_DIR

@@ -1079,11 +1079,15 @@ def save_tree_compact(run_dir: str | os.PathLike, step: int, tree: Any, meta: di
     return path
 
 
-def restore_tree_compact(run_dir: str | os.PathLike, template: Any) -> tuple[dict, Any]:
+def restore_tree_compact(run_dir: str | os.PathLike, template: Any, step: int | None = None) -> tuple[dict, Any]:
     """``(meta, tree)`` of a :func:`save_tree_compact` file, checked like :func:`restore_tree`
-    (format, layout against ``template``, digest)."""
+    (format, layout against ``template``, digest); CheckpointError if ``step`` is given and is not
+    the one step the file holds."""
     path = compact_path(run_dir)
     meta, host = _read_npz(path, "no compact state")
+    if step is not None and int(step) != meta.get("step"):
+        raise CheckpointError(f"{path}: the compact state is at step {meta.get('step')}, not {int(step)} "
+                              f"(a compact state holds one step only)")
     names, _, treedef = _tree_template(path, meta, template)
     if _digest({n: host[n] for n in names}) != meta.get("digest"):
         raise CorruptCheckpoint(f"{path}: the compact state does not match its digest (corrupted)")
