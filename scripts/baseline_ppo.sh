@@ -11,12 +11,16 @@
 # not bitwise, the uninterrupted run (see nmrl/experiments/baseline_ppo.py). A finished seed is
 # skipped. SIGTERM stops after the PPO iteration in flight is saved (exit 143).
 # Publish with: .venv/bin/python scripts/publish_baseline_ppo.py
+# CPUS=1 (a taskset list) runs it on those cores only (one XLA device per core): beside the
+# Fig. 3 sweep pinned to the other core (CPUS=0 scripts/fig3_paper.sh).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${OUT:-runs/baseline_ppo}
 PUBLISHED=${PUBLISHED:-results/baseline_ppo}
 SEEDS=${SEEDS:-0 1 2}
 mkdir -p "$OUT"
+PIN=()
+if [ -n "${CPUS:-}" ]; then PIN=(taskset -c "$CPUS"); fi
 for s in $SEEDS; do
   d="$OUT/ppo_s$s"
   p="$PUBLISHED/ppo_s$s"
@@ -28,8 +32,8 @@ for s in $SEEDS; do
     done
   fi
   if [ -f "$d/config.json" ]; then
-    nice -n "${NICE:-19}" .venv/bin/nmrl baseline ppo --resume --out "$d"
+    nice -n "${NICE:-19}" ${PIN[@]+"${PIN[@]}"} .venv/bin/nmrl baseline ppo --resume --out "$d"
   else
-    nice -n "${NICE:-19}" .venv/bin/nmrl baseline ppo --seed "$s" --out "$d"
+    nice -n "${NICE:-19}" ${PIN[@]+"${PIN[@]}"} .venv/bin/nmrl baseline ppo --seed "$s" --out "$d"
   fi
 done

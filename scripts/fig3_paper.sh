@@ -11,6 +11,9 @@
 # a new trial). Publish the progress with: .venv/bin/python scripts/publish_fig3_paper.py
 #
 # PRESET=fast uses the "fast" step sizes (nmrl/paper/learner.py) instead of the paper's.
+# CPUS=0 (a taskset list) runs it on those cores only, with one XLA device per core: the way to
+# share the machine with another long run (scripts/baseline_ppo.sh with CPUS=1), since the sweep's
+# devices step in one program and one busy core holds them all back.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PRESET=${PRESET:-paper}
@@ -20,10 +23,12 @@ TRIALS=${TRIALS:-100000}
 NUM_ENVS=${NUM_ENVS:-32}
 . scripts/seed_run.sh
 seed_run "$OUT" "$PUBLISHED"
+PIN=()
+if [ -n "${CPUS:-}" ]; then PIN=(taskset -c "$CPUS"); fi
 if [ -f "$OUT/sweep.json" ]; then
-  exec nice -n "${NICE:-19}" .venv/bin/nmrl sweep --resume --l 1 --out "$OUT" --trials "$TRIALS" \
+  exec nice -n "${NICE:-19}" ${PIN[@]+"${PIN[@]}"} .venv/bin/nmrl sweep --resume --l 1 --out "$OUT" --trials "$TRIALS" \
     --checkpoint-every 2
 fi
-exec nice -n "${NICE:-19}" .venv/bin/nmrl sweep --l 1 2 3 5 10 15 20 30 --seeds 3 --first 1 10 30 \
+exec nice -n "${NICE:-19}" ${PIN[@]+"${PIN[@]}"} .venv/bin/nmrl sweep --l 1 2 3 5 10 15 20 30 --seeds 3 --first 1 10 30 \
   --num-envs "$NUM_ENVS" --chunk-steps 1000 --preset "$PRESET" --trials "$TRIALS" --checkpoint-every 2 \
   --out "$OUT"
