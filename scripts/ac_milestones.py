@@ -8,8 +8,8 @@ For every point l{l}_s{seed} of ``--ls`` (default 1 and 10) under SRC/points/ (a
 with checkpoints, or published compact states: ``nmrl eval`` reads either), or under
 results/fig3_paper/points/ as committed at ``--git-rev``, evaluates the deterministic policy for
 ``--seconds`` (10 s, seed 0; nmrl.analysis.evaluate) and records the control steps it was trained
-on (steps per environment x environments), its trials, its average reward per step and forward
-speed. The rows are merged into ``--out`` (results/baseline_ppo/ac_milestones.json) under
+on (steps per environment x environments), its trials, its average reward per step, forward
+speed and gait (stride frequency and length per paw, wrist on the ground: nmrl.analysis.evaluate.gait). The rows are merged into ``--out`` (results/baseline_ppo/ac_milestones.json) under
 ``--label``, written atomically.
 """
 
@@ -64,9 +64,11 @@ def main() -> None:
                 rows.append({"l": l, "seed": s, "steps_per_env": ev["step"], "num_envs": cfg.num_envs,
                              "control_steps": ev["step"] * cfg.num_envs, "trials": ev["trials"],
                              "avg_reward": det["avg_reward"], "forward_speed": det["forward_speed"],
-                             "source": a.git_rev or str(a.src)})
+                             "gait": det["gait"], "source": a.git_rev or str(a.src)})
+                hind = det["gait"]["hind_paw"]
                 print(f"{a.label}: l={l} seed={s} {rows[-1]['control_steps']:,} control steps, {ev['trials']:,} "
-                      f"trials: {det['avg_reward']:+.3f} per step, {det['forward_speed']:+.2f} m/s")
+                      f"trials: {det['avg_reward']:+.3f} per step, {det['forward_speed']:+.2f} m/s, hind paw "
+                      f"{hind['stride_frequency_hz']:.2f} Hz x {hind['stride_length_m'] or float('nan'):.2f} m")
     out = json.loads(a.out.read_text()) if a.out.is_file() else {}
     out[a.label] = {"seconds": a.seconds, "rows": rows}
     a.out.parent.mkdir(parents=True, exist_ok=True)

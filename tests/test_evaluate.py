@@ -21,7 +21,7 @@ from nmrl.paper.learner import TrainConfig, make_train
 
 CFG = TrainConfig(num_envs=4, chunk_steps=5, hidden_actor=8, hidden_critic=8, steps=10, seed=1)
 SECONDS = 1.0
-POLICY_KEYS = {"avg_reward", "forward_speed", "distance", "terms", "ground_share", "nonfinite"}
+POLICY_KEYS = {"avg_reward", "forward_speed", "distance", "terms", "ground_share", "gait", "nonfinite"}
 
 
 @pytest.fixture(scope="module")
@@ -52,6 +52,52 @@ def _check_policy(d: dict) -> None:
     for v in d["ground_share"].values():
         assert 0.0 <= v <= 1.0
     assert math.isclose(d["avg_reward"], sum(d["terms"].values()), rel_tol=1e-4, abs_tol=1e-5)
+    g = d["gait"]
+    assert set(g) == {"from_s", "hind_paw", "front_paw", "wrist_ground_share"}
+    assert g["from_s"] == SECONDS / 2  # a 1-s rollout: strides counted over its second half
+    for paw in ("hind_paw", "front_paw"):
+        p = g[paw]
+        assert isinstance(p["touchdowns"], int) and p["touchdowns"] >= 0
+        assert math.isclose(p["stride_frequency_hz"], p["touchdowns"] / (SECONDS - g["from_s"]))
+        assert (p["stride_length_m"] is None) == (p["touchdowns"] == 0)
+        assert 0.0 <= p["ground_share"] <= 1.0
+    assert 0.0 <= g["wrist_ground_share"] <= 1.0
+
+
+def test_gait_counts_touchdowns_of_a_known_stride():
+    """A made-up trial: the hind paw lands every 0.25 s (4 Hz) and stays down 0.1 s, the front paw
+    never lands, the wrist is always down, the trunk moves at 3 m/s: 4 Hz, 0.75 m per stride, ground
+    shares 0.4 / 0 / 1, counted from 1 s on (the landing from the initial pose is not a stride);
+    then an irregular stride, whose interval_cv is large."""
+    dt, n = 0.02, 500  # 10 s
+    t = np.arange(n + 1) * dt
+    pos = np.zeros((n + 1, 10, 2))
+    pos[:, :, 1] = 0.3
+    phase = np.arange(n + 1) % 12.5  # not a whole number of steps: the stride does not lock to dt
+    pos[:, 0, 1] = np.where(phase >= 7.5, 0.0, 0.2)  # down 5 of every 12.5 steps
+    pos[:, evaluate.WRIST, 1] = 0.0
+    x = 3.0 * t
+    g = evaluate.gait(pos, x, dt)
+    assert g["from_s"] == 1.0
+    hind = g["hind_paw"]
+    window = (phase[50:] >= 7.5)
+    expected = int(np.sum(~window[:-1] & window[1:]))
+    assert hind["touchdowns"] == expected and abs(expected - 9 * 4) <= 1
+    assert math.isclose(hind["stride_frequency_hz"], expected / 9.0)
+    assert math.isclose(hind["stride_length_m"], 27.0 / expected)
+    assert abs(hind["ground_share"] - 0.4) < 0.01
+    assert hind["interval_cv"] < 0.05  # intervals of 12 and 13 steps
+    assert g["front_paw"] == {"touchdowns": 0, "stride_frequency_hz": 0.0, "stride_length_m": None,
+                              "interval_cv": None, "ground_share": 0.0}
+    # an irregular stride: landings after 6, 7, 20, 6, 7, 20, ... steps
+    pos[:, 0, 1] = 0.2
+    at = 50 + np.cumsum(np.tile([6, 7, 20], 20))
+    pos[at[at <= n], 0, 1] = 0.0
+    gaps = np.tile([6, 7, 20], 20)[1:len(at[at <= n])]
+    irregular = evaluate.gait(pos, x, dt)["hind_paw"]
+    assert irregular["touchdowns"] == len(at[at <= n])
+    assert math.isclose(irregular["interval_cv"], np.std(gaps) / np.mean(gaps)) and irregular["interval_cv"] > 0.5
+    assert g["wrist_ground_share"] == 1.0
 
 
 def test_json_well_formed(result, run):

@@ -42,6 +42,11 @@ __all__ = ["evaluate", "rollout", "rollout_policy", "summarize", "plot_strobe", 
 
 #: ground_share key -> metric of nmrl.paper.env.
 GROUND_KEYS = {"heel": "heel_ground", "knee": "knee_ground", "head": "head_ground"}
+#: gait key -> joint (nmrl/paper/geometry.py: 0 the hind paw, 9 the front paw, 8 the wrist)
+PAWS = {"hind_paw": 0, "front_paw": 9}
+WRIST = 8
+#: strides are counted from this time on (the trial starts at rest, hind paw 0.1 m up: Sec. V-C)
+GAIT_FROM_S = 1.0
 EVAL_DIR = "eval"
 GIF_FPS = 25.0
 
@@ -92,6 +97,7 @@ def rollout(config, theta, *, seconds: float, seed: int, exploring: bool) -> dic
     out = {k: np.asarray(v) for k, v in jax.device_get(traj).items()}
     out["pos"] = np.concatenate([np.asarray(pos0)[None], out["pos"]], axis=0)
     out["x0"] = np.asarray(x0)
+    out["control_dt"] = float(config.control_dt)
     return out
 
 
@@ -130,6 +136,7 @@ def rollout_policy(act: Callable, params: Any, *, control_dt: float, seconds: fl
     out = {k: np.asarray(v) for k, v in jax.device_get(traj).items()}
     out["pos"] = np.concatenate([np.asarray(pos0)[None], out["pos"]], axis=0)
     out["x0"] = np.asarray(x0)
+    out["control_dt"] = float(control_dt)
     return out
 
 
@@ -144,8 +151,40 @@ def _num(x: Any) -> float | None:
     return x if math.isfinite(x) else None
 
 
+def gait(pos: np.ndarray, x: np.ndarray, control_dt: float, contact_tol: float | None = None) -> dict[str, Any]:
+    """Strides of one rollout, to compare gaits with the paper's words (Sec. V-D: for l = 1 "the
+    object takes very fine strides or runs on its wrist and heel").
+
+    ``pos`` (T+1, 10, 2): the joints' (x, y) at t = 0, dt, ..., T dt; ``x`` (T+1,): the trunk's x
+    at the same times. From ``GAIT_FROM_S`` on (past the start from rest; from half the rollout when
+    it is shorter than twice that), per paw (hind, front): ``touchdowns`` (steps where its height
+    goes from above the contact tolerance, nmrl.paper.env's ``[y = 0]``, to at or below it),
+    ``stride_frequency_hz`` (touchdowns per second), ``stride_length_m`` (the trunk's distance per
+    touchdown; None without one), ``interval_cv`` (the coefficient of variation of the times between
+    touchdowns: ~0 for a regular stride; None with fewer than 3 touchdowns), ``ground_share``
+    (share of the steps it stands on the ground);
+    and ``wrist_ground_share``. Also ``from_s``, the start of that window."""
+    tol = EnvConfig().contact_tol if contact_tol is None else contact_tol
+    n = len(x) - 1  # steps
+    k0 = min(int(round(GAIT_FROM_S / control_dt)), n // 2)  # the window is t = k0 dt ... T dt
+    y = np.asarray(pos)[k0:, :, 1]
+    seconds = (n - k0) * control_dt
+    dist = float(x[-1] - x[k0])
+    out: dict[str, Any] = {"from_s": k0 * control_dt}
+    for name, j in PAWS.items():
+        down = y[:, j] <= tol
+        at = np.flatnonzero(~down[:-1] & down[1:])  # touchdown steps
+        touch, gaps = len(at), np.diff(at)
+        out[name] = {"touchdowns": touch, "stride_frequency_hz": _num(touch / seconds),
+                     "stride_length_m": _num(dist / touch) if touch else None,
+                     "interval_cv": _num(np.std(gaps) / np.mean(gaps)) if len(gaps) >= 2 else None,
+                     "ground_share": _num(np.mean(down[1:]))}
+    out["wrist_ground_share"] = _num(np.mean(y[1:, WRIST] <= tol))
+    return out
+
+
 def summarize(traj: dict[str, np.ndarray]) -> dict[str, Any]:
-    """The JSON summary of one rollout."""
+    """The JSON summary of one rollout (:func:`rollout`, :func:`rollout_policy`)."""
     x = traj["x"]
     return {
         "avg_reward": _num(np.mean(traj["reward"], dtype=np.float64)),
@@ -153,6 +192,7 @@ def summarize(traj: dict[str, np.ndarray]) -> dict[str, Any]:
         "distance": _num(x[-1] - traj["x0"]),
         "terms": {k: _num(np.mean(traj[k], dtype=np.float64)) for k in REWARD_TERMS},
         "ground_share": {k: _num(np.mean(traj[m], dtype=np.float64)) for k, m in GROUND_KEYS.items()},
+        "gait": gait(traj["pos"], np.concatenate([np.reshape(traj["x0"], (1,)), x]), traj["control_dt"]),
         "nonfinite": int(np.sum(traj["nonfinite"] > 0)),
     }
 
@@ -176,6 +216,7 @@ def evaluate(
     ``deterministic`` and ``exploring``: ``avg_reward`` (per control step), ``forward_speed`` (m/s,
     mean), ``distance`` (m the trunk moved), ``terms`` (each reward term (8)-(14), mean per step),
     ``ground_share`` {heel, knee, head} (share of steps with that joint on the ground),
+    ``gait`` (stride frequency and length of each paw, wrist on the ground: :func:`gait`),
     ``nonfinite`` (steps whose physics failed). With ``render`` also ``files`` {strobe, gif}.
     The JSON is also written to ``OUT_DIR/eval.json`` (``OUT_DIR`` = ``RUN_DIR/eval``).
     Raises CheckpointError for a missing/bad checkpoint or one of another run (ForeignCheckpoint),
