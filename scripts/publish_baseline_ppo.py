@@ -200,8 +200,12 @@ def table(summ: dict) -> str:
         cells = []
         for b in BUDGETS:
             e = summ[k].get(b)
-            cells.append("—" if e is None else f"{e['avg_reward']:+.2f} ± {e['avg_reward_ci95']:.2f} "
-                         f"({e['forward_speed']:.2f} m/s)")
+            if e is None:
+                cells.append("—")
+            elif len(e["seeds"]) < 2:  # no interval from one seed
+                cells.append(f"{e['avg_reward']:+.2f}, seed {e['seeds'][0]} only ({e['forward_speed']:.2f} m/s)")
+            else:
+                cells.append(f"{e['avg_reward']:+.2f} ± {e['avg_reward_ci95']:.2f} ({e['forward_speed']:.2f} m/s)")
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

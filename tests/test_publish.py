@@ -1,5 +1,6 @@
-"""The paper-scale Fig. 3 publisher's plain answers (scripts/publish_fig3_paper.py), on made-up
-per-seed milestone values, against scipy's Welch interval and a direct reading of the table."""
+"""The publishers' plain answers and tables, on made-up values: the paper-scale Fig. 3
+(scripts/publish_fig3_paper.py) against scipy's Welch interval and a direct reading of the table;
+the PPO comparison's table (scripts/publish_baseline_ppo.py) against scipy's t-interval."""
 
 from __future__ import annotations
 
@@ -12,11 +13,11 @@ from scipy import stats as sps
 from nmrl.experiments import sweep
 from nmrl.paper.learner import TrainConfig
 
-SCRIPT = pathlib.Path(__file__).resolve().parents[1] / "scripts" / "publish_fig3_paper.py"
+SCRIPTS = pathlib.Path(__file__).resolve().parents[1] / "scripts"
 
 
-def _publisher():
-    spec = importlib.util.spec_from_file_location("publish_fig3_paper", SCRIPT)
+def _publisher(name: str = "publish_fig3_paper"):
+    spec = importlib.util.spec_from_file_location(name, SCRIPTS / f"{name}.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
@@ -56,3 +57,21 @@ def test_answers_compare_l10_with_l1_and_name_the_best_l():
     assert "- 100,000 trials: +4.60 vs +3.30" in md and "+39%" in md
     assert "Collapsed (last tenth below half the running peak): l1_s0, l30_s0." in md
     assert "| 30 |" in md and "40,000 (40.0%)" in md
+
+
+def test_ppo_table_gives_an_interval_only_over_seeds():
+    """One PPO seed at a budget: its value and 'seed N only', never a '± 0.00' interval; three
+    seeds: mean ± the 95% t-interval; a budget not reached: a dash."""
+    pub = _publisher("publish_baseline_ppo")
+    rows = {0: [{"step": 327_680 * k, "eval_avg_reward": -1.0 + 0.1 * k, "eval_forward_speed": 0.1 * k}
+                for k in range(0, 4)]}
+    ac = {"1e6": {"rows": [{"l": l, "seed": s, "control_steps": 1_000_000, "avg_reward": v, "forward_speed": 1.0}
+                           for l in (1, 10) for s, v in enumerate((1.0, 2.0, 4.0))]}}
+    summ = pub.summary(rows, ac)
+    text = pub.table(summ)
+    ppo = next(x for x in text.splitlines() if x.startswith("| Brax PPO"))
+    assert "-0.70, seed 0 only (0.30 m/s)" in ppo and "±" not in ppo  # iteration 3 (983,040) is nearest 10^6
+    assert ppo.count("—") == 2
+    half = sps.t.ppf(0.975, 2) * np.std([1.0, 2.0, 4.0], ddof=1) / np.sqrt(3)
+    l1 = next(x for x in text.splitlines() if x.startswith("| actor-critic, l = 1 "))
+    assert f"+2.33 ± {half:.2f} (1.00 m/s)" in l1

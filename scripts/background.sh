@@ -1,0 +1,95 @@
+#!/usr/bin/env bash
+# The project's two long runs across sessions: the paper-scale Fig. 3 sweep (issue 14,
+# scripts/fig3_paper.sh) and the Brax PPO baseline (issue 18, scripts/baseline_ppo.sh).
+#
+#   scripts/background.sh start    # at the start of a session (also on a fresh clone)
+#   scripts/background.sh status   # their last lines
+#   scripts/background.sh stop     # before the session ends: SIGTERM, wait for the saves, publish
+#
+# start: with 2 or more cores and Brax installed (pip install -e '.[brax]'), the sweep runs on
+#   core 0 and PPO on core 1 (CPUS=..., one XLA device each): the sweep's devices step in one
+#   program, so a second run sharing its cores would hold it back far more than its share. With
+#   one core, or without Brax, the sweep alone, on every core. Each run resumes where it stopped
+#   (full checkpoints in runs/, else the compact states published under results/). A run already
+#   going is left alone. Logs: runs/fig3_paper.log, runs/baseline_ppo.log.
+# stop: SIGTERM to both; the sweep saves every active point after its chunk, PPO after the
+#   iteration in flight (up to ~5 min on one core); then scripts/publish_fig3_paper.py and
+#   scripts/publish_baseline_ppo.py write results/ (commit it). Exits 1 if a run did not stop
+#   within STOP_TIMEOUT seconds (default 900), without publishing that run.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+SWEEP_PAT='nmrl sweep --resume --l 1 --out runs/fig3_paper'
+PPO_PAT='nmrl baseline ppo'
+PY=.venv/bin/python
+
+running() { pgrep -f "$1" > /dev/null; }
+
+has_brax() { "$PY" -c 'import brax' > /dev/null 2>&1; }
+
+start() {
+  mkdir -p runs
+  local cores; cores=$(nproc)
+  local both=0
+  if [ "$cores" -ge 2 ] && has_brax; then both=1; fi
+  if running "$SWEEP_PAT"; then
+    echo "the Fig. 3 sweep is already running"
+  elif [ "$both" = 1 ]; then
+    (CPUS=0 setsid scripts/fig3_paper.sh >> runs/fig3_paper.log 2>&1 &)
+    echo "started the Fig. 3 sweep on core 0 (runs/fig3_paper.log)"
+  else
+    (setsid scripts/fig3_paper.sh >> runs/fig3_paper.log 2>&1 &)
+    echo "started the Fig. 3 sweep on every core (runs/fig3_paper.log)"
+  fi
+  if [ "$both" = 1 ]; then
+    if running "$PPO_PAT"; then
+      echo "the PPO baseline is already running"
+    else
+      (CPUS=1 setsid scripts/baseline_ppo.sh >> runs/baseline_ppo.log 2>&1 &)
+      echo "started the PPO baseline on core 1 (runs/baseline_ppo.log)"
+    fi
+  elif ! has_brax; then
+    echo "the PPO baseline needs the optional extra: .venv/bin/pip install -e '.[brax]'" >&2
+  else
+    echo "one core: the PPO baseline is not started beside the sweep" >&2
+  fi
+}
+
+status() {
+  for f in runs/fig3_paper.log runs/baseline_ppo.log; do
+    if [ -f "$f" ]; then echo "== $f"; tail -n 3 "$f"; fi
+  done
+  running "$SWEEP_PAT" && echo "sweep: running" || echo "sweep: not running"
+  running "$PPO_PAT" && echo "ppo: running" || echo "ppo: not running"
+}
+
+wait_gone() {  # pattern -> 0 once no process matches, 1 after STOP_TIMEOUT seconds
+  local t=0
+  while running "$1"; do
+    if [ "$t" -ge "${STOP_TIMEOUT:-900}" ]; then return 1; fi
+    sleep 5; t=$((t + 5))
+  done
+}
+
+stop() {
+  local rc=0
+  pkill -TERM -f "$SWEEP_PAT" || true
+  pkill -TERM -f "$PPO_PAT" || true
+  if wait_gone "$SWEEP_PAT"; then
+    if [ -f runs/fig3_paper/sweep.json ]; then "$PY" scripts/publish_fig3_paper.py; fi
+  else
+    echo "the Fig. 3 sweep did not stop within ${STOP_TIMEOUT:-900} s; not published" >&2; rc=1
+  fi
+  if wait_gone "$PPO_PAT"; then
+    if [ -d runs/baseline_ppo ] && has_brax; then "$PY" scripts/publish_baseline_ppo.py; fi
+  else
+    echo "the PPO baseline did not stop within ${STOP_TIMEOUT:-900} s; not published" >&2; rc=1
+  fi
+  return "$rc"
+}
+
+case "${1:-}" in
+  start) start ;;
+  stop) stop ;;
+  status) status ;;
+  *) echo "usage: scripts/background.sh start|status|stop (got '${1:-}')" >&2; exit 2 ;;
+esac
