@@ -14,7 +14,7 @@ Writes into ``dest`` (each file atomically):
   10^4, 2*10^4, 3*10^4 and 10^5 trials (mean over the chunks whose trial count lies in (0.9 M, M], i.e. the
   last tenth before the milestone M), mean +- 95% CI over the seeds and each seed; the share of the
   budget every point has; divergences (point, trials); the measured rate (control steps/s of the
-  whole machine over the last chunks, from metrics ``wall_s``); the plain answers at every milestone
+  whole machine over the last 10 chunks of the points still running, from metrics ``wall_s``); the plain answers at every milestone
   reached (l = 10 against l = 1: difference of the seed means with its 95% Welch interval and the
   relative difference; the best l; collapsed points, i.e. last tenth below half the running peak);
 * ``gaits/l{1,10}_best/{eval.json, strobe.png, gait.gif}`` once every seed of that l has
@@ -40,7 +40,10 @@ MILESTONES = (10_000, 20_000, 30_000, 100_000)  # 2*10^4: the intermediate compa
 def progress(src: pathlib.Path, spec: sweep.SweepSpec) -> dict:
     budget = spec.base.trials
     out = {"budget_trials": budget, "milestones": list(MILESTONES), "by_l": {}, "points": {}, "diverged": []}
-    newest: dict[int, list[float]] = {}  # step -> steps_per_s of the points' chunks ending there
+    # step -> steps_per_s of the points' chunks ending there: of the points still running (the rate
+    # now), else of all points (a finished stage's rows lie at higher steps than the running one's)
+    newest: dict[int, list[float]] = {}
+    newest_all: dict[int, list[float]] = {}
     for l in spec.ls:
         per = {str(m): [] for m in MILESTONES}
         for s in range(spec.seeds):
@@ -59,8 +62,11 @@ def progress(src: pathlib.Path, spec: sweep.SweepSpec) -> dict:
                                    "diverged": div is not None}
             for m in MILESTONES:
                 per[str(m)].append(stats.at_milestone(rows, m))
+            running = bool(rows) and not (budget and last["trials"] >= budget) and div is None
             for r in rows[-20:]:
-                newest.setdefault(r["step"], []).append(r["steps_per_s"])
+                newest_all.setdefault(r["step"], []).append(r["steps_per_s"])
+                if running:
+                    newest.setdefault(r["step"], []).append(r["steps_per_s"])
         out["by_l"][str(l)] = {}
         for m, vals in per.items():
             got = [v for v in vals if v is not None]
@@ -68,7 +74,7 @@ def progress(src: pathlib.Path, spec: sweep.SweepSpec) -> dict:
             out["by_l"][str(l)][m] = {"mean": mean, "ci95": half, "seeds": vals}
     # rate: the points active in a chunk share its wall time, and steps_per_s already counts every
     # one of them (nmrl.runs.driver.metrics_row(points=...))
-    recent = sorted(newest.items())[-10:]
+    recent = sorted((newest or newest_all).items())[-10:]
     out["rate_ctrl_steps_per_s"] = float(np.median([v[0] for _, v in recent])) if recent else None
     out["answers"] = answers(out, spec)
     return out
@@ -115,7 +121,7 @@ def progress_md(p: dict) -> str:
         share = ", ".join(f"{v['trials']:,} ({100 * v['budget_share']:.1f}%)" for v in pts)
         lines.append(f"| {l} | " + " | ".join(cells) + f" | {share} |")
     lines.append("")
-    lines.append(f"Rate (median of the last chunks, whole machine): {p['rate_ctrl_steps_per_s']:,.0f} control steps/s."
+    lines.append(f"Rate (median of the last 10 chunks of the points still running, whole machine): {p['rate_ctrl_steps_per_s']:,.0f} control steps/s."
                  if p["rate_ctrl_steps_per_s"] else "Rate: no chunks yet.")
     lines.append("Diverged: " + (", ".join(f"{d['point']} at {d['trials']:,} trials" for d in p["diverged"])
                                  or "none") + ".")
