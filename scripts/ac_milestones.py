@@ -9,8 +9,9 @@ with checkpoints, or published compact states: ``nmrl eval`` reads either), or u
 results/fig3_paper/points/ as committed at ``--git-rev``, evaluates the deterministic policy for
 ``--seconds`` (10 s, seed 0; nmrl.analysis.evaluate) and records the control steps it was trained
 on (steps per environment x environments), its trials, its average reward per step, forward
-speed and gait (stride frequency and length per paw, wrist on the ground: nmrl.analysis.evaluate.gait). The rows are merged into ``--out`` (results/baseline_ppo/ac_milestones.json) under
-``--label``, written atomically.
+speed and gait (stride frequency and length per paw, wrist on the ground:
+nmrl.analysis.evaluate.gait). The rows are merged into ``--out``
+(results/baseline_ppo/ac_milestones.json) under ``--label``, written atomically.
 """
 
 from __future__ import annotations

@@ -14,8 +14,8 @@ Writes into ``dest`` (each file atomically):
   10^4, 2*10^4, 3*10^4 and 10^5 trials (mean over the chunks whose trial count lies in (0.9 M, M], i.e. the
   last tenth before the milestone M), mean +- 95% CI over the seeds and each seed; the share of the
   budget every point has; divergences (point, trials); the measured rate (control steps/s of the
-  whole machine over the last 10 chunks of the points still running, from metrics ``wall_s``); the plain answers at every milestone
-  reached (l = 10 against l = 1: difference of the seed means with its 95% Welch interval and the
+  whole machine over the last 10 chunks of the points still running, from metrics ``wall_s``);
+  the plain answers at every milestone reached (l = 10 against l = 1: difference of the seed means with its 95% Welch interval and the
   relative difference; the best l; collapsed points, i.e. last tenth below half the running peak);
 * ``gaits/l{1,10}_best/{eval.json, strobe.png, gait.gif}`` once every seed of that l has
   ``--gait-trials`` trials (default the budget): the best seed's gait (see :func:`gaits`).
@@ -121,7 +121,8 @@ def progress_md(p: dict) -> str:
         share = ", ".join(f"{v['trials']:,} ({100 * v['budget_share']:.1f}%)" for v in pts)
         lines.append(f"| {l} | " + " | ".join(cells) + f" | {share} |")
     lines.append("")
-    lines.append(f"Rate (median of the last 10 chunks of the points still running, whole machine): {p['rate_ctrl_steps_per_s']:,.0f} control steps/s."
+    lines.append("Rate (median of the last 10 chunks of the points still running, whole machine): "
+                 f"{p['rate_ctrl_steps_per_s']:,.0f} control steps/s."
                  if p["rate_ctrl_steps_per_s"] else "Rate: no chunks yet.")
     lines.append("Diverged: " + (", ".join(f"{d['point']} at {d['trials']:,} trials" for d in p["diverged"])
                                  or "none") + ".")
