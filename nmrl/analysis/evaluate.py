@@ -94,11 +94,7 @@ def rollout(config, theta, *, seconds: float, seed: int, exploring: bool) -> dic
     fn = _rollout_fn(float(config.control_dt), int(config.hidden_actor), n_steps)
     traj, pos0, x0 = fn(theta, jax.random.PRNGKey(seed), jnp.float32(1.0 if exploring else 0.0),
                         jnp.float32(config.alpha), jnp.int32(config.l), jnp.float32(config.sigma))
-    out = {k: np.asarray(v) for k, v in jax.device_get(traj).items()}
-    out["pos"] = np.concatenate([np.asarray(pos0)[None], out["pos"]], axis=0)
-    out["x0"] = np.asarray(x0)
-    out["control_dt"] = float(config.control_dt)
-    return out
+    return _host_traj(traj, pos0, x0, config.control_dt)
 
 
 @functools.lru_cache(maxsize=8)
@@ -133,6 +129,11 @@ def rollout_policy(act: Callable, params: Any, *, control_dt: float, seconds: fl
     baseline, nmrl/experiments/baseline_ppo.py)."""
     n_steps = _num_steps(seconds, control_dt)
     traj, pos0, x0 = _policy_rollout_fn(act, float(control_dt), n_steps)(params, jax.random.PRNGKey(seed))
+    return _host_traj(traj, pos0, x0, control_dt)
+
+
+def _host_traj(traj, pos0, x0, control_dt: float) -> dict[str, np.ndarray]:
+    """A rollout's arrays on the host, ``pos`` with the initial pose prepended (T+1 rows)."""
     out = {k: np.asarray(v) for k, v in jax.device_get(traj).items()}
     out["pos"] = np.concatenate([np.asarray(pos0)[None], out["pos"]], axis=0)
     out["x0"] = np.asarray(x0)
