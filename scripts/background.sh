@@ -11,47 +11,89 @@
 #   program, so a second run sharing its cores would hold it back far more than its share. With
 #   one core, or without Brax, the sweep alone, on every core. Each run resumes where it stopped
 #   (full checkpoints in runs/, else the compact states published under results/). A run already
-#   going is left alone. Logs: runs/fig3_paper.log, runs/baseline_ppo.log.
+#   going is left alone. Logs: runs/fig3_paper.log, runs/baseline_ppo.log. Once PPO has finished
+#   every seed (2.5*10^7 control steps each), the sweep gets every core: at start when PPO is
+#   already done, and during a session by a hand-off that follows the PPO script when it ends
+#   normally (SIGTERM the pinned sweep, wait for its save, resume it on every core).
 # stop: SIGTERM to both; the sweep saves every active point after its chunk, PPO after the
 #   iteration in flight (up to ~5 min on one core); then scripts/publish_fig3_paper.py and
 #   scripts/publish_baseline_ppo.py write results/ (commit it). Exits 1 if a run did not stop
 #   within STOP_TIMEOUT seconds (default 900), without publishing that run.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-SWEEP_PAT='nmrl sweep --resume --l 1 --out runs/fig3_paper'
-PPO_PAT='nmrl baseline ppo'
-PY=.venv/bin/python
+SWEEP_PAT=${SWEEP_PAT:-'nmrl sweep --resume --l 1 --out runs/fig3_paper'}
+PPO_PAT=${PPO_PAT:-'nmrl baseline ppo'}
+PY=${PY:-.venv/bin/python}
 
 running() { pgrep -f "$1" > /dev/null; }
 
 has_brax() { "$PY" -c 'import brax' > /dev/null 2>&1; }
 
+ppo_done() {  # 0 when every PPO seed's newest metrics (runs/, else the published copy) reached its budget
+  "$PY" - "${SEEDS:-0 1 2}" <<'PYEOF'
+import json, pathlib, sys
+for s in sys.argv[1].split():
+    for root in ("runs/baseline_ppo", "results/baseline_ppo"):
+        d = pathlib.Path(root) / f"ppo_s{s}"
+        if (d / "config.json").is_file() and (d / "metrics.jsonl").is_file():
+            break
+    else:
+        sys.exit(1)
+    budget = json.loads((d / "config.json").read_text())["num_timesteps"]
+    lines = (d / "metrics.jsonl").read_text().splitlines()
+    if not lines or json.loads(lines[-1])["step"] < budget:
+        sys.exit(1)
+PYEOF
+}
+
+start_sweep() {  # [cpus]: the sweep, on those cores or (empty) on every core
+  if [ -n "${1:-}" ]; then
+    (CPUS=$1 setsid scripts/fig3_paper.sh >> runs/fig3_paper.log 2>&1 &)
+    echo "started the Fig. 3 sweep on core $1 (runs/fig3_paper.log)"
+  else
+    (env -u CPUS setsid scripts/fig3_paper.sh >> runs/fig3_paper.log 2>&1 &)
+    echo "started the Fig. 3 sweep on every core (runs/fig3_paper.log)"
+  fi
+}
+
 start() {
   mkdir -p runs
+  rm -f runs/background.stopping
   local cores; cores=$(nproc)
   local both=0
-  if [ "$cores" -ge 2 ] && has_brax; then both=1; fi
+  if [ "$cores" -ge 2 ] && has_brax && ! ppo_done; then both=1; fi
   if running "$SWEEP_PAT"; then
     echo "the Fig. 3 sweep is already running"
   elif [ "$both" = 1 ]; then
-    (CPUS=0 setsid scripts/fig3_paper.sh >> runs/fig3_paper.log 2>&1 &)
-    echo "started the Fig. 3 sweep on core 0 (runs/fig3_paper.log)"
+    start_sweep 0
   else
-    (setsid scripts/fig3_paper.sh >> runs/fig3_paper.log 2>&1 &)
-    echo "started the Fig. 3 sweep on every core (runs/fig3_paper.log)"
+    start_sweep ""
   fi
   if [ "$both" = 1 ]; then
     if running "$PPO_PAT"; then
       echo "the PPO baseline is already running"
     else
-      (CPUS=1 setsid scripts/baseline_ppo.sh >> runs/baseline_ppo.log 2>&1 &)
+      (CPUS=1 setsid bash -c 'scripts/baseline_ppo.sh && scripts/background.sh handoff' \
+        >> runs/baseline_ppo.log 2>&1 &)
       echo "started the PPO baseline on core 1 (runs/baseline_ppo.log)"
     fi
   elif ! has_brax; then
     echo "the PPO baseline needs the optional extra: .venv/bin/pip install -e '.[brax]'" >&2
-  else
+  elif [ "$cores" -lt 2 ]; then
     echo "one core: the PPO baseline is not started beside the sweep" >&2
+  else
+    echo "the PPO baseline has finished every seed: nothing to start (publish with scripts/background.sh stop)"
   fi
+}
+
+handoff() {  # after the PPO script ended normally: the sweep moves from core 0 to every core
+  if [ -e runs/background.stopping ] || ! ppo_done; then return 0; fi
+  echo "PPO finished every seed: moving the Fig. 3 sweep to every core"
+  if running "$SWEEP_PAT"; then
+    pkill -TERM -f "$SWEEP_PAT" || true
+    wait_gone "$SWEEP_PAT" || { echo "the sweep did not stop; left as it was" >&2; return 1; }
+  fi
+  if [ ! -e runs/background.stopping ]; then start_sweep ""; fi
 }
 
 status() {
@@ -72,6 +114,7 @@ wait_gone() {  # pattern -> 0 once no process matches, 1 after STOP_TIMEOUT seco
 
 stop() {
   local rc=0
+  mkdir -p runs && touch runs/background.stopping
   pkill -TERM -f "$SWEEP_PAT" || true
   pkill -TERM -f "$PPO_PAT" || true
   if wait_gone "$SWEEP_PAT"; then
@@ -91,5 +134,6 @@ case "${1:-}" in
   start) start ;;
   stop) stop ;;
   status) status ;;
+  handoff) handoff ;;
   *) echo "usage: scripts/background.sh start|status|stop (got '${1:-}')" >&2; exit 2 ;;
 esac
