@@ -67,17 +67,18 @@ def test_policy_gradient_equals_dense_gaussian_autodiff(example):
     cov = jnp.asarray(np.kron(lam_hat, CFG.sigma ** 2 * np.eye(d)))  # vec row-major: (sample, action)
     actor = ex.Perceptron(hidden=CFG.hidden, out=d)
 
-    def surrogate(p):
-        total = 0.0
-        for k in range(K):
-            for n in range(N):
-                rows = k * l + idx
-                m = actor.apply(p, traj.obs[rows, n])  # (L, d)
-                logp = multivariate_normal.logpdf(traj.act[rows, n].reshape(-1), m.reshape(-1), cov)
-                total = total + adv[k, n] * logp
-        return total / (K * N)
+    rows = np.arange(K)[:, None] * l + idx[None, :]  # (K, L): the sampled steps of period k
+    S = jnp.moveaxis(traj.obs[rows], 2, 1)  # (K, N, L, obs)
+    A = jnp.moveaxis(traj.act[rows], 2, 1)  # (K, N, L, d)
 
-    want = jax.grad(surrogate)(params)
+    def log_density(p, s, a):  # one period: ln N(vec A_hat; vec m(theta), Lambda_hat (x) Sigma)
+        return multivariate_normal.logpdf(a.reshape(-1), actor.apply(p, s).reshape(-1), cov)
+
+    def surrogate(p):
+        logp = jax.vmap(jax.vmap(log_density, (None, 0, 0)), (None, 0, 0))(p, S, A)  # (K, N)
+        return jnp.sum(jnp.asarray(adv) * logp) / (K * N)
+
+    want = jax.jit(jax.grad(surrogate))(params)
     for g, w in zip(jax.tree.leaves(got), jax.tree.leaves(want)):
         np.testing.assert_allclose(np.asarray(g), np.asarray(w), rtol=2e-3, atol=2e-4 * float(np.abs(w).max()))
     assert max(float(np.abs(w).max()) for w in jax.tree.leaves(want)) > 1e-3  # not a vacuous zero
