@@ -108,7 +108,8 @@ class Trajectory(NamedTuple):
     reward: jax.Array  # (T, N)
 
 
-def _observe(m: mjx.Model, d: mjx.Data) -> jax.Array:
+def _observe(d: mjx.Data) -> jax.Array:
+    """cos and sin of both joint angles, their velocities, the fingertip's offset from the target."""
     tip = d.site_xpos[0, :2]
     return jnp.concatenate([jnp.cos(d.qpos), jnp.sin(d.qpos), d.qvel * 0.1, (tip - jnp.asarray(TARGET)) * 10])
 
@@ -158,7 +159,7 @@ def make_example(cfg: ExampleConfig) -> Example:
         def body(carry, xs):
             d, ar = carry
             e, t = xs
-            s = jax.vmap(_observe, in_axes=(None, 0))(m, d)
+            s = jax.vmap(_observe)(d)
             # eq. (4): every environment's noise; a period starts at t = 0 and every l steps after
             ar, u = jax.vmap(lambda st, ee: noise.ar_step(st, ee, cfg.alpha, cfg.l, cfg.sigma, t == 0))(ar, e)
             a = apply(params, s) + explore * u  # eq. (6)
@@ -172,7 +173,7 @@ def make_example(cfg: ExampleConfig) -> Example:
 
     def policy_gradient(params, traj: Trajectory):
         """Mean over environments and periods of (G_k - b_k) grad ln pi(A_k | S_k) (eq. (7))."""
-        T, N = traj.reward.shape
+        N = traj.reward.shape[1]
         K, l = cfg.periods, cfg.l
         reward_k = traj.reward.reshape(K, l, N).sum(axis=1)  # (K, N) reward of each period
         G = jnp.flip(jnp.cumsum(jnp.flip(reward_k, 0), 0), 0)  # return-to-go from period k
