@@ -14,7 +14,9 @@ Writes into ``dest`` (each file atomically):
   10^4, 2*10^4, 3*10^4 and 10^5 trials (mean over the chunks whose trial count lies in (0.9 M, M], i.e. the
   last tenth before the milestone M), mean +- 95% CI over the seeds and each seed; the share of the
   budget every point has; divergences (point, trials); the measured rate (control steps/s of the
-  whole machine over the last 10 chunks of the points still running, from metrics ``wall_s``);
+  whole machine over the last 10 chunks of the points still running, from metrics ``wall_s``) and
+  the control steps left (every running point to the budget at its mean trial length so far) with
+  the hours they take at that rate;
   the plain answers at every milestone reached (l = 10 against l = 1: difference of the seed means with its 95% Welch interval and the
   relative difference; the best l; collapsed points, i.e. last tenth below half the running peak);
 * ``gaits/l{1,10}_best/{eval.json, strobe.png, gait.gif}`` once every seed of that l has
@@ -44,6 +46,7 @@ def progress(src: pathlib.Path, spec: sweep.SweepSpec) -> dict:
     # now), else of all points (a finished stage's rows lie at higher steps than the running one's)
     newest: dict[int, list[float]] = {}
     newest_all: dict[int, list[float]] = {}
+    remaining = 0.0  # control steps (all environments) the running points still need, at their trial length
     for l in spec.ls:
         per = {str(m): [] for m in MILESTONES}
         for s in range(spec.seeds):
@@ -63,6 +66,12 @@ def progress(src: pathlib.Path, spec: sweep.SweepSpec) -> dict:
             for m in MILESTONES:
                 per[str(m)].append(stats.at_milestone(rows, m))
             running = bool(rows) and not (budget and last["trials"] >= budget) and div is None
+            if budget and div is None and last["trials"] < budget:
+                # control steps per trial so far (all environments); a point without trials yet: the
+                # stop rule's mean trial length, 1/stop_prob
+                per_trial = (last["step"] * spec.base.num_envs / last["trials"] if last["trials"]
+                             else 1 / spec.base.stop_prob)
+                remaining += (budget - last["trials"]) * per_trial
             for r in rows[-20:]:
                 newest_all.setdefault(r["step"], []).append(r["steps_per_s"])
                 if running:
@@ -76,6 +85,9 @@ def progress(src: pathlib.Path, spec: sweep.SweepSpec) -> dict:
     # one of them (nmrl.runs.driver.metrics_row(points=...))
     recent = sorted((newest or newest_all).items())[-10:]
     out["rate_ctrl_steps_per_s"] = float(np.median([v[0] for _, v in recent])) if recent else None
+    rate = out["rate_ctrl_steps_per_s"]
+    out["remaining_ctrl_steps"] = remaining
+    out["remaining_hours_at_rate"] = remaining / rate / 3600 if rate and remaining else (0.0 if not remaining else None)
     out["answers"] = answers(out, spec)
     return out
 
@@ -124,6 +136,10 @@ def progress_md(p: dict) -> str:
     lines.append("Rate (median of the last 10 chunks of the points still running, whole machine): "
                  f"{p['rate_ctrl_steps_per_s']:,.0f} control steps/s."
                  if p["rate_ctrl_steps_per_s"] else "Rate: no chunks yet.")
+    if p.get("remaining_ctrl_steps"):
+        h = p["remaining_hours_at_rate"]
+        lines.append(f"Left: ~{p['remaining_ctrl_steps']:.3g} control steps (every running point to 10⁵ trials at "
+                     f"its trials' mean length so far)" + (f", ~{h:.1f} h at that rate." if h is not None else "."))
     lines.append("Diverged: " + (", ".join(f"{d['point']} at {d['trials']:,} trials" for d in p["diverged"])
                                  or "none") + ".")
     collapsed = [n for n, q in p["points"].items() if q.get("collapsed")]

@@ -12,6 +12,7 @@ from scipy import stats as sps
 
 from nmrl.experiments import sweep
 from nmrl.paper.learner import TrainConfig
+from nmrl.runs import store
 
 SCRIPTS = pathlib.Path(__file__).resolve().parents[1] / "scripts"
 
@@ -75,3 +76,29 @@ def test_ppo_table_gives_an_interval_only_over_seeds():
     half = sps.t.ppf(0.975, 2) * np.std([1.0, 2.0, 4.0], ddof=1) / np.sqrt(3)
     l1 = next(x for x in text.splitlines() if x.startswith("| actor-critic, l = 1 "))
     assert f"+2.33 ± {half:.2f} (1.00 m/s)" in l1
+
+
+def test_progress_counts_the_steps_left_and_the_hours_at_the_measured_rate(tmp_path):
+    """Made-up metrics: a finished point, a running one, a diverged one and one not started. Left:
+    the running point's missing trials at its own trial length so far, plus the unstarted point's
+    whole budget at the stop rule's mean length (1/stop_prob); hours at the running point's rate."""
+    pub = _publisher()
+    spec = sweep.SweepSpec(ls=(1, 10), seeds=2, base=TrainConfig(trials=1000, num_envs=8, stop_prob=1 / 250))
+
+    def write(l, s, rows):
+        d = sweep.point_dir(tmp_path, l, s)
+        d.mkdir(parents=True)
+        for r in rows:
+            store.append_metrics(d, {"avg_reward": 1.0, "diverged": False, "theta_norm": 1.0, "v_norm": 1.0, **r})
+
+    write(1, 0, [{"trials": 1000, "step": 30_000, "steps_per_s": 900.0}])  # finished
+    write(1, 1, [{"trials": 100 * k, "step": 4_000 * k, "steps_per_s": 1_000.0 + k} for k in range(1, 5)])
+    write(10, 0, [{"trials": 50, "step": 2_000, "steps_per_s": 1_000.0, "diverged": True}])  # diverged: never ends
+    sweep.point_dir(tmp_path, 10, 1).mkdir(parents=True)  # not started
+    p = pub.progress(tmp_path, spec)
+    running_left = (1000 - 400) * (16_000 * 8 / 400)  # 320 control steps per trial over 8 environments
+    unstarted_left = 1000 * 250
+    assert p["rate_ctrl_steps_per_s"] == np.median([1_001.0, 1_002.0, 1_003.0, 1_004.0])
+    assert np.isclose(p["remaining_ctrl_steps"], running_left + unstarted_left)
+    assert np.isclose(p["remaining_hours_at_rate"], (running_left + unstarted_left) / 1_002.5 / 3600)
+    assert "Left: ~4.42e+05 control steps" in pub.progress_md(p)
