@@ -138,7 +138,7 @@ def progress_md(p: dict) -> str:
                  if p["rate_ctrl_steps_per_s"] else "Rate: no chunks yet.")
     if p.get("remaining_ctrl_steps"):
         h = p["remaining_hours_at_rate"]
-        lines.append(f"Left: ~{p['remaining_ctrl_steps']:.3g} control steps (every running point to 10⁵ trials at "
+        lines.append(f"Left: ~{p['remaining_ctrl_steps']:,.0f} control steps (every running point to 10⁵ trials at "
                      f"its trials' mean length so far)" + (f", ~{h:.1f} h at that rate." if h is not None else "."))
     lines.append("Diverged: " + (", ".join(f"{d['point']} at {d['trials']:,} trials" for d in p["diverged"])
                                  or "none") + ".")
