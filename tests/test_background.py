@@ -47,8 +47,12 @@ def layout(tmp_path):
     fake_py.write_text(f'#!/usr/bin/env bash\nif [ "$*" = "-c import brax" ]; then exit 0; fi\n'
                        f'exec {sys.executable} "$@"\n')
     fake_py.chmod(0o755)
+    bin_dir = tmp_path / "bin"  # two cores, whatever this machine (or this test's CPU affinity) has
+    bin_dir.mkdir()
+    (bin_dir / "nproc").write_text("#!/usr/bin/env bash\necho 2\n")
+    (bin_dir / "nproc").chmod(0o755)
     env = {**os.environ, "SWEEP_PAT": sweep_pat, "PPO_PAT": ppo_pat, "PY": str(fake_py), "SEEDS": "0",
-           "STOP_TIMEOUT": "20"}
+           "STOP_TIMEOUT": "20", "PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}"}
     env.pop("CPUS", None)
     yield tmp_path, env
     for pat in (sweep_pat, ppo_pat):
