@@ -28,6 +28,7 @@ import math
 import os
 import sys
 import typing
+from collections.abc import Callable
 
 from nmrl.runs import devices as _devices
 from nmrl.runs import launch as _launch
@@ -129,6 +130,24 @@ def _join(args: argparse.Namespace, cluster: "_launch.Cluster | None") -> int | 
     return None
 
 
+T = typing.TypeVar("T")
+
+
+def _ready(args: argparse.Namespace, check: Callable[[], T]) -> tuple[T, int | None] | int:
+    """The common prologue of ``train`` and ``sweep``: ``check()`` (the command's own argument checks,
+    returning what the command needs), the device count and the cluster; then, with several
+    processes, join the run (:func:`_join`). Returns ``(check(), devices)``, or the exit status when
+    an argument is bad (the value named, status 2) or joining fails; nothing is written either way."""
+    try:
+        value = check()
+        n_dev = _devices.parse(args.devices)
+        cluster = _cluster(args)
+    except (ValueError, TypeError) as e:
+        return _fail(str(e))
+    joined = _join(args, cluster)
+    return joined if joined is not None else (value, n_dev)
+
+
 def _is_process_zero(args: argparse.Namespace) -> bool:
     if getattr(args, "coordinator", None) is None:
         return True
@@ -153,19 +172,17 @@ def _peer_failure(args: argparse.Namespace, e: BaseException) -> int | None:
 def cmd_train(args: argparse.Namespace) -> int:
     from nmrl.runs import checkpoint, driver as run, store
 
-    try:
-        given = given_options(args)
-        cfg = config_from_args(args)
+    def check() -> tuple[dict, "TrainConfig"]:
+        given, cfg = given_options(args), config_from_args(args)
         run.check_config(cfg)
         if args.step is not None and args.step < 0:
             raise ValueError(f"--step={args.step} is invalid: a checkpoint step is >= 0")
-        n_dev = _devices.parse(args.devices)
-        cluster = _cluster(args)
-    except (ValueError, TypeError) as e:
-        return _fail(str(e))
-    joined = _join(args, cluster)
-    if joined is not None:
-        return joined
+        return given, cfg
+
+    ready = _ready(args, check)
+    if isinstance(ready, int):
+        return ready
+    (given, cfg), n_dev = ready
     status = 0
     try:
         run.train(cfg, args.out, resume=args.resume, progress=not args.quiet, devices=n_dev,
@@ -223,7 +240,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from nmrl.experiments import sweep
     from nmrl.runs import checkpoint, driver
 
-    try:
+    def check() -> "sweep.SweepSpec":
         base = config_from_args(args, skip=_SWEEP_FIELDS)
         if args.l is None and not args.resume:
             raise ValueError("--l is required (the period lengths, e.g. --l 1 2 3 5 10 15 20 30)")
@@ -234,13 +251,12 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             raise ValueError(f"--checkpoint-every={args.checkpoint_every} is invalid: must be >= 1")
         if args.group < 1:
             raise ValueError(f"--group={args.group} is invalid: points vmapped together must be >= 1")
-        n_dev = _devices.parse(args.devices)
-        cluster = _cluster(args)
-    except (ValueError, TypeError) as e:
-        return _fail(str(e))
-    joined = _join(args, cluster)
-    if joined is not None:
-        return joined
+        return spec
+
+    ready = _ready(args, check)
+    if isinstance(ready, int):
+        return ready
+    spec, n_dev = ready
     try:
         sweep.run_sweep(spec, args.out, resume=args.resume, progress=not args.quiet,
                         checkpoint_every=args.checkpoint_every, group=args.group, devices=n_dev,
