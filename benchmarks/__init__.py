@@ -11,3 +11,29 @@ def subprocess_env() -> dict:
     env["JAX_PLATFORMS"] = "cpu"
     env.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.expanduser("~/.cache/nmrl/xla"))
     return env
+
+
+def paired_rounds(rounds: int, first: tuple[str, "callable"], second: tuple[str, "callable"]) -> tuple[dict, list]:
+    """Run two end-to-end contenders alternately (first, second, first, ...) ``rounds`` times, so a
+    background load affects both alike. Each is ``(name, fn)``, ``fn() -> dict`` with
+    ``control_steps_per_s`` or ``error``. Returns ``{name: [result per round]}`` and the per-round
+    ratios first / second (rounds where either failed left out)."""
+    runs: dict = {first[0]: [], second[0]: []}
+    ratios = []
+    for _ in range(rounds):
+        a, b = first[1](), second[1]()
+        runs[first[0]].append(a)
+        runs[second[0]].append(b)
+        if "error" not in a and "error" not in b:
+            ratios.append(a["control_steps_per_s"] / b["control_steps_per_s"])
+    return runs, ratios
+
+
+def main(run) -> None:
+    """``python -m benchmarks.bench_X [--quick]``: print ``run(quick)`` as JSON."""
+    import argparse
+    import json
+
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--quick", action="store_true")
+    print(json.dumps(run(ap.parse_args().quick), indent=1))

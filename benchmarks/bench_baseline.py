@@ -26,7 +26,7 @@ import sys
 import tempfile
 import time
 
-from benchmarks import subprocess_env
+from benchmarks import main, paired_rounds, subprocess_env
 
 AC_ENVS = 64
 AC_CHUNK = 500
@@ -87,15 +87,8 @@ def run(quick: bool = False) -> dict:
         return {"benchmark": "baseline", "skipped": "Brax is not installed (pip install -e '.[brax]')"}
     rounds, iters, chunks = (1, 3, 4) if quick else (2, 4, 8)
     t0 = time.perf_counter()
-    runs: dict = {"ppo": [], "actor_critic": []}
-    ratios = []
-    for _ in range(rounds):
-        a = ppo_run(iters, 3600)
-        b = ac_run(chunks, 1800)
-        runs["ppo"].append(a)
-        runs["actor_critic"].append(b)
-        if "error" not in a and "error" not in b:
-            ratios.append(a["control_steps_per_s"] / b["control_steps_per_s"])
+    runs, ratios = paired_rounds(rounds, ("ppo", lambda: ppo_run(iters, 3600)),
+                                 ("actor_critic", lambda: ac_run(chunks, 1800)))
     ok = lambda k: [r["control_steps_per_s"] for r in runs[k] if "error" not in r]  # noqa: E731
     med = {k: statistics.median(ok(k)) if ok(k) else None for k in runs}
     out = {
@@ -117,8 +110,4 @@ def run(quick: bool = False) -> dict:
 
 
 if __name__ == "__main__":
-    import argparse
-
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--quick", action="store_true")
-    print(json.dumps(run(ap.parse_args().quick), indent=1))
+    main(run)

@@ -6,7 +6,7 @@ Each contender is a real ``nmrl train`` run (the paper preset, ``NUM_ENVS`` envi
 of ``CHUNK_STEPS`` control steps) into a fresh run directory; its steady-state speed is the median
 of the per-chunk ``steps_per_s`` in metrics.jsonl (chunk 1 left out: its first call), its compile
 time the "compiled the training chunk in X s" line (reported apart; the persistent compile cache
-may make it a cache hit). The contenders alternate (1 process, 2 processes, 1 process, ...) and the
+may make it a cache hit). The contenders alternate (2 processes, 1 process, 2 processes, ...) and the
 ratio is the median over rounds of the per-round ratio, so a background load affects both alike.
 
 ``run(quick) -> dict``; ``python -m benchmarks.bench_distributed [--quick]`` prints it.
@@ -25,7 +25,7 @@ import sys
 import tempfile
 import time
 
-from benchmarks import subprocess_env
+from benchmarks import main, paired_rounds, subprocess_env
 
 NUM_ENVS = 64
 CHUNK_STEPS = 100
@@ -75,15 +75,8 @@ def run(quick: bool = False) -> dict:
     steps = CHUNK_STEPS * (4 if quick else 8)
     timeout = 900
     t0 = time.perf_counter()
-    runs = {"one_process_two_devices": [], "two_processes_one_device_each": []}
-    ratios = []
-    for _ in range(rounds):
-        a = one_run(1, steps, timeout)
-        b = one_run(2, steps, timeout)
-        runs["one_process_two_devices"].append(a)
-        runs["two_processes_one_device_each"].append(b)
-        if "error" not in a and "error" not in b:
-            ratios.append(b["control_steps_per_s"] / a["control_steps_per_s"])
+    runs, ratios = paired_rounds(rounds, ("two_processes_one_device_each", lambda: one_run(2, steps, timeout)),
+                                 ("one_process_two_devices", lambda: one_run(1, steps, timeout)))
     out = {
         "benchmark": "nmrl train: 2 processes x 1 CPU device (jax.distributed, gloo) vs 1 process x 2 devices",
         "quick": quick,
@@ -103,8 +96,4 @@ def run(quick: bool = False) -> dict:
 
 
 if __name__ == "__main__":
-    import argparse
-
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--quick", action="store_true")
-    print(json.dumps(run(ap.parse_args().quick), indent=1))
+    main(run)

@@ -160,6 +160,6 @@ def run(quick: bool = False) -> dict:
 
 
 if __name__ == "__main__":
-    import json
+    from benchmarks import main
 
-    print(json.dumps(run("--quick" in sys.argv), indent=1))
+    main(run)
