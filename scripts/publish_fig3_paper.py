@@ -87,7 +87,12 @@ def progress(src: pathlib.Path, spec: sweep.SweepSpec) -> dict:
     out["rate_ctrl_steps_per_s"] = float(np.median([v[0] for _, v in recent])) if recent else None
     rate = out["rate_ctrl_steps_per_s"]
     out["remaining_ctrl_steps"] = remaining
-    out["remaining_hours_at_rate"] = remaining / rate / 3600 if rate and remaining else (0.0 if not remaining else None)
+    if not remaining:
+        out["remaining_hours_at_rate"] = 0.0
+    elif rate:
+        out["remaining_hours_at_rate"] = remaining / rate / 3600
+    else:  # steps left, but no chunk measured yet
+        out["remaining_hours_at_rate"] = None
     out["answers"] = answers(out, spec)
     return out
 
