@@ -4,7 +4,10 @@
 
 Writes into ``dest`` (each file atomically):
 
-* ``sweep.json``, ``results.csv`` (the columns of ``nmrl sweep``), ``fig3.png``;
+* ``sweep.json``, ``results.csv`` (the columns of ``nmrl sweep``);
+* ``fig3.png``: average reward during learning against l, one line per milestone below, each over the
+  l whose every seed reached it (never points at different budgets on one curve;
+  nmrl.analysis.plots.fig3_milestones), the paper's 3.28 and 4.59 marked;
 * ``points/l{l}_s{seed}/{config.json, metrics.jsonl, compact.npz}``: everything a fresh clone needs
   to continue the sweep (``scripts/fig3_paper.sh`` seeds ``runs/fig3_paper`` from it when the full
   checkpoints are gone; nmrl.runs.checkpoint.restore_compact);
@@ -263,9 +266,10 @@ def main() -> None:
         for name in ("config.json", "metrics.jsonl", "compact.npz"):
             if (p / name).is_file():
                 store.atomic_copy(p / name, sweep.point_dir(dest, l, seed) / name)
-    sweep.draw(src, results, dest / "fig3.png")
     learning_curves(src, spec, dest / "learning_curves.png")
     p = progress(src, spec)
+    plots.fig3_milestones(p["by_l"], MILESTONES, dest / "fig3.png",
+                          title="Fig. 3 at the paper's budget and step sizes: reward vs l at each milestone")
     p["gaits"] = gaits(dest, spec, p, args.gait_trials if args.gait_trials is not None else spec.base.trials)
     store.atomic_write_text(dest / "progress.json", json.dumps(p, indent=1) + "\n")
     store.atomic_write_text(dest / "progress.md", progress_md(p))

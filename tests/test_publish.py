@@ -102,3 +102,19 @@ def test_progress_counts_the_steps_left_and_the_hours_at_the_measured_rate(tmp_p
     assert np.isclose(p["remaining_ctrl_steps"], running_left + unstarted_left)
     assert np.isclose(p["remaining_hours_at_rate"], (running_left + unstarted_left) / 1_002.5 / 3600)
     assert f"Left: ~{running_left + unstarted_left:,.0f} control steps" in pub.progress_md(p)
+
+
+def test_fig3_milestone_lines_hold_only_the_l_whose_every_seed_reached_them(tmp_path):
+    from nmrl.analysis import plots
+
+    # l = 2 has one seed short of 3*10^4 and none at 10^5; 10^5: l = 1 and 10 only; 2*10^5: nobody
+    by_l = {"1": {"10000": _entry([0.1, 0.2, 0.3]), "30000": _entry([3.0, 3.1, 3.2]), "100000": _entry([4.7, 4.8, 4.9])},
+            "2": {"10000": _entry([0.5, 0.4, 0.6]), "30000": _entry([3.3, None, 3.2]), "100000": _entry([None] * 3)},
+            "10": {"10000": _entry([1.1, 1.0, 1.2]), "30000": _entry([2.9, 2.8, 3.0]), "100000": _entry([4.2, 4.3, 4.4])}}
+    series = plots.milestone_series(by_l, (10_000, 30_000, 100_000, 200_000))
+    assert [s["trials"] for s in series] == [10_000, 30_000, 100_000]
+    assert series[0]["l"] == [1, 2, 10] and np.allclose(series[0]["mean"], [0.2, 0.5, 1.1])
+    assert series[1]["l"] == [1, 10] and np.allclose(series[1]["mean"], [3.1, 2.9])
+    assert series[2]["l"] == [1, 10] and np.allclose(series[2]["mean"], [4.8, 4.3])
+    path = plots.fig3_milestones(by_l, (10_000, 30_000, 100_000), tmp_path / "fig3.png")
+    assert path.stat().st_size > 10_000

@@ -61,7 +61,14 @@ def fig3(results: list[dict], curves: dict[int, list[list[dict]]], path: str | o
     trials = [int(r["trials"]) for r in results]
     ax.set_xlabel("period length l")
     ax.set_ylabel("average reward per step")
-    ax.set_title(f"Fig. 3: average reward vs l (after ~{np.median(trials):,.0f} trials)")
+    if trials and min(trials) < 0.95 * max(trials):  # a sweep still running (or --first stages)
+        ax.set_title(f"Fig. 3: average reward vs l, points at {min(trials):,}–{max(trials):,} trials")
+        for l, m in zip(ls, means):
+            t = np.median([int(r["trials"]) for r in results if int(r["l"]) == l])
+            ax.annotate(f"{t / 1000:.0f}k", (l, m if np.isfinite(m) else 0), textcoords="offset points",
+                        xytext=(6, -12), fontsize=7, color="0.35")
+    else:
+        ax.set_title(f"Fig. 3: average reward vs l (after ~{np.median(trials):,.0f} trials)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
 
@@ -80,6 +87,46 @@ def fig3(results: list[dict], curves: dict[int, list[list[dict]]], path: str | o
     ax2.set_title("learning curves")
     ax2.grid(alpha=0.3)
     ax2.legend(fontsize=8, ncol=2)
+    _save(fig, path)
+    return path
+
+
+def milestone_series(by_l: dict, milestones) -> list[dict]:
+    """The lines of :func:`fig3_milestones`: per milestone (trials), the l whose every seed reached it,
+    with the mean and 95% half-width over the seeds. ``by_l`` maps l (int or str) -> milestone (int
+    or str) -> ``{"mean", "ci95", "seeds"}``, the mean None while a seed is short of it (as
+    scripts/publish_fig3_paper.py's progress.json). A milestone no l reached is left out."""
+    out = []
+    for m in milestones:
+        ls = sorted(int(l) for l, by in by_l.items() if by.get(str(m), {}).get("mean") is not None)
+        if ls:
+            es = [by_l[k][str(m)] for k in sorted(by_l, key=int) if int(k) in ls]
+            out.append({"trials": int(m), "l": ls, "mean": [float(e["mean"]) for e in es],
+                        "ci95": [float(e["ci95"]) for e in es]})
+    return out
+
+
+def fig3_milestones(by_l: dict, milestones, path: str | os.PathLike, title: str = "") -> pathlib.Path:
+    """Write ``path``: Fig. 3 (average reward during learning against l) as it grows, one line per
+    milestone of trials, each only over the l whose every seed reached it (:func:`milestone_series`),
+    so that points at different budgets are never drawn as one curve. Mean and 95% CI over the seeds;
+    the paper's two stated values (after 10^5 trials) marked."""
+    path = pathlib.Path(path)
+    series = milestone_series(by_l, milestones)
+    fig, ax = plt.subplots(figsize=(8, 5))
+    cmap = plt.get_cmap("plasma")
+    for j, s in enumerate(series):
+        dx = (j - (len(series) - 1) / 2) * 0.18  # side by side, so the intervals stay readable
+        ax.errorbar(np.array(s["l"]) + dx, s["mean"], yerr=s["ci95"], fmt="o-", capsize=3, ms=4, lw=1.3,
+                    color=cmap(0.85 * j / max(1, len(series) - 1)),
+                    label=f"{s['trials']:,} trials ({len(s['l'])} l)")
+    ax.scatter(list(PAPER_FIG3), list(PAPER_FIG3.values()), marker="*", s=160, color="tab:orange",
+               label="paper, 10⁵ trials (values given in the text)", zorder=5)
+    ax.set_xlabel("period length l")
+    ax.set_ylabel("average reward per step during learning\n(mean over seeds, 95% CI)")
+    ax.set_title(title or "Fig. 3: average reward vs l at each milestone every seed of l reached")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
     _save(fig, path)
     return path
 
