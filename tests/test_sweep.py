@@ -121,9 +121,11 @@ def test_fig3_draws_the_results_it_is_given(tmp_path, saved_figures):
     assert pts >= {(1, 1.0), (1, 2.0), (1, 3.0), (10, 4.0), (10, 6.0)} and (10, 8.0) not in pts
     (paper,) = [c for c in ax.collections if c.get_label() == "paper (values given in the text)"]
     assert sorted(map(tuple, np.asarray(paper.get_offsets()))) == [(1, 3.28), (10, 4.59)]
-    assert [t.get_text() for t in ax.texts] == ["1 diverged"]
+    # the points are at different budgets (l = 1 at ~1,000 trials, l = 10 at ~10,000): the title
+    # says so and each l is labelled with its median trials
+    assert [t.get_text() for t in ax.texts] == ["1 diverged", "1k", "10k"]
     assert ax.get_xlabel() == "period length l" and ax.get_ylabel() == "average reward per step"
-    assert "~5,501 trials" in ax.get_title()  # the median of 1000, 1001, 1002, 10000, 10001, 10002
+    assert "points at 1,000–10,002 trials" in ax.get_title()
     curves = {ln.get_label(): ln for ln in ax2.lines}
     assert set(curves) == {"l=1", "l=10"}
     for l in (1, 10):  # mean over the 3 seeds (the diverged one too), then a trailing mean of 5 chunks
@@ -131,6 +133,17 @@ def test_fig3_draws_the_results_it_is_given(tmp_path, saved_figures):
         mean = [l * 0.1 * i * i + 1 for i in range(1, 8)]
         np.testing.assert_allclose(curves[f"l={l}"].get_ydata(), _trailing_mean(mean, 5))
     assert ax2.get_xlabel() == "trials"
+
+
+def test_fig3_title_gives_the_common_budget(tmp_path, saved_figures):
+    """Points within 5% of each other's trials: one budget in the title, no per-l trial labels."""
+    from nmrl.analysis import plots
+
+    results = [{"l": l, "seed": s, "trials": 1000 + 10 * s + l, "avg_reward": float(s), "diverged": False}
+               for l in (1, 10) for s in range(3)]
+    plots.fig3(results, {}, tmp_path / "fig3.png")
+    ax, _ = _fig3_axes(saved_figures)
+    assert "after ~1,016 trials" in ax.get_title() and not ax.texts  # median of 1001..1030
 
 
 def _assert_rows_close(a, b, what):
