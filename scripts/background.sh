@@ -3,7 +3,7 @@
 # scripts/fig3_paper.sh) and the Brax PPO baseline (issue 18, scripts/baseline_ppo.sh).
 #
 #   scripts/background.sh start    # at the start of a session (also on a fresh clone)
-#   scripts/background.sh status   # their last lines
+#   scripts/background.sh status   # their last lines, the sweep's last chunk times, what runs
 #   scripts/background.sh stop     # before the session ends: SIGTERM, wait for the saves, publish
 #
 # start: with 2 or more cores and Brax installed (pip install -e '.[brax]'), the sweep runs on
@@ -100,6 +100,13 @@ status() {
   for f in runs/fig3_paper.log runs/baseline_ppo.log; do
     if [ -f "$f" ]; then echo "== $f"; tail -n 3 "$f"; fi
   done
+  if [ -f runs/fig3_paper.log ]; then  # the sweep's newest chunk times (its log has the running total)
+    awk '/^compiled the sweep chunk/ {n = 0; prev = 0}
+         /^sweep: [0-9]+ points, [0-9,]+ s$/ {t = $4; gsub(",", "", t); d[++n] = t - prev; prev = t}
+         END {if (n) {s = "sweep: its last chunks took"; for (i = (n > 5 ? n - 4 : 1); i <= n; i++) s = s " " d[i];
+                      print s " s"}}' \
+      runs/fig3_paper.log
+  fi
   running "$SWEEP_PAT" && echo "sweep: running" || echo "sweep: not running"
   running "$PPO_PAT" && echo "ppo: running" || echo "ppo: not running"
 }

@@ -126,3 +126,16 @@ def test_start_with_ppo_done_gives_the_sweep_every_core(layout, where):
     assert "sweep on every core" in out and "finished every seed" in out
     assert _sweep_starts(root, 1) == ["sweep started CPUS=every"]
     assert not _running(env["PPO_PAT"])
+
+
+def test_status_gives_the_sweep_s_last_chunk_times(layout):
+    """Per chunk, from the running totals in the log, of the newest process only (its compile line starts it)."""
+    root, env = layout
+    (root / "runs").mkdir()
+    lines = ["compiled the sweep chunk in 80.0 s", "sweep: 24 points, 100 s", "  l2_s0  trials 1",
+             "sweep: 24 points, 1,150 s", "stopped by signal 15",
+             "compiled the sweep chunk in 83.2 s"] + [f"sweep: 24 points, {t:,} s" for t in (107, 230, 340)]
+    (root / "runs" / "fig3_paper.log").write_text("\n".join(lines) + "\n")
+    out = _bg(root, env, "status")
+    assert "sweep: its last chunks took 107 123 110 s" in out
+    assert "sweep: not running" in out and "ppo: not running" in out
