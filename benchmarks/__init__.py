@@ -1,6 +1,7 @@
 """Benchmarks of nmrl: ``python -m benchmarks [--quick]`` (see benchmarks/__main__.py)."""
 
 import os
+from collections.abc import Callable
 
 
 def subprocess_env() -> dict:
@@ -13,7 +14,8 @@ def subprocess_env() -> dict:
     return env
 
 
-def paired_rounds(rounds: int, first: tuple[str, "callable"], second: tuple[str, "callable"]) -> tuple[dict, list]:
+def paired_rounds(rounds: int, first: tuple[str, Callable[[], dict]],
+                  second: tuple[str, Callable[[], dict]]) -> tuple[dict, list]:
     """Run two end-to-end contenders alternately (first, second, first, ...) ``rounds`` times, so a
     background load affects both alike. Each is ``(name, fn)``, ``fn() -> dict`` with
     ``control_steps_per_s`` or ``error``. Returns ``{name: [result per round]}`` and the per-round

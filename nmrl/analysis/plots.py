@@ -98,11 +98,11 @@ def milestone_series(by_l: dict, milestones) -> list[dict]:
     scripts/publish_fig3_paper.py's progress.json). A milestone no l reached is left out."""
     out = []
     for m in milestones:
-        ls = sorted(int(l) for l, by in by_l.items() if by.get(str(m), {}).get("mean") is not None)
-        if ls:
-            es = [by_l[k][str(m)] for k in sorted(by_l, key=int) if int(k) in ls]
-            out.append({"trials": int(m), "l": ls, "mean": [float(e["mean"]) for e in es],
-                        "ci95": [float(e["ci95"]) for e in es]})
+        got = [(int(k), by_l[k][str(m)]) for k in sorted(by_l, key=int)
+               if by_l[k].get(str(m), {}).get("mean") is not None]
+        if got:
+            out.append({"trials": int(m), "l": [l for l, _ in got], "mean": [float(e["mean"]) for _, e in got],
+                        "ci95": [float(e["ci95"]) for _, e in got]})
     return out
 
 
