@@ -86,7 +86,8 @@ def fig3(results: list[dict], curves: dict[int, list[list[dict]]], path: str | o
     ax2.set_ylabel("average reward per step (mean over seeds,\nrunning mean of 5 chunks)")
     ax2.set_title("learning curves")
     ax2.grid(alpha=0.3)
-    ax2.legend(fontsize=8, ncol=2)
+    if ax2.lines:  # no curve yet (every point still at step 0): no empty legend
+        ax2.legend(fontsize=8, ncol=2)
     _save(fig, path)
     return path
 
