@@ -70,7 +70,7 @@ FLOOR_FACTOR = 10.0
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 #: a published Fig. 3 point (its compact continuation state; nmrl eval reads it). The README table was
 #: measured on results/fig3_fast/policies/l10_best, whose compact.npz is in git history up to 81c7f70.
-DEFAULT_RUN = ROOT / "results" / "fig3_paper" / "points" / "l10_s0"
+DEFAULT_RUN = ROOT / "results" / "fig3_paper" / "points" / "l10_s2"  # the best l = 10 seed (its gait is published)
 DEFAULT_OUT = ROOT / "results" / "physics_fidelity" / "fidelity.json"
 QUICK_OUT = ROOT / "results" / "physics_fidelity" / "fidelity_quick.json"
 
@@ -113,8 +113,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         a.timing_batch, a.timing_steps, a.timing_repeats = 4, 10, 2
     if a.out is None:
         a.out = QUICK_OUT if a.quick else DEFAULT_OUT
-    if not (a.run_dir / "checkpoints").is_dir():
-        p.error(f"--run-dir {a.run_dir}: no checkpoints/ folder (not a training run directory)")
+    if not (a.run_dir / "checkpoints").is_dir() and not checkpoint.has_compact(a.run_dir):
+        p.error(f"--run-dir {a.run_dir}: neither a checkpoints/ folder nor a compact.npz (give a training "
+                f"run directory or a published point, e.g. results/fig3_paper/points/l10_s0)")
     if a.out.exists() and a.out.is_dir():
         p.error(f"--out {a.out} is a directory")
     return a

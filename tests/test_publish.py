@@ -8,6 +8,7 @@ import importlib.util
 import pathlib
 
 import numpy as np
+import pytest
 from scipy import stats as sps
 
 from nmrl.experiments import sweep
@@ -122,3 +123,15 @@ def test_fig3_milestone_lines_hold_only_the_l_whose_every_seed_reached_them(tmp_
     assert series[2]["l"] == [1, 10] and np.allclose(series[2]["mean"], [4.8, 4.3])
     path = plots.fig3_milestones(by_l, (10_000, 30_000, 100_000), tmp_path / "fig3.png")
     assert path.stat().st_size > 10_000
+
+
+def test_physics_fidelity_reads_a_published_point(tmp_path, capsys):
+    """The fidelity script's default policy is a published compact state (a clean clone has no
+    checkpoints); a folder with neither checkpoints nor a compact state is refused by name."""
+    fid = _publisher("physics_fidelity")
+    a = fid.parse_args([])
+    assert (a.run_dir / "compact.npz").is_file() and not (a.run_dir / "checkpoints").exists()
+    with pytest.raises(SystemExit):
+        fid.parse_args(["--run-dir", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert f"--run-dir {tmp_path}" in err and "compact.npz" in err
