@@ -126,10 +126,11 @@ def draw(ppo: dict, curves: dict, ac: dict, path: pathlib.Path) -> None:
         ax.set_xlabel("control steps (all environments)")
         ax.set_title(title, fontsize=10)
         ax.axhline(0, color="0.7", lw=0.6)
-        ax.legend(fontsize=8, loc="upper left")
-    for v, l in ((3.28, 1), (4.59, 10)):  # the paper's Fig. 3 after 10^5 trials
+    a.legend(fontsize=8, loc="lower right")  # the curves end high on the right; the low right is empty
+    b.legend(fontsize=8, loc="upper left")
+    for v, l in ((3.28, 1), (4.59, 10)):  # the paper's Fig. 3 after 10^5 trials, labelled where no curve is
         a.axhline(v, color=colors[l], ls=":", lw=0.8)
-        a.annotate(f"paper, l = {l}: {v}", (1.0, v), xycoords=("axes fraction", "data"), ha="right", va="bottom",
+        a.annotate(f"paper, l = {l}: {v}", (0.01, v), xycoords=("axes fraction", "data"), ha="left", va="bottom",
                    fontsize=7, color=colors[l])
     fig.tight_layout()
     with store.atomic_path(path) as tmp:
