@@ -5,11 +5,12 @@
 #
 # Resumable, also on a fresh clone: run the same script again. A seed with a run directory in $OUT
 # continues from its newest checkpoint; a seed without one that was published in $PUBLISHED
-# (scripts/publish_baseline_ppo.py: config, metrics, resumes and compact.npz, the newest
-# parameters) is copied there first and continues from its compact.npz, which holds the same arrays
-# as the newest checkpoint. A continuation has a fresh Adam state and environments: statistically,
-# not bitwise, the uninterrupted run (see nmrl/experiments/baseline_ppo.py). A finished seed is
-# skipped. SIGTERM stops after the PPO iteration in flight is saved (exit 143).
+# (scripts/publish_baseline_ppo.py: config, metrics, resumes and, while unfinished, compact.npz,
+# the newest parameters) is copied there first and continues from its compact.npz, which holds the
+# same arrays as the newest checkpoint. A continuation has a fresh Adam state and environments:
+# statistically, not bitwise, the uninterrupted run (see nmrl/experiments/baseline_ppo.py). A
+# finished seed (published without parameters) is skipped: its --resume does nothing. SIGTERM
+# stops after the PPO iteration in flight is saved (exit 143).
 # Publish with: .venv/bin/python scripts/publish_baseline_ppo.py
 # CPUS=1 (a taskset list) runs it on those cores only (one XLA device per core): beside the
 # Fig. 3 sweep pinned to the other core (CPUS=0 scripts/fig3_paper.sh).
@@ -24,8 +25,8 @@ if [ -n "${CPUS:-}" ]; then PIN=(taskset -c "$CPUS"); fi
 for s in $SEEDS; do
   d="$OUT/ppo_s$s"
   p="$PUBLISHED/ppo_s$s"
-  if [ ! -f "$d/config.json" ] && [ -f "$p/compact.npz" ]; then
-    echo "seeding $d from the published $p (compact continuation state)" >&2
+  if [ ! -f "$d/config.json" ] && [ -f "$p/config.json" ]; then
+    echo "seeding $d from the published $p (its compact continuation state, if unfinished)" >&2
     mkdir -p "$d"
     for f in config.json metrics.jsonl resumes.jsonl compact.npz; do
       if [ -f "$p/$f" ]; then cp "$p/$f" "$d/"; fi

@@ -8,9 +8,11 @@ control steps = steps per environment x its environments), the actor-critic's de
 evaluations at the budgets (DEST/ac_milestones.json, scripts/ac_milestones.py) and, if present, the
 wall times of benchmarks/results.json's ``baseline`` section. Writes, atomically:
 
-* ``ppo_s{seed}/{config.json, metrics.jsonl, resumes.jsonl, compact.npz}``: each PPO run's config,
-  rows per iteration, resumes and newest parameters (nmrl.runs.checkpoint.save_tree_compact, ~1 MB):
-  what a fresh clone needs to continue the run (scripts/baseline_ppo.sh seeds runs/ from it);
+* ``ppo_s{seed}/{config.json, metrics.jsonl, resumes.jsonl}``: each PPO run's config, rows per
+  iteration and resumes, and, only while the seed is unfinished, ``compact.npz``, its newest
+  parameters (nmrl.runs.checkpoint.save_tree_compact, ~1 MB): what a fresh clone needs to continue
+  the run (scripts/baseline_ppo.sh seeds runs/ from it). A finished seed's compact.npz is not
+  published (and removed from DEST): its ``--resume`` does nothing and needs no parameters;
 * ``comparison.png``: the average reward per control step during learning against control steps
   (PPO's exploring policy, the actor-critic's exploring policy; mean over seeds, each seed thin),
   and the deterministic policies' evaluations (PPO every iteration, the actor-critic at the budgets);
@@ -19,8 +21,9 @@ wall times of benchmarks/results.json's ``baseline`` section. Writes, atomically
   and the control steps each was actually taken at (PPO: the iteration boundary nearest the
   budget); printed as a markdown table;
 * once every seed has ``--gait-steps`` control steps (default 2.5*10^7): ``gaits/ppo_best/`` (the
-  best seed by its last deterministic evaluation, evaluated from its compact state like ``nmrl
-  baseline eval``: eval.json, strobe.png, gait.gif) and ``gaits.png``, its strobe above those of the
+  best seed by its last deterministic evaluation, evaluated from its run directory SRC/ppo_s{seed}
+  like ``nmrl baseline eval``, only when the published eval.json is not of that seed and step:
+  eval.json, strobe.png, gait.gif) and ``gaits.png``, its strobe above those of the
   actor-critic's best l = 1 and l = 10 seeds at 10^5 trials (results/fig3_paper/gaits/, written by
   scripts/publish_fig3_paper.py) where they exist.
 """
@@ -149,7 +152,29 @@ def _mean_line(ax, series: list[list[tuple[float, float]]], color: str, label: s
     ax.plot(x, y, color=color, lw=1.8, label=f"{label}, mean of {len(series)}")
 
 
-def gaits(dest: pathlib.Path, ppo: dict[int, list[dict]], ac_gaits: pathlib.Path, at_steps: float) -> dict:
+def finished(run_dir: pathlib.Path, rows: list[dict]) -> bool:
+    """Whether the seed in ``run_dir`` reached its config's budget (``nmrl baseline ppo --resume``
+    then does nothing and needs no parameters)."""
+    from nmrl.experiments import baseline_ppo as bp
+
+    return bp.finished_step(run_dir, bp.load_config(run_dir)) is not None if rows else False
+
+
+def publish_seed(src: pathlib.Path, dest: pathlib.Path) -> None:
+    """Copy one seed's config, metrics and resumes to ``dest``, and its parameters (compact.npz)
+    only while it is unfinished; a finished seed's published compact.npz is removed."""
+    same = dest.exists() and src.resolve() == dest.resolve()
+    for name in (store.CONFIG_FILE, store.METRICS_FILE, store.RESUMES_FILE):
+        if (src / name).is_file() and not same:
+            store.atomic_copy(src / name, dest / name)
+    if finished(dest, store.read_metrics(dest)):
+        (dest / store.COMPACT_FILE).unlink(missing_ok=True)
+    elif (src / store.COMPACT_FILE).is_file() and not same:
+        store.atomic_copy(src / store.COMPACT_FILE, dest / store.COMPACT_FILE)
+
+
+def gaits(dest: pathlib.Path, ppo: dict[int, list[dict]], ac_gaits: pathlib.Path, at_steps: float,
+          src_root: pathlib.Path) -> dict:
     """The best PPO seed's gait and the side-by-side picture (see the module docstring); {} until
     every seed has ``at_steps`` control steps."""
     if not ppo or any(rows[-1]["step"] < at_steps for rows in ppo.values()):
@@ -157,10 +182,10 @@ def gaits(dest: pathlib.Path, ppo: dict[int, list[dict]], ac_gaits: pathlib.Path
     from nmrl.experiments import baseline_ppo as bp
 
     best = max(ppo, key=lambda s: ppo[s][-1]["eval_avg_reward"])
-    src, d = dest / f"ppo_s{best}", dest / "gaits" / "ppo_best"
+    src, d = src_root / f"ppo_s{best}", dest / "gaits" / "ppo_best"
     old = json.loads((d / "eval.json").read_text()) if (d / "eval.json").is_file() else None
     if old is None or pathlib.Path(old["run_dir"]).name != src.name or old["step"] != ppo[best][-1]["step"]:
-        old = bp.evaluate_checkpoint(src, seconds=10.0, render=True, out_dir=d)
+        old = bp.evaluate_checkpoint(src, seconds=10.0, render=True, out_dir=d)  # from the run's parameters
     panels = [(f"Brax PPO, seed {best}, {old['step']:,} control steps", d / "strobe.png")]
     for l in AC_LS:
         e = ac_gaits / f"l{l}_best" / "eval.json"
@@ -225,9 +250,7 @@ def main() -> None:
         raise SystemExit(f"publish_baseline_ppo: error: no PPO run with metrics under {a.src}")
     a.dest.mkdir(parents=True, exist_ok=True)
     for s in ppo:
-        for name in (store.CONFIG_FILE, store.METRICS_FILE, store.RESUMES_FILE, store.COMPACT_FILE):
-            if (a.src / f"ppo_s{s}" / name).is_file():
-                store.atomic_copy(a.src / f"ppo_s{s}" / name, a.dest / f"ppo_s{s}" / name)
+        publish_seed(a.src / f"ppo_s{s}", a.dest / f"ppo_s{s}")
     ac_file = a.dest / "ac_milestones.json"
     ac = json.loads(ac_file.read_text()) if ac_file.is_file() else {}
     summ = summary(ppo, ac)
@@ -236,7 +259,7 @@ def main() -> None:
         ba = json.loads(bench.read_text()).get("baseline") or {}
         summ["hours_per_1e7_steps"] = ba.get("hours_per_1e7_steps")
     summ["ppo_steps_reached"] = {s: rows[-1]["step"] for s, rows in ppo.items()}
-    summ["gaits"] = gaits(a.dest, ppo, a.ac_gaits, a.gait_steps)
+    summ["gaits"] = gaits(a.dest, ppo, a.ac_gaits, a.gait_steps, a.src)
     store.atomic_write_json(a.dest / "summary.json", summ)
     draw(ppo, ac_curves(a.ac_points), ac, a.dest / "comparison.png")
     print(table(summ))

@@ -175,6 +175,21 @@ def test_ppo_baseline_trains_checkpoints_resumes_and_evaluates(tmp_path, capsys)
     assert cli.main(["baseline", "ppo", "--out", str(out), "--resume", "--quiet"]) == 0
     assert len(store.read_jsonl(out / store.RESUMES_FILE)) == 1
     assert (out / store.METRICS_FILE).read_bytes() == rows_before
+    # a finished seed is published without parameters (config, metrics, resumes): on a fresh clone
+    # its --resume is the same no-op; asked for more steps, it names what is missing and why
+    done = tmp_path / "published_finished"
+    done.mkdir()
+    for name in (store.CONFIG_FILE, store.METRICS_FILE, store.RESUMES_FILE):
+        shutil.copy(out / name, done / name)
+    published = {f.name: f.read_bytes() for f in done.iterdir()}
+    assert cli.main(["baseline", "ppo", "--out", str(done), "--resume", "--quiet"]) == 0
+    assert {f.name: f.read_bytes() for f in done.iterdir()} == published
+    assert cli.main(["baseline", "ppo", "--out", str(done), "--resume", "--quiet", "--num-timesteps", "160"]) == 2
+    err = capsys.readouterr().err
+    assert "no checkpoint (or compact.npz)" in err and "reach 120 control steps" in err and "160" in err
+    assert {f.name: f.read_bytes() for f in done.iterdir()} == published
+    assert cli.main(["baseline", "eval", str(done), "--no-render", "--out", str(tmp_path / "ev0")]) == 2
+    assert "no parameters to evaluate" in capsys.readouterr().err
     assert cli.main(["baseline", "eval", str(out), "--seconds", "0.5", "--no-render", "--out", str(tmp_path / "ev")]) == 0
     res = json.loads(capsys.readouterr().out)
     assert res["step"] == 120 and np.isfinite(res["deterministic"]["avg_reward"])

@@ -83,6 +83,40 @@ def test_ppo_table_gives_an_interval_only_over_seeds():
     assert f"+2.33 ± {half:.2f} (1.00 m/s)" in l1
 
 
+def test_ppo_seed_is_published_with_its_parameters_only_while_unfinished(tmp_path):
+    """A seed short of its budget is published with compact.npz (a fresh clone continues it); once
+    finished, its config, metrics and resumes only, and the compact.npz published earlier is removed."""
+    import dataclasses
+    import json
+
+    from nmrl.experiments import baseline_ppo as bp
+
+    pub = _publisher("publish_baseline_ppo")
+    cfg = bp.PPOConfig(num_timesteps=120, num_envs=4, batch_size=4, num_minibatches=2, unroll_length=5)
+    assert cfg.steps_per_iteration == 40 and cfg.iterations == 3
+    src, dest = tmp_path / "runs" / "ppo_s0", tmp_path / "results" / "ppo_s0"
+    src.mkdir(parents=True)
+    d = dataclasses.asdict(cfg)
+    d["policy_hidden"], d["value_hidden"] = list(cfg.policy_hidden), list(cfg.value_hidden)
+    store.atomic_write_json(src / store.CONFIG_FILE, d)
+    (src / store.COMPACT_FILE).write_bytes(b"parameters")
+    (src / store.RESUMES_FILE).write_text(json.dumps({"from_step": 40}) + "\n")
+    for step in (0, 40, 80):
+        store.append_metrics(src, {"step": step})
+    pub.publish_seed(src, dest)
+    assert sorted(f.name for f in dest.iterdir()) == sorted(
+        [store.CONFIG_FILE, store.METRICS_FILE, store.RESUMES_FILE, store.COMPACT_FILE])
+    assert (dest / store.COMPACT_FILE).read_bytes() == b"parameters"
+    store.append_metrics(src, {"step": 120})  # the budget's third iteration: finished
+    pub.publish_seed(src, dest)
+    assert sorted(f.name for f in dest.iterdir()) == sorted([store.CONFIG_FILE, store.METRICS_FILE, store.RESUMES_FILE])
+    assert [r["step"] for r in store.read_metrics(dest)] == [0, 40, 80, 120]
+    # published in place (SRC = DEST): the same rule
+    (dest / store.COMPACT_FILE).write_bytes(b"stale")
+    pub.publish_seed(dest, dest)
+    assert not (dest / store.COMPACT_FILE).exists()
+
+
 def test_progress_counts_the_steps_left_and_the_hours_at_the_measured_rate(tmp_path):
     """Made-up metrics: a finished point, a running one, a diverged one and one not started. Left:
     the running point's missing trials at its own trial length so far, plus the unstarted point's

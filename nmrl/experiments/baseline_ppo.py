@@ -16,7 +16,9 @@ directory of the run store's layout (nmrl/runs/store.py)::
     OUT/checkpoints/N   the normalizer, policy and value parameters after N control steps (orbax,
                         nmrl.runs.checkpoint.save_tree), every iteration, newest 3 kept
     OUT/compact.npz     the newest of them as one small file (checkpoint.save_tree_compact, ~1 MB):
-                        what results/baseline_ppo/ commits so that a fresh clone continues the run
+                        what results/baseline_ppo/ commits while the run is unfinished, so that a
+                        fresh clone continues it (a finished seed's is not committed: its
+                        ``--resume`` needs no parameters and does nothing)
     OUT/resumes.jsonl   one line per resume
 
 **Hyperparameters.** The starting point is Brax's own PPO setting for its Half-Cheetah (the Brax
@@ -254,10 +256,17 @@ def evaluate_params(cfg: PPOConfig, params: Any, *, seconds: float | None = None
 def evaluate_checkpoint(run_dir: str | os.PathLike, step: int | None = None, *, seconds: float = 10.0,
                         render: bool = True, out_dir: str | os.PathLike | None = None) -> dict:
     """Evaluate a PPO baseline checkpoint like ``nmrl eval`` (JSON, strobe, GIF in ``out_dir``,
-    default RUN_DIR/eval). A directory with ``compact.npz`` and no ``checkpoints/`` (a published
-    seed, ``results/baseline_ppo/ppo_s{seed}``) is evaluated from its compact state."""
+    default RUN_DIR/eval). A directory with ``compact.npz`` and no ``checkpoints/`` (a seed
+    published while unfinished, ``results/baseline_ppo/ppo_s{seed}``) is evaluated from its compact
+    state; one with neither is refused (driver.RunError)."""
     run_dir = pathlib.Path(run_dir)
     cfg = load_config(run_dir)
+    if not checkpoint.checkpoint_dir(run_dir).exists() and not checkpoint.has_compact(run_dir):
+        raise driver.RunError(
+            f"{run_dir}: no parameters to evaluate (no checkpoints/, no compact.npz); a finished seed "
+            f"published under results/baseline_ppo keeps only its config and metrics: evaluate the run "
+            f"directory that trained it (runs/baseline_ppo/ppo_s{{seed}}); the best seed's gait is "
+            f"published in results/baseline_ppo/gaits/ppo_best")
     restore = checkpoint.restore_tree_compact if checkpoint.uses_compact(run_dir) else checkpoint.restore_tree
     meta, params = restore(run_dir, initial_params(cfg), step)
     ev = evaluate_params(cfg, params, seconds=seconds)
@@ -338,6 +347,15 @@ class _Recorder:
                   f"{row['steps_per_s'] or 0:,.0f} steps/s", file=sys.stderr, flush=True)
 
 
+def finished_step(out: str | os.PathLike, cfg: PPOConfig) -> int | None:
+    """The last metrics row's control step when it reaches ``cfg``'s budget (``iterations`` whole
+    iterations: the run is finished), else None."""
+    rows = store.read_metrics(pathlib.Path(out))
+    if rows and rows[-1]["step"] // cfg.steps_per_iteration >= cfg.iterations:
+        return int(rows[-1]["step"])
+    return None
+
+
 def _asdict(cfg: PPOConfig) -> dict:
     d = dataclasses.asdict(cfg)
     d["policy_hidden"], d["value_hidden"] = list(cfg.policy_hidden), list(cfg.value_hidden)
@@ -370,10 +388,17 @@ def run(cfg: PPOConfig, out: str | os.PathLike, *, resume: bool = False, progres
         template = initial_params(saved)
         if driver.existing_step(out) is not None:
             meta, params = checkpoint.restore_tree(out, template)
-        elif checkpoint.has_compact(out):  # a fresh clone of the published run: the same parameters
+        elif checkpoint.has_compact(out):  # a fresh clone of an unfinished published run: the same parameters
             meta, params = checkpoint.restore_tree_compact(out, template)
+        elif finished_step(out, cfg) is not None:
+            return []  # a fresh clone of a finished published seed (no parameters kept): nothing to do
         else:
-            raise driver.RunError(f"{out}: no checkpoint (or compact.npz) to resume from")
+            rows = store.read_metrics(out)
+            reached = f"its metrics reach {rows[-1]['step']:,} control steps" if rows else "it has no metrics"
+            raise driver.RunError(
+                f"{out}: no checkpoint (or compact.npz) to resume from, and the run is not finished "
+                f"({reached}, --num-timesteps is {cfg.num_timesteps:,}); a published seed keeps its "
+                f"parameters (compact.npz) only while it is unfinished")
         step0 = int(meta["step"])
         if cfg.iterations - step0 // cfg.steps_per_iteration <= 0:
             return []  # finished: nothing to continue, nothing written
