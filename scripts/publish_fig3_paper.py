@@ -22,6 +22,8 @@ Writes into ``dest`` (each file atomically):
   the hours they take at that rate;
   the plain answers at every milestone reached (l = 10 against l = 1: difference of the seed means with its 95% Welch interval and the
   relative difference; the best l; collapsed points, i.e. last tenth below half the running peak);
+  per point its largest fall below the running peak from 10^4 trials on (nmrl.analysis.stats.largest_fall:
+  how steady learning is, short of a divergence or a collapse), in progress.md one row per l;
 * ``gaits/l{1,10}_best/{eval.json, strobe.png, gait.gif}`` once every seed of that l has
   ``--gait-trials`` trials (default the budget): the best seed's gait (see :func:`gaits`).
 """
@@ -66,7 +68,7 @@ def progress(src: pathlib.Path, spec: sweep.SweepSpec) -> dict:
                                    "budget_share": last["trials"] / budget if budget else None,
                                    "final_avg_reward": final, "peak_avg_reward": peak,
                                    "collapsed": bool(peak is not None and peak > 0 and final < 0.5 * peak),
-                                   "diverged": div is not None}
+                                   "diverged": div is not None, "largest_fall": stats.largest_fall(rows)}
             for m in MILESTONES:
                 per[str(m)].append(stats.at_milestone(rows, m))
             running = bool(rows) and not (budget and last["trials"] >= budget) and div is None
@@ -142,7 +144,8 @@ def progress_md(p: dict) -> str:
         share = ", ".join(f"{v['trials']:,} ({100 * v['budget_share']:.1f}%)" for v in pts)
         lines.append(f"| {l} | " + " | ".join(cells) + f" | {share} |")
     lines.append("")
-    lines.append("Rate (median of the last 10 chunks of the points still running, whole machine): "
+    which = "the points still running" if p.get("remaining_ctrl_steps") else "the last points to run (all finished)"
+    lines.append(f"Rate (median of the last 10 chunks of {which}, whole machine): "
                  f"{p['rate_ctrl_steps_per_s']:,.0f} control steps/s."
                  if p["rate_ctrl_steps_per_s"] else "Rate: no chunks yet.")
     if p.get("remaining_ctrl_steps"):
@@ -153,6 +156,7 @@ def progress_md(p: dict) -> str:
                                  or "none") + ".")
     collapsed = [n for n, q in p["points"].items() if q.get("collapsed")]
     lines.append("Collapsed (last tenth below half the running peak): " + (", ".join(collapsed) or "none") + ".")
+    lines += falls_md(p)
     for l, g in (p.get("gaits") or {}).items():
         lines.append(f"Gait of l = {l}: {g['point']} at {g['trials']:,} trials, deterministic "
                      f"{f(g['deterministic']['avg_reward'])} per step ({g['deterministic']['forward_speed']:.2f} m/s), "
@@ -169,6 +173,28 @@ def progress_md(p: dict) -> str:
         lines += [f"- {int(m):,} trials: l = {e['l']} ({f(e['mean'])}; among l = {', '.join(map(str, e['among']))})"
                   for m, e in a["best_l"].items()]
     return "\n".join(lines) + "\n"
+
+
+def falls_md(p: dict) -> list[str]:
+    """Per l, each seed's largest fall below its running peak (stats.largest_fall: 5-chunk running
+    mean, from 10^4 trials on): how steady learning is, short of a divergence or a collapse."""
+    lines = ["", "Largest fall below the running peak (5-chunk running mean of the average reward per step, "
+             "from 10⁴ trials on; stats.largest_fall): per l the largest over the seeds, then each seed as "
+             "fall (share of the peak): peak at trials → trough at trials, end of the run:", "",
+             "| l | largest fall | each seed |", "|---|---|---|"]
+    for l in p["by_l"]:
+        falls = [(n, q["largest_fall"]) for n, q in p["points"].items()
+                 if n.startswith(f"l{l}_") and q.get("largest_fall")]
+        if not falls:
+            continue
+        worst = max(e["fall"] for _, e in falls)
+        cells = []
+        for n, e in falls:
+            share = "–" if e["share"] is None else f"{100 * e['share']:.0f}%"
+            cells.append(f"{n}: {e['fall']:.2f} ({share}): {e['peak']:+.2f} at {e['peak_trials']:,} → "
+                         f"{e['trough']:+.2f} at {e['trough_trials']:,}, end {e['end']:+.2f}")
+        lines.append(f"| {l} | {worst:.2f} | " + "; ".join(cells) + " |")
+    return lines
 
 
 def learning_curves(src: pathlib.Path, spec: sweep.SweepSpec, path: pathlib.Path) -> None:

@@ -143,6 +143,28 @@ def test_progress_counts_the_steps_left_and_the_hours_at_the_measured_rate(tmp_p
     assert f"Left: ~{running_left + unstarted_left:,.0f} control steps" in pub.progress_md(p)
 
 
+def test_progress_reports_each_points_largest_fall_and_the_worst_per_l(tmp_path):
+    """A curve that rises to 4, falls to 1 and comes back to 3 (chunks of 10^4 trials, smoothed over
+    5): the row of its l names the fall of the running mean from its peak and where; a steady
+    seed's fall is 0; the worst per l is the first column."""
+    pub = _publisher()
+    spec = sweep.SweepSpec(ls=(20,), seeds=2, base=TrainConfig(trials=200_000, num_envs=8))
+    curves = {0: [4.0] * 10 + [1.0] * 5 + [3.0] * 5, 1: [2.0] * 20}
+    for s, ys in curves.items():
+        d = sweep.point_dir(tmp_path, 20, s)
+        d.mkdir(parents=True)
+        for k, y in enumerate(ys, 1):
+            store.append_metrics(d, {"avg_reward": y, "diverged": False, "theta_norm": 1.0, "v_norm": 1.0,
+                                     "trials": 10_000 * k, "step": 1_000 * k, "steps_per_s": 1_000.0})
+    p = pub.progress(tmp_path, spec)
+    f0 = p["points"]["l20_s0"]["largest_fall"]
+    # the 5-chunk mean reaches 1.0 at chunk 15 (150,000 trials); the peak 4.0 first at chunk 1
+    assert (f0["fall"], f0["peak_trials"], f0["trough_trials"], f0["end"]) == (3.0, 10_000, 150_000, 3.0)
+    assert p["points"]["l20_s1"]["largest_fall"]["fall"] == 0.0
+    md = pub.progress_md(p)
+    assert "| 20 | 3.00 | l20_s0: 3.00 (75%): +4.00 at 10,000 → +1.00 at 150,000, end +3.00; l20_s1: 0.00 (0%)" in md
+
+
 def test_fig3_milestone_lines_hold_only_the_l_whose_every_seed_reached_them(tmp_path):
     from nmrl.analysis import plots
 

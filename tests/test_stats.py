@@ -32,3 +32,26 @@ def test_at_milestone_averages_the_last_tenth_before_it():
     # (9,000, 10,000]: 9,500 and 10,000
     assert np.isclose(stats.at_milestone(rows, 10_000), (9.5 + 10.0) / 2)
     assert stats.at_milestone(rows, 20_000) is None
+
+
+def test_largest_fall_is_the_deepest_drop_below_the_running_peak_by_brute_force():
+    """Every pair (i <= j) of the smoothed curve from 10^4 trials on, by hand: the largest y[i] - y[j]
+    is the fall; its peak and trough positions; the early curve (a deeper drop before 10^4 trials)
+    does not count."""
+    rng = np.random.default_rng(3)
+    y = np.concatenate([[5.0, -3.0], np.cumsum(rng.normal(0.0, 0.5, 60)) + 2.0])
+    trials = np.concatenate([[2_000, 6_000], np.linspace(10_000, 100_000, 60).astype(int)])
+    rows = [{"avg_reward": float(a), "trials": int(t)} for a, t in zip(y, trials)]
+    got = stats.largest_fall(rows, k=3)
+    # the 3-chunk trailing mean by hand, then every pair among the chunks from 10^4 trials on
+    s = np.array([np.mean(y[max(0, i - 2): i + 1]) for i in range(len(y))])[2:]
+    tr = trials[2:]
+    best = max(((s[i] - s[j], i, j) for i in range(len(s)) for j in range(i, len(s))), key=lambda t: t[0])
+    assert np.isclose(got["fall"], best[0])
+    assert got["peak_trials"] == tr[best[1]] and got["trough_trials"] == tr[best[2]]
+    assert np.isclose(got["peak"], s[best[1]]) and np.isclose(got["trough"], s[best[2]])
+    assert np.isclose(got["end"], s[-1]) and np.isclose(got["share"], best[0] / s[best[1]])
+    # a rising curve never falls; nothing from 10^4 trials on: None
+    up = [{"avg_reward": float(v), "trials": 10_000 * (v + 1)} for v in range(5)]
+    assert stats.largest_fall(up)["fall"] == 0.0
+    assert stats.largest_fall(rows[:2]) is None and stats.largest_fall([]) is None

@@ -61,3 +61,27 @@ def at_milestone(rows: list[dict], m: int) -> float | None:
         before = [r for r in rows if r["trials"] <= m]
         sel = [before[-1]["avg_reward"]] if before else []
     return float(np.mean(sel)) if sel else None
+
+
+def largest_fall(rows: list[dict], *, from_trials: int = 10_000, k: int = 5) -> dict | None:
+    """The deepest fall of a learning curve below its running peak: on the ``k``-chunk trailing mean
+    of ``avg_reward`` (:func:`smooth`), over the chunks with at least ``from_trials`` trials (the
+    early curve, before a gait, is left out), the largest ``peak so far - value``. Returns the fall,
+    its share of the peak (None for a peak <= 0), the peak and the trough with their trial counts,
+    and the curve's end value; None without chunks from ``from_trials`` on. A collapse is a fall that
+    does not come back; a dip is one that does (compare ``end`` with ``peak``)."""
+    if not rows:
+        return None
+    y = smooth(np.array([r["avg_reward"] for r in rows], float), k)
+    trials = np.array([r["trials"] for r in rows])
+    idx = np.flatnonzero(trials >= from_trials)
+    if idx.size == 0:
+        return None
+    y, trials = y[idx], trials[idx]
+    peak = np.maximum.accumulate(y)
+    i = int(np.argmax(peak - y))
+    j = int(np.argmax(y[: i + 1]))  # where that peak was reached (first time)
+    fall = float(peak[i] - y[i])
+    return {"fall": fall, "share": fall / float(peak[i]) if peak[i] > 0 else None,
+            "peak": float(peak[i]), "peak_trials": int(trials[j]),
+            "trough": float(y[i]), "trough_trials": int(trials[i]), "end": float(y[-1])}
