@@ -196,6 +196,11 @@ def test_resume_equals_uninterrupted(swept, tmp_path):
     for l in LS:
         for seed in (0, 1):
             assert _rows(sweep.point_dir(part, l, seed)) == _rows(sweep.point_dir(out, l, seed))
+    # the finished sweep resumed again: nothing to do, nothing written (no resume records either)
+    files = {f: f.read_bytes() for f in part.rglob("*") if f.is_file()}
+    assert sweep.run_sweep(sweep.SweepSpec(ls=(99,), seeds=1, base=TrainConfig()), part, resume=True,
+                           progress=False, plot=False) == []
+    assert {f: f.read_bytes() for f in part.rglob("*") if f.is_file()} == files
 
 
 def test_resume_keeps_a_diverged_point_frozen(swept, tmp_path):

@@ -746,6 +746,14 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[T
             env = env or tr.env
             ps.append(_Point(n, d, cfg, tr, ts, frozen=frozen, record=record))
         pts.check_one_program(names, [p.cfg for p in ps])
+        if all(p.frozen or budget_done(p.cfg, int(p.ts.step), int(p.ts.trials)) for p in ps):
+            # nothing to continue: no compile, nothing written (no resume records), as train() does
+            if progress and dist.is_writer():
+                print(f"{out}: nothing to do: every point has reached its budget "
+                      f"({'steps' if configs[0].steps is not None else 'trials'}="
+                      f"{configs[0].steps or configs[0].trials}) or diverged; give a larger --steps or "
+                      f"--trials to continue", file=sys.stderr, flush=True)
+            return []
         dist.barrier("points-checked")  # several processes: all have read the points before process 0 writes
         if before_start is not None:
             before_start()
