@@ -152,22 +152,17 @@ def _mean_line(ax, series: list[list[tuple[float, float]]], color: str, label: s
     ax.plot(x, y, color=color, lw=1.8, label=f"{label}, mean of {len(series)}")
 
 
-def finished(run_dir: pathlib.Path, rows: list[dict]) -> bool:
-    """Whether the seed in ``run_dir`` reached its config's budget (``nmrl baseline ppo --resume``
-    then does nothing and needs no parameters)."""
-    from nmrl.experiments import baseline_ppo as bp
-
-    return bp.finished_step(run_dir, bp.load_config(run_dir)) is not None if rows else False
-
-
 def publish_seed(src: pathlib.Path, dest: pathlib.Path) -> None:
     """Copy one seed's config, metrics and resumes to ``dest``, and its parameters (compact.npz)
-    only while it is unfinished; a finished seed's published compact.npz is removed."""
+    only while it is unfinished (its metrics short of its config's budget: baseline_ppo.finished_step);
+    a finished seed's published compact.npz is removed."""
+    from nmrl.experiments import baseline_ppo as bp
+
     same = dest.exists() and src.resolve() == dest.resolve()
     for name in (store.CONFIG_FILE, store.METRICS_FILE, store.RESUMES_FILE):
         if (src / name).is_file() and not same:
             store.atomic_copy(src / name, dest / name)
-    if finished(dest, store.read_metrics(dest)):
+    if (dest / store.CONFIG_FILE).is_file() and bp.finished_step(dest, bp.load_config(dest)) is not None:
         (dest / store.COMPACT_FILE).unlink(missing_ok=True)
     elif (src / store.COMPACT_FILE).is_file() and not same:
         store.atomic_copy(src / store.COMPACT_FILE, dest / store.COMPACT_FILE)

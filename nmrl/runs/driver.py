@@ -220,6 +220,11 @@ def budget_done(cfg: TrainConfig, ts_step: int, ts_trials: int) -> bool:
     return ts_trials >= cfg.trials
 
 
+def budget_text(cfg: TrainConfig) -> str:
+    """The budget :func:`budget_done` checks, as the command line gives it: ``steps=N`` or ``trials=N``."""
+    return f"steps={cfg.steps}" if cfg.steps is not None else f"trials={cfg.trials}"
+
+
 class _Progress:
     """A rich progress bar on a terminal, one plain line per chunk otherwise.
 
@@ -629,7 +634,7 @@ def train(cfg: TrainConfig, out: str | os.PathLike, *, resume: bool = False, pro
         _num_shards(cfg, devices)  # a bad device count is refused before anything is written
         if budget_done(cfg, int(ts.step), int(ts.trials)):
             print(f"{out}: nothing to do: the run is at step {int(ts.step)} ({int(ts.trials)} trials), its budget "
-                  f"is {'steps' if cfg.steps is not None else 'trials'}={cfg.steps or cfg.trials}; give a larger "
+                  f"is {budget_text(cfg)}; give a larger "
                   f"--steps or --trials to continue", file=sys.stderr, flush=True)
             return []
         p = _Point(out.name, out, cfg, trainer, ts, record=record)
@@ -749,10 +754,8 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[T
         if all(p.frozen or budget_done(p.cfg, int(p.ts.step), int(p.ts.trials)) for p in ps):
             # nothing to continue: no compile, nothing written (no resume records), as train() does
             if progress and dist.is_writer():
-                print(f"{out}: nothing to do: every point has reached its budget "
-                      f"({'steps' if configs[0].steps is not None else 'trials'}="
-                      f"{configs[0].steps or configs[0].trials}) or diverged; give a larger --steps or "
-                      f"--trials to continue", file=sys.stderr, flush=True)
+                print(f"{out}: nothing to do: every point has reached its budget ({budget_text(ps[0].cfg)}) "
+                      f"or diverged; give a larger --steps or --trials to continue", file=sys.stderr, flush=True)
             return []
         dist.barrier("points-checked")  # several processes: all have read the points before process 0 writes
         if before_start is not None:
