@@ -2,9 +2,11 @@
 
 * no import cycle between the modules of ``nmrl`` (counting every import, also those inside
   functions: a lazy import is still a dependency);
-* the layers point down only: ``nmrl.paper`` (the paper's ideas, pure JAX) < ``nmrl.runs`` (devices,
-  run store, checkpoints, the driver) < ``nmrl.analysis`` (statistics, figures, evaluation) <
-  ``nmrl.experiments`` (sweep, study, gradient variance) < ``nmrl.cli``;
+* the layers point down only: ``nmrl.paper`` (the paper's ideas, pure JAX) < ``nmrl.explore``
+  (exploration processes with exact likelihoods, pure JAX) < ``nmrl.learners`` (the learner contract
+  and its implementations) and ``nmrl.adapters`` (bridges to other ecosystems) < ``nmrl.runs``
+  (devices, run store, checkpoints, the driver) < ``nmrl.analysis`` (statistics, figures,
+  evaluation) < ``nmrl.experiments`` (sweep, study, gradient variance) < ``nmrl.cli``;
 * the package imports nothing from the checkout around it (``benchmarks``, ``scripts``, ``tests``),
   and neither scripts/ nor benchmarks/ edit ``sys.path`` (``pip install -e .`` is the way in).
 """
@@ -19,7 +21,8 @@ import pytest
 REPO = pathlib.Path(__file__).resolve().parents[1]
 PKG = REPO / "nmrl"
 #: layer of each top-level part of nmrl; an import may only go to a layer <= its own
-LAYERS = {"paper": 0, "runs": 1, "analysis": 2, "experiments": 3, "cli": 4}
+LAYERS = {"paper": 0, "explore": 1, "learners": 2, "adapters": 2, "runs": 3, "analysis": 4, "experiments": 5,
+          "cli": 6}
 
 
 def _module_name(path: pathlib.Path) -> str:
