@@ -1,0 +1,104 @@
+"""The paper's actor-critic (nmrl/paper/learner.py, Table II) as the learner ``ac``.
+
+The learner itself stays in nmrl/paper/ (its code and numbers are the paper's); this module only
+says how the driver takes it (nmrl/learners/contract.py): its config is
+:class:`~nmrl.paper.learner.TrainConfig`, its traced hyperparameters :class:`~nmrl.paper.learner.Hyper`
+(l, Delta, alpha, sigma, gamma, lambda and the step sizes: a sweep over any of them is one program),
+the per-environment part of its state the ``slots`` (environment, noise (4), likelihood ratio (7),
+traces), the compact continuation state the parameters theta, v and the count of learned periods,
+and the deterministic policy a = a~(s; theta) (eq. (6) with xi = 0); the exploring one adds the
+piecewise AR noise (4) with the run's l, alpha and sigma.
+
+Exploration processes in seconds (``white``, ``nm-periods``; :func:`exploration_fields`): white
+noise is l = 1, the paper's nm-periods are l = round(period_s / control_dt) and
+alpha = exp(-control_dt / corr_time_s) (alpha = 0.8 at 0.02 s <-> corr_time_s = 0.0896 s). A
+stationary correlated process (``ou``, ``colored``) has no periods, so its likelihood ratio has no
+period to be accumulated over (Table II, step 1): the actor-critic refuses it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax.numpy as jnp
+
+from nmrl.learners.contract import Learner, Policy, register
+from nmrl.paper import networks, noise
+from nmrl.paper.learner import OPT_FIELDS, OPT_HELP, PRESETS, Hyper, TrainConfig, make_train
+
+NAME = "ac"
+#: the exploration processes the actor-critic can use
+EXPLORATIONS = ("white", "nm-periods")
+#: TrainConfig fields checked for finiteness before anything is built (NaN/inf pass some range checks)
+FINITE = ("alpha", "sigma", "gamma", "lam", "control_dt", "stop_prob", "reward_scale")
+
+
+def check(cfg: TrainConfig) -> None:
+    for name in FINITE:
+        v = getattr(cfg, name)
+        if isinstance(v, float) and not math.isfinite(v):
+            raise ValueError(f"{name}={v!r} is invalid: must be a finite number")
+
+
+def exploration_fields(kind: str, control_dt: float, period_s: float | None = None,
+                       corr_time_s: float | None = None) -> dict:
+    """The TrainConfig fields (l, alpha) of an exploration process given in seconds; ValueError for a
+    process the actor-critic cannot use or a time shorter than the control step."""
+    if kind not in EXPLORATIONS:
+        raise ValueError(f"exploration={kind!r} is a process the learner 'ac' cannot use: its likelihood ratio "
+                         f"is accumulated over nm-periods (Table II); allowed: {', '.join(EXPLORATIONS)}")
+    if kind == "white":
+        if period_s is not None or corr_time_s is not None:
+            raise ValueError("exploration='white' takes no --period-s or --corr-time-s")
+        return {"l": 1}
+    out: dict = {}
+    if period_s is not None:
+        if not (math.isfinite(period_s) and period_s >= control_dt):
+            raise ValueError(f"period_s={period_s!r} is invalid: must be a finite time >= the control step "
+                             f"{control_dt:g} s")
+        out["l"] = max(1, round(period_s / control_dt))
+    if corr_time_s is not None:
+        if not (math.isfinite(corr_time_s) and corr_time_s > 0):
+            raise ValueError(f"corr_time_s={corr_time_s!r} is invalid: must be a finite time > 0 s")
+        out["alpha"] = math.exp(-control_dt / corr_time_s)
+    return out
+
+
+def policy(cfg: TrainConfig, env) -> Policy:
+    """a = a~(s; theta) + xi (eq. (6)); xi the piecewise AR process (4) with the run's l, alpha, sigma."""
+    actor = networks.make_actor(cfg.hidden_actor, env.act_dim)
+    return Policy(
+        act=lambda params, obs, xi: actor.apply(params["theta"], obs) + xi,
+        noise_init=noise.ar_init,
+        noise_step=lambda a, state, eps: noise.ar_step(state, eps, a["alpha"], a["l"], a["sigma"]),
+        noise_args={"alpha": jnp.float32(cfg.alpha), "l": jnp.int32(cfg.l), "sigma": jnp.float32(cfg.sigma)},
+    )
+
+
+def _fill(trainer, ts):
+    """Fresh optimizer states for a checkpoint written before they were saved (exact for the paper's
+    sgd rule, the only one those runs could name: its state holds no statistics)."""
+    opt_theta, opt_v = trainer.init_opt(ts.theta, ts.v, ts.hyper)
+    return ts.replace(opt_theta=opt_theta, opt_v=opt_v)
+
+
+LEARNER = register(Learner(
+    name=NAME,
+    config=TrainConfig,
+    hyper=Hyper.from_config,
+    hyper_fields=tuple(Hyper._fields),
+    make=make_train,
+    env_fields=("slots",),
+    compact_fields=("theta", "v", "periods"),
+    policy_fields=("theta", "v"),
+    policy=policy,
+    doc="the paper's actor-critic with TD(lambda) over nm-periods (Table II)",
+    help={"preset": f"step-size and update-rule preset: {', '.join(sorted(PRESETS))}",
+          "actor_opt": f"actor update rule: {OPT_HELP} (default: the preset's)",
+          "critic_opt": "critic update rule, as --actor-opt (default: the preset's)"},
+    hidden=("grad_stats",),
+    restorable=OPT_FIELDS,
+    fill=_fill,
+    check=check,
+    describe=lambda c: {"l": int(c.l), "alpha": float(c.alpha), "sigma": float(c.sigma)},
+))

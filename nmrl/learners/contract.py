@@ -1,0 +1,236 @@
+"""The learner contract: what the one driver (nmrl/runs/) needs of a learner, and the registry.
+
+A learner is a :class:`Learner` record registered under a short name (``"ac"``: the paper's
+actor-critic, nmrl/learners/ac.py; ``"ppo"``: nmrl/learners/ppo.py). The driver, the checkpoints,
+the sweep, evaluation and the command line take any registered learner through this record and
+nothing else; the shape is Stoix's ``LearnerFn: state -> (state, metrics)`` and rejax's one loop:
+
+* ``config`` -- a frozen dataclass (the run's identity: ``config.json`` is ``{"learner": name,
+  **dataclasses.asdict(config)}``, and ``type(**json)`` must give it back). Every learner's config has
+  the fields ``seed: int``, ``num_envs: int``, ``chunk_steps: int`` (control steps per environment
+  in one chunk), ``steps: int | None`` (budget in control steps per environment), ``trials: int |
+  None`` (budget in trials summed over the environments; at most one of the two), ``control_dt:
+  float`` [s], ``stop_prob: float`` (per control step) and ``max_param_norm: float``, and the methods
+  ``validate()`` (ValueError naming the value and what is allowed), ``resolved()`` (validated, every
+  default filled in, e.g. a default budget: what the run records) and ``env_config()`` (the
+  ``nmrl.paper.env.EnvConfig`` of its Half-Cheetah, ``auto_reset=True``); ``config()`` (every field
+  at its default) is valid. Field types are written as
+  ``int``, ``float``, ``str``, ``bool`` or ``X | None`` (the command line makes one option of each,
+  its help from the ``#:`` comment is not read: give :attr:`Learner.help`).
+* ``hyper(config)`` -- the traced hyperparameters, a pytree of arrays (e.g. a NamedTuple whose
+  ``from_config`` reads the config fields of the same names). ``hyper_fields`` names those config
+  fields: the points of one sweep may differ only in them and in the seed (one compiled program,
+  ``jax.vmap``/``lax.map`` over the stacked states).
+* ``make(config, env=None, *, axis_name=None, num_shards=1) -> Trainer`` -- the pure functions of a
+  run (``env`` default: ``HalfCheetah(config.env_config())``). With ``num_shards`` > 1 ``chunk`` is
+  written for ``jax.shard_map`` over the environment axis of the state's ``env_fields`` (``psum``
+  over ``axis_name``), the other fields replicated; its results equal the unsharded program's up to
+  float rounding.
+* ``Trainer`` (:class:`Trainer`): ``config`` (resolved), ``env``, ``init(key, hyper=None) -> state``
+  (``hyper`` None: ``hyper(config)``), ``chunk(state) -> (state, metrics)``: ``config.chunk_steps``
+  control steps of every environment, pure and jittable (one ``lax.scan``), no host callbacks.
+* The state: a pytree dataclass (``flax.struct.dataclass``) with at least ``step`` (int32, control
+  steps per environment so far), ``trials`` (int32, trials ended, summed over the environments),
+  ``diverged`` (bool: once True the learner freezes its parameters), ``key`` (the PRNG key) and
+  ``hyper``. A checkpoint holds the whole state and gives it back bit for bit (a resumed run equals
+  an uninterrupted one); zero-size leaves are fine. ``env_fields``: the top-level fields whose
+  leaves have the environment axis (``num_envs``) first.
+* The metrics of a chunk: a flat dict of scalars with at least ``avg_reward`` (mean reward per
+  control step per environment over the chunk, the reward the environment gives, not a scaled one),
+  ``forward_speed`` (mean, m/s), ``trials_in_chunk``, ``step``, ``trials``, ``diverged`` (the
+  state's, after the chunk) and the global norms of the learned parameters under names ending in
+  ``_norm`` (e.g. ``theta_norm``; a non-finite one marks the chunk diverged, :func:`is_diverged`).
+* The compact continuation state (``compact.npz``, small enough to commit; nmrl/runs/compact.py):
+  the top-level state fields named in ``compact_fields`` (e.g. parameters, optimizer state,
+  observation statistics) and ``step``, ``trials``, ``diverged``, ``key``. A run continues from it
+  by ``k_init, key = split(saved key)``, ``state = trainer.init(k_init)`` with those fields, the
+  counters and ``key`` replaced: every environment starts a new trial (statistically, not bitwise,
+  equal to the full checkpoint).
+* The deterministic policy for evaluation: ``policy_fields`` are the top-level state fields it
+  reads (saved beside every checkpoint as its small ``policy`` item, so evaluation reads only
+  them; a subset of ``compact_fields``), and ``policy(config, env) -> Policy`` gives
+  ``act(params, obs, xi) -> action`` with ``params = {field: state.field for field in
+  policy_fields}``: the action the learner sends to ``env.step`` (after its observation
+  normalisation, squashing or clipping) for the exploration noise ``xi`` (zeros: the deterministic
+  policy), and the noise process of the exploring policy (:class:`Policy`).
+* ``restorable`` / ``fill``: top-level state fields a checkpoint written by an earlier version of the
+  learner may lack, and ``fill(trainer, state) -> state`` that sets them (exactly what the older
+  run would have had); ``check(config)``: checks beyond ``config.validate()`` (default: none).
+
+A new learner provides these and registers itself at import: ``register(Learner(name="x", ...))``
+in its module, and its module path in :data:`BUILTIN` (or the caller imports it before use; a
+test registers a toy learner this way). :func:`get` imports a built-in learner on first use.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import math
+from typing import Any, Callable, NamedTuple, Protocol
+
+#: learner name -> module that registers it when imported
+BUILTIN = {"ac": "nmrl.learners.ac", "ppo": "nmrl.learners.ppo"}
+#: the learner of a run whose config.json or checkpoint names none (every run before there were two)
+DEFAULT = "ac"
+#: the key of ``config.json`` (and of a checkpoint's metadata) that names the learner
+KEY = "learner"
+#: fields every learner's config has (the driver reads them)
+COMMON_FIELDS = ("seed", "num_envs", "chunk_steps", "steps", "trials", "control_dt", "stop_prob", "max_param_norm")
+#: metrics every chunk reports
+METRICS = ("avg_reward", "forward_speed", "trials_in_chunk", "step", "trials", "diverged")
+
+
+class Trainer(Protocol):
+    """What ``Learner.make`` returns (the actor-critic's is a NamedTuple with these and more)."""
+
+    config: Any
+    env: Any
+    init: Callable[..., Any]
+    chunk: Callable[[Any], tuple[Any, dict]]
+
+
+class Policy(NamedTuple):
+    """A policy for evaluation (one environment, unbatched ``obs`` of shape (obs_dim,)).
+
+    ``act(params, obs, xi) -> action``; ``noise_init(act_dim) -> noise state``;
+    ``noise_step(noise_args, noise_state, eps) -> (noise_state, xi)`` with ``eps`` ~ N(0, I) of shape
+    (act_dim,) drawn per control step; ``noise_args``: a pytree of arrays (traced, so one compiled
+    rollout serves every value). The exploring rollout is ``a_t = act(params, s_t, xi_t)``, the
+    deterministic one the same with ``xi_t`` multiplied by a traced 0.
+    """
+
+    act: Callable[[Any, Any, Any], Any]
+    noise_init: Callable[[int], Any]
+    noise_step: Callable[[Any, Any, Any], tuple[Any, Any]]
+    noise_args: Any
+
+
+@dataclasses.dataclass(frozen=True)
+class Learner:
+    """One learner as the driver sees it (see the module docstring for each part)."""
+
+    name: str
+    config: type
+    hyper: Callable[[Any], Any]
+    hyper_fields: tuple[str, ...]
+    make: Callable[..., Trainer]
+    env_fields: tuple[str, ...]
+    compact_fields: tuple[str, ...]
+    policy_fields: tuple[str, ...]
+    policy: Callable[[Any, Any], Policy]
+    #: one line for ``nmrl train --help``
+    doc: str = ""
+    #: option help per config field (``--help``); fields without one show their default only
+    help: dict[str, str] = dataclasses.field(default_factory=dict)
+    #: config fields that are not command-line options (diagnostics)
+    hidden: tuple[str, ...] = ()
+    restorable: tuple[str, ...] = ()
+    fill: Callable[[Trainer, Any], Any] | None = None
+    check: Callable[[Any], None] | None = None
+    #: a few config fields that describe a run in one line (eval.json, progress); default: none
+    describe: Callable[[Any], dict] | None = None
+
+    def validate(self, config: Any) -> None:
+        """``config.validate()`` and the learner's own checks (ValueError naming the value)."""
+        if not isinstance(config, self.config):
+            raise ValueError(f"learner {self.name!r} takes a {self.config.__name__}, got {type(config).__name__}")
+        config.validate()
+        if self.check is not None:
+            self.check(config)
+
+
+_REGISTRY: dict[str, Learner] = {}
+
+
+def register(learner: Learner) -> Learner:
+    """Add ``learner`` under its name (replacing one of the same name and config class)."""
+    missing = [f for f in COMMON_FIELDS if f not in {x.name for x in dataclasses.fields(learner.config)}]
+    if missing:
+        raise TypeError(f"learner {learner.name!r}: its config {learner.config.__name__} lacks {missing}")
+    old = _REGISTRY.get(learner.name)
+    if old is not None and old.config is not learner.config and old.config.__qualname__ != learner.config.__qualname__:
+        raise ValueError(f"a learner named {learner.name!r} is already registered ({old.config.__name__})")
+    _REGISTRY[learner.name] = learner
+    return learner
+
+
+def _load(name: str) -> None:
+    module = BUILTIN.get(name)
+    if module is None or name in _REGISTRY:
+        return
+    try:
+        importlib.import_module(module)
+    except ModuleNotFoundError as e:
+        if e.name != module:  # the learner's module exists but imports something that does not
+            raise
+
+
+def names() -> list[str]:
+    """The learners that can be used: the built-in ones that are installed and any registered."""
+    for n in BUILTIN:
+        _load(n)
+    return sorted(_REGISTRY)
+
+
+def get(name: str) -> Learner:
+    """The learner ``name``; ValueError naming it and the allowed names if there is none."""
+    _load(name)
+    if name not in _REGISTRY:
+        raise ValueError(f"learner={name!r} is unknown: choose one of {', '.join(names())}")
+    return _REGISTRY[name]
+
+
+def of(config: Any) -> Learner:
+    """The learner whose config class ``config`` is an instance of."""
+    for n in BUILTIN:
+        if n not in _REGISTRY:
+            _load(n)
+    for lr in _REGISTRY.values():
+        if type(config) is lr.config:
+            return lr
+    raise TypeError(f"{type(config).__name__} is the config of no registered learner ({', '.join(names())})")
+
+
+def config_dict(config: Any) -> dict:
+    """What ``config.json`` holds: ``{"learner": name, **dataclasses.asdict(config)}``."""
+    return {KEY: of(config).name, **dataclasses.asdict(config)}
+
+
+def config_from_dict(d: dict, learner: str | None = None) -> Any:
+    """The config a dict of :func:`config_dict` (or a plain ``asdict`` of the learner ``learner``,
+    default :data:`DEFAULT`) describes; ValueError for an unknown learner, TypeError for unknown
+    fields (named)."""
+    d = dict(d)
+    name = d.pop(KEY, None) or learner or DEFAULT
+    lr = get(name)
+    known = {f.name for f in dataclasses.fields(lr.config)}
+    unknown = sorted(set(d) - known)
+    if unknown:
+        raise TypeError(f"the config of learner {name!r} has no fields {unknown}")
+    return lr.config(**d)
+
+
+def replace_state(state: Any, **fields: Any) -> Any:
+    """``state`` with some top-level fields replaced (a dataclass pytree or a NamedTuple)."""
+    if hasattr(state, "_replace"):
+        return state._replace(**fields)
+    return dataclasses.replace(state, **fields)
+
+
+def norm_keys(row: dict) -> list[str]:
+    """The parameter-norm metrics of a row (names ending in ``_norm``)."""
+    return [k for k in row if k.endswith("_norm")]
+
+
+def is_diverged(row: dict) -> bool:
+    """A metrics row of a diverged chunk: its flag, or a non-finite parameter norm."""
+    return bool(row["diverged"]) or not all(math.isfinite(row[k]) for k in norm_keys(row))
+
+
+def program_key(config: Any) -> Any:
+    """The part of a config compiled into the program: the config with its traced fields and seed at
+    the class defaults (two configs with equal keys run as points of one program)."""
+    lr = of(config)
+    default = lr.config()
+    return dataclasses.replace(config, seed=0, **{k: getattr(default, k) for k in lr.hyper_fields})
