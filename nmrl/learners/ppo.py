@@ -1,0 +1,528 @@
+"""PPO with any exploration process of nmrl.explore, as the learner ``ppo`` (pure JAX).
+
+``trainer = make_ppo(config)`` gives pure ``trainer.init(key, hyper=None)`` and ``trainer.chunk(state)``
+(nested ``lax.scan``s; nmrl/learners/contract.py). One PPO *iteration* is Brax PPO's training step:
+
+1. every environment runs ``U = batch_size * num_minibatches / num_envs`` unrolls of
+   ``T = round(unroll_s / control_dt)`` control steps with the behaviour parameters theta_old;
+   the pre-squash action is ``x_t = mu_theta(s_t) + std_theta(s_t) xi_t`` (eq. (6) with a learned
+   scale), ``xi`` the exploration process (white noise: Brax's i.i.d. normal), whose state is carried
+   per environment across unrolls, iterations and chunks and reset where a trial ends; the
+   environment gets ``ACTION_SCALE * tanh(x_t)``. Stored per step: s_t, x_t, r_t, the stop flags,
+   ``fresh_t`` (a period or trial started) and ``log pi_old(x_t | past)``; per unroll: the filter
+   belief about the noise at its start and the observation after its last step;
+2. the running observation statistics take the iteration's observations (Brax: before the update);
+3. ``epochs`` passes over the data, each a shuffle of the unrolls into ``num_minibatches``
+   minibatches of ``batch_size`` whole unrolls (sequences are never cut: the likelihood of a step
+   depends on the noise before it), one Adam step per minibatch on
+   ``clipped surrogate + vf_coef * 0.5 (vs - V)^2 - entropy_cost * entropy`` with GAE
+   (nmrl/learners/ppo_losses.py) recomputed per minibatch under the current value net, as Brax does.
+
+**The likelihood ratio** is the process's exact conditional density, not a per-step marginal: with
+``xi_t(theta) = (x_t - mu_theta(s_t)) / std_theta(s_t)`` rebuilt under the current theta for the
+whole unroll, ``log pi_theta(x_t | x_<t) = log p_xi(xi_t(theta) | xi_<t(theta)) - sum_j log
+std_theta,j(s_t)`` (change of variables), where ``log p_xi`` is nmrl.explore's Kalman filter started
+from the belief stored at the unroll's start (computed under theta_old at rollout time). For the
+nm-periods process this is eq. (7) factorised into its per-step innovations (docs/ppo.md). The
+tanh of the action does not depend on theta: its log-Jacobian at the stored ``x_t`` cancels in
+``pi_theta / pi_old``, so the ratio is taken on ``x``.
+
+**Time in seconds.** The discount ``gamma = exp(-control_dt / discount_horizon_s)``, the GAE
+``lambda = exp(-control_dt / gae_horizon_s)``, the unroll ``unroll_s`` and the noise's correlation
+times are given in seconds; at 0.02 s every default is the Brax baseline's (results/baseline_ppo,
+``gamma = 0.95``, ``lambda = 0.95``, ``T = 20``, 32 minibatches of 512 unrolls, 8 epochs, lr 3e-4,
+entropy 1e-3, clip 0.3, policy 4x32, value 5x256, 64 environments, observation normalisation,
+reward scaling 1). docs/ppo.md has the conversions and what differs from Brax.
+
+Divergence: a parameter that is non-finite, or a global norm above ``max_param_norm``, after an
+iteration undoes that iteration's update and freezes the point (``diverged``), as in the actor-critic.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+from nmrl import explore
+from nmrl.learners import ppo_losses as L
+from nmrl.learners import ppo_networks as nn_
+from nmrl.learners.contract import Learner, Policy, register
+from nmrl.paper.env import EnvConfig, HalfCheetah
+
+NAME = "ppo"
+#: the horizon (s) of Brax's discounting 0.95 (and GAE lambda 0.95) at the baseline's 0.02 s step
+BRAX_HORIZON_S = -0.02 / math.log(0.95)
+SQUASHES = ("tanh", "clip")
+#: the exploration parameters of the config, as nmrl.explore.ExplorationSpec names them
+SPEC_FIELDS = ("sigma", "period_s", "corr_time_s", "beta", "f_min_hz", "f_max_hz", "order")
+#: iterations of the budget a run given none gets
+DEFAULT_ITERATIONS = 1
+
+
+def _bad(name: str, value: Any, allowed: str) -> ValueError:
+    return ValueError(f"{name}={value!r} is invalid: {allowed}")
+
+
+def _is_int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_num(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+@dataclasses.dataclass(frozen=True)
+class PPOConfig:
+    """A PPO run. Defaults at control_dt = 0.02 s are the Brax baseline's (module docstring)."""
+
+    # exploration: an nmrl.explore.ExplorationSpec, flat (parameters in seconds and Hz)
+    exploration: str = "white"  #: white | nm-periods | ou | colored
+    sigma: float = 1.0  #: marginal std of xi (multiplies std_theta; 1 = Brax's learned std alone)
+    period_s: float | None = None  #: nm-periods: period length [s]
+    corr_time_s: float | None = None  #: nm-periods, ou: correlation time [s]
+    beta: float | None = None  #: colored: 1/f^beta exponent
+    f_min_hz: float | None = None  #: colored: band [Hz]
+    f_max_hz: float | None = None
+    order: int | None = None  #: colored: latent components
+    learn_std: bool = True  #: std_theta(s) = softplus(net) + min_std (Brax); False: std_theta = 1
+    min_std: float = 1e-3
+    squash: str = "tanh"  #: env action = ACTION_SCALE * tanh(x) (Brax) or ACTION_SCALE * clip(x, -1, 1)
+    # PPO, times in seconds
+    discount_horizon_s: float = BRAX_HORIZON_S  #: gamma = exp(-control_dt / discount_horizon_s)
+    gae_horizon_s: float = BRAX_HORIZON_S  #: lambda = exp(-control_dt / gae_horizon_s)
+    unroll_s: float = 0.4  #: unroll T = round(unroll_s / control_dt) control steps
+    batch_size: int = 512  #: unrolls per minibatch
+    num_minibatches: int = 32
+    epochs: int = 8  #: passes over an iteration's data (Brax: num_updates_per_batch)
+    learning_rate: float = 3e-4
+    entropy_cost: float = 1e-3
+    clip_eps: float = 0.3
+    vf_coef: float = 0.5
+    reward_scale: float = 1.0  #: the learner receives reward_scale * r_t (metrics report r_t)
+    max_grad_norm: float | None = None  #: clip the gradient's global norm (None: no clipping, Brax's)
+    normalize_obs: bool = True
+    normalize_advantage: bool = True
+    policy_layers: int = 4
+    policy_width: int = 32
+    value_layers: int = 5
+    value_width: int = 256
+    # environment, batching, budget (common to every learner)
+    control_dt: float = 0.02
+    stop_prob: float = 1 / 250
+    num_envs: int = 64
+    #: control steps per environment in one chunk: a multiple of one iteration's (None: one iteration)
+    chunk_steps: int | None = None
+    steps: int | None = None  #: budget in control steps per environment
+    trials: int | None = None  #: budget in trials summed over the environments
+    seed: int = 0
+    max_param_norm: float = 1e5  #: a parameter norm above this (or NaN) marks the run diverged
+
+    # ----------------------------------------------------------------------- derived
+    def spec(self) -> explore.ExplorationSpec:
+        return explore.ExplorationSpec(kind=self.exploration, **{k: getattr(self, k) for k in SPEC_FIELDS})
+
+    @property
+    def unroll_length(self) -> int:
+        """T, control steps per unroll."""
+        return max(1, int(math.floor(self.unroll_s / self.control_dt + 0.5)))
+
+    @property
+    def unrolls_per_env(self) -> int:
+        """U, unrolls of each environment per iteration."""
+        return self.batch_size * self.num_minibatches // self.num_envs
+
+    @property
+    def iteration_steps(self) -> int:
+        """Control steps per environment in one iteration (U T)."""
+        return self.unrolls_per_env * self.unroll_length
+
+    def env_config(self) -> EnvConfig:
+        return EnvConfig(control_dt=self.control_dt, stop_prob=self.stop_prob, auto_reset=True)
+
+    def validate(self) -> None:
+        if self.exploration not in explore.KINDS:
+            raise _bad("exploration", self.exploration, f"choose one of {', '.join(explore.KINDS)}")
+        if not (_is_num(self.control_dt) and self.control_dt > 0):
+            raise _bad("control_dt", self.control_dt, "must be a finite time > 0 s")
+        self.spec().validate(self.control_dt)
+        if self.squash not in SQUASHES:
+            raise _bad("squash", self.squash, f"choose one of {', '.join(SQUASHES)}")
+        for name in ("learn_std", "normalize_obs", "normalize_advantage"):
+            if not isinstance(getattr(self, name), bool):
+                raise _bad(name, getattr(self, name), "must be true or false")
+        dt = self.control_dt
+        for name in ("discount_horizon_s", "gae_horizon_s", "unroll_s"):
+            v = getattr(self, name)
+            if not (_is_num(v) and v >= dt * (1 - 1e-9)):
+                raise _bad(name, v, f"must be a finite time >= the control step {dt:g} s")
+        for name in ("learning_rate", "min_std", "vf_coef", "reward_scale", "clip_eps", "max_param_norm"):
+            v = getattr(self, name)
+            if not (_is_num(v) and v > 0):
+                raise _bad(name, v, "must be a finite number > 0")
+        if not (_is_num(self.entropy_cost) and self.entropy_cost >= 0):
+            raise _bad("entropy_cost", self.entropy_cost, "must be a finite number >= 0")
+        if self.max_grad_norm is not None and not (_is_num(self.max_grad_norm) and self.max_grad_norm > 0):
+            raise _bad("max_grad_norm", self.max_grad_norm, "must be a finite number > 0, or None (no clipping)")
+        for name in ("batch_size", "num_minibatches", "epochs", "policy_layers", "policy_width", "value_layers",
+                     "value_width", "num_envs"):
+            v = getattr(self, name)
+            if not (_is_int(v) and v >= 1):
+                raise _bad(name, v, "must be an integer >= 1")
+        if self.batch_size % self.num_envs:
+            raise _bad("num_envs", self.num_envs, f"must divide batch_size={self.batch_size} (every minibatch "
+                                                  f"holds batch_size / num_envs unrolls of each environment)")
+        if self.chunk_steps is not None and not (_is_int(self.chunk_steps) and self.chunk_steps >= 1
+                                                 and self.chunk_steps % self.iteration_steps == 0):
+            raise _bad("chunk_steps", self.chunk_steps, f"must be a multiple of one iteration's "
+                                                        f"{self.iteration_steps} control steps per environment")
+        for name in ("steps", "trials"):
+            v = getattr(self, name)
+            if v is not None and not (_is_int(v) and v >= 1):
+                raise _bad(name, v, "the budget must be an integer >= 1")
+        if self.steps is not None and self.trials is not None:
+            raise ValueError("give the budget as steps or as trials, not both")
+        if not (_is_int(self.seed) and 0 <= self.seed < 2**31):
+            raise _bad("seed", self.seed, "must be an integer in [0, 2^31 - 1]")
+        self.env_config().validate()
+
+    def resolved(self) -> "PPOConfig":
+        """Validated, with the exploration's defaults, one iteration per chunk and a budget of
+        :data:`DEFAULT_ITERATIONS` iterations filled in where not given."""
+        self.validate()
+        spec = self.spec()
+        out = dataclasses.replace(self, **{k: getattr(spec, k) for k in SPEC_FIELDS})
+        if out.chunk_steps is None:
+            out = dataclasses.replace(out, chunk_steps=out.iteration_steps)
+        if out.steps is None and out.trials is None:
+            out = dataclasses.replace(out, steps=DEFAULT_ITERATIONS * out.iteration_steps)
+        return out
+
+
+#: the config fields that are traced (a sweep's points may differ in them and the seed only)
+HYPER_FIELDS = ("learning_rate", "entropy_cost", "clip_eps", "vf_coef", "discount_horizon_s", "gae_horizon_s",
+                "reward_scale", "sigma", "period_s", "corr_time_s", "beta", "f_min_hz", "f_max_hz")
+
+
+class Hyper(NamedTuple):
+    """Traced hyperparameters, per control step (from the config's seconds) and the noise process."""
+
+    learning_rate: jax.Array
+    entropy_cost: jax.Array
+    clip_eps: jax.Array
+    vf_coef: jax.Array
+    gamma: jax.Array  #: exp(-control_dt / discount_horizon_s)
+    lam: jax.Array  #: exp(-control_dt / gae_horizon_s)
+    reward_scale: jax.Array
+    process: explore.Process  #: phi, w, sigma, period of the exploration at control_dt
+
+    @staticmethod
+    def from_config(cfg: PPOConfig) -> "Hyper":
+        f = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+        dt = cfg.control_dt
+        return Hyper(learning_rate=f(cfg.learning_rate), entropy_cost=f(cfg.entropy_cost), clip_eps=f(cfg.clip_eps),
+                     vf_coef=f(cfg.vf_coef), gamma=f(math.exp(-dt / cfg.discount_horizon_s)),
+                     lam=f(math.exp(-dt / cfg.gae_horizon_s)), reward_scale=f(cfg.reward_scale),
+                     process=cfg.spec().process(dt))
+
+
+@struct.dataclass
+class PPOState:
+    policy: Any  #: policy network parameters (mu and the std head)
+    value: Any  #: value network parameters
+    opt: Any  #: Adam's state over {"policy", "value"}
+    obs_stats: nn_.ObsStats  #: running observation statistics
+    env: Any  #: environment states (leading axis num_envs)
+    noise: explore.NoiseState  #: exploration state per environment
+    key: jax.Array
+    hyper: Hyper
+    step: jax.Array  #: control steps per environment so far
+    trials: jax.Array  #: trials ended, summed over the environments
+    diverged: jax.Array
+
+
+class Batch(NamedTuple):
+    """Sequences (one unroll of one environment each): leading axes (..., T) per step."""
+
+    obs: jax.Array  #: (..., T, obs) s_t
+    x: jax.Array  #: (..., T, n) pre-squash action
+    logp: jax.Array  #: (..., T) log pi_old(x_t | x since the last reset)
+    fresh: jax.Array  #: (..., T) bool, the noise started a period or trial at t
+    reward: jax.Array  #: (..., T) r_t (unscaled)
+    termination: jax.Array  #: (..., T) 1 where the physics failed (the value after is 0)
+    truncation: jax.Array  #: (..., T) 1 where the stop rule ended the trial (no learning signal)
+    next_obs: jax.Array  #: (..., obs) the observation after the unroll's last step
+    mean0: jax.Array  #: (..., K, n) noise filter belief at the unroll's start
+    cov0: jax.Array  #: (..., K, K)
+
+
+class PPOTrainer(NamedTuple):
+    config: PPOConfig
+    env: Any
+    init: Callable[..., PPOState]
+    chunk: Callable[[PPOState], tuple[PPOState, dict]]
+    nets: nn_.Networks
+    #: ``seq_logp(policy, obs_stats, batch, process) -> (..., T)``: log pi_theta of a batch's actions
+    seq_logp: Callable[..., jax.Array]
+    #: ``loss(params, obs_stats, batch, hyper, eps, count) -> (local loss, sums)`` of one minibatch
+    loss: Callable[..., tuple[jax.Array, dict]]
+
+
+def _tree_where(c, a, b):
+    return jax.tree.map(lambda x, y: jnp.where(c, x, y), a, b)
+
+
+def _global_norm(tree) -> jax.Array:
+    return jnp.sqrt(sum(jnp.sum(jnp.square(x)) for x in jax.tree.leaves(tree)))
+
+
+def _sample_per_env(proc: explore.Process, ns: explore.NoiseState, keys: jax.Array):
+    """explore.sample with one key per environment (the draws do not depend on how many
+    environments a shard holds)."""
+    def one(n1, k):
+        xi, lp, fr, n1 = explore.sample(proc, jax.tree.map(lambda a: a[None], n1), k)
+        return xi[0], lp[0], fr[0], jax.tree.map(lambda a: a[0], n1)
+    return jax.vmap(one)(ns, keys)
+
+
+def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None, num_shards: int = 1) -> PPOTrainer:
+    """Build the pure functions of a PPO run (module docstring; ``env`` as for the actor-critic:
+    ``HalfCheetah(config.env_config())`` by default). With ``num_shards`` > 1, ``chunk`` is written
+    for ``jax.shard_map`` over the environment axis of ``env`` and ``noise``: every draw is made per
+    environment from the shared key, the minibatches take the same unrolls, and the sums behind the
+    losses, gradients and statistics are ``psum``-ed over ``axis_name``."""
+    if num_shards < 1 or config.num_envs % num_shards:
+        raise ValueError(f"num_envs={config.num_envs} must be divisible by num_shards={num_shards}")
+    if num_shards > 1 and axis_name is None:
+        raise ValueError("num_shards > 1 needs an axis_name")
+    cfg = config.resolved()
+    env = env or HalfCheetah(cfg.env_config())
+    OBS, ACT = env.obs_dim, env.act_dim
+    TERMS = tuple(env.reward_terms)
+    N, NL = cfg.num_envs, cfg.num_envs // num_shards
+    T, U, M, E = cfg.unroll_length, cfg.unrolls_per_env, cfg.num_minibatches, cfg.epochs
+    UM = U // M  # unrolls of each environment in one minibatch
+    ITERS = cfg.chunk_steps // cfg.iteration_steps
+    COUNT = float(cfg.batch_size * T)  # samples per minibatch (all shards)
+    nets = nn_.make_networks(cfg.policy_layers, cfg.policy_width, cfg.value_layers, cfg.value_width, ACT,
+                             cfg.learn_std)
+    K = cfg.spec().num_components
+    adam = optax.scale_by_adam()
+    tx = adam if cfg.max_grad_norm is None else optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), adam)
+
+    def psum(x):
+        return jax.lax.psum(x, axis_name) if num_shards > 1 else x
+
+    def local(x):
+        """This shard's slice of an array over all N environments (leading axis)."""
+        if num_shards == 1:
+            return x
+        return jax.lax.dynamic_slice_in_dim(x, jax.lax.axis_index(axis_name) * NL, NL)
+
+    def init(key: jax.Array, hyper: Hyper | None = None) -> PPOState:
+        hyper = Hyper.from_config(cfg) if hyper is None else hyper
+        k_net, k_env, k_noise, key = jax.random.split(key, 4)
+        policy, value = nn_.init_params(nets, k_net, OBS)
+        env_states = jax.vmap(env.reset)(jax.random.split(k_env, N))
+        noise = explore.init(hyper.process, k_noise, N, ACT)
+        z = jnp.zeros((), jnp.int32)
+        return PPOState(policy=policy, value=value, opt=tx.init({"policy": policy, "value": value}),
+                        obs_stats=nn_.obs_init(OBS), env=env_states, noise=noise, key=key, hyper=hyper,
+                        step=z, trials=z, diverged=jnp.zeros((), bool))
+
+    def norm(stats, obs):
+        return nn_.normalize(stats, obs, cfg.normalize_obs)
+
+    def logp_of(mu, std, b: Batch, proc: explore.Process) -> jax.Array:
+        xi = (b.x - mu) / std
+        lead = xi.shape[:-2]
+        flat = lambda a: a.reshape((-1,) + a.shape[len(lead):])  # noqa: E731
+        lp = jax.vmap(explore.log_prob, in_axes=(None, 0, 0, 0, 0))(
+            proc, flat(b.mean0), flat(b.cov0), flat(xi), flat(b.fresh))
+        return lp.reshape(lead + (T,)) - jnp.sum(jnp.log(std), axis=-1)
+
+    def seq_logp(policy, stats, b: Batch, proc: explore.Process) -> jax.Array:
+        """log pi_theta(x_t | x since the last reset) of every step of ``b`` (leading axes (..., T)):
+        xi rebuilt as (x - mu_theta) / std_theta, the process's filter from the stored belief, and
+        the change of variables -sum log std_theta."""
+        mu, std = nn_.mean_std(nets, policy, norm(stats, b.obs), cfg.min_std)
+        return logp_of(mu, std, b, proc)
+
+    def loss(params, stats, b: Batch, h: Hyper, eps: jax.Array, count: float = COUNT):
+        """This shard's part of one minibatch's loss (its sums / the minibatch's ``count`` samples)
+        and the sums behind the diagnostics; ``b`` has leading axes (B, T)."""
+        obs_n = norm(stats, b.obs)
+        mu, std = nn_.mean_std(nets, params["policy"], obs_n, cfg.min_std)
+        logp = logp_of(mu, std, b, h.process)
+        values = nn_.value(nets, params["value"], obs_n)
+        boot = nn_.value(nets, params["value"], norm(stats, b.next_obs))
+        tm = lambda a: jnp.swapaxes(a, 0, 1)  # noqa: E731  (B, T) -> (T, B)
+        vs, adv = L.gae(tm(b.reward * h.reward_scale), tm(values), boot, tm(b.termination), tm(b.truncation),
+                        h.gamma, h.lam)
+        vs, adv = tm(vs), tm(adv)
+        if cfg.normalize_advantage:
+            adv = L.normalize_advantages(adv, psum(jnp.sum(adv)), count, psum(jnp.sum(adv * adv)))
+        pl, diag = L.clipped_surrogate(logp, b.logp, adv, h.clip_eps)
+        vl = L.value_loss(values, vs, h.vf_coef)
+        std_x = h.process.sigma * std  # marginal std of x
+        ent = nn_.entropy(std_x, mu + std_x * eps, cfg.squash)
+        total = (jnp.sum(pl) + jnp.sum(vl) - h.entropy_cost * jnp.sum(ent)) / count
+        sums = {"policy_loss": jnp.sum(pl), "value_loss": jnp.sum(vl), "entropy": jnp.sum(ent),
+                "approx_kl": jnp.sum(diag["approx_kl"]), "clip_frac": jnp.sum(diag["clipped"]),
+                "std": jnp.sum(jnp.mean(std_x, axis=-1))}
+        return total, jax.lax.stop_gradient(sums)
+
+    grad_fn = jax.grad(loss, has_aux=True)
+
+    # ------------------------------------------------------------------------------- rollout
+    def rollout_step(carry, key):
+        es, ns, policy, stats, h, acc = carry
+        mu, std = nn_.mean_std(nets, policy, norm(stats, es.obs), cfg.min_std)
+        xi, logp_xi, fresh, ns = _sample_per_env(h.process, ns, local(jax.random.split(key, N)))
+        x = mu + std * xi
+        logp = logp_xi - jnp.sum(jnp.log(std), axis=-1)
+        new = jax.vmap(env.step)(es, nn_.squash(x, cfg.squash))
+        done = new.done > 0
+        failed = new.metrics["nonfinite"] > 0
+        ns = explore.reset(h.process, ns, done)
+        acc = {"reward": acc["reward"] + jnp.sum(new.reward),
+               "forward_speed": acc["forward_speed"] + jnp.sum(new.metrics["forward_speed"]),
+               "trials": acc["trials"] + jnp.sum(done.astype(jnp.int32)),
+               "nonfinite": acc["nonfinite"] + jnp.sum(failed.astype(jnp.int32)),
+               **{k: acc[k] + jnp.sum(new.metrics[k]) for k in TERMS}}
+        tr = (es.obs, x, logp, fresh, new.reward, (done & failed).astype(jnp.float32),
+              (done & ~failed).astype(jnp.float32))
+        return (new, ns, policy, stats, h, acc), tr
+
+    def unroll(carry, key):
+        es, ns, policy, stats, h, acc = carry
+        mean0, cov0, _ = explore.belief(ns)
+        carry, tr = jax.lax.scan(rollout_step, carry, jax.random.split(key, T))
+        # (T, NL, ...) -> (NL, T, ...)
+        tr = jax.tree.map(lambda a: jnp.swapaxes(a, 0, 1), tr)
+        return carry, Batch(*tr, next_obs=carry[0].obs, mean0=mean0, cov0=cov0)
+
+    # ------------------------------------------------------------------------------- update
+    def minibatch(carry, inp, data: Batch, h: Hyper):
+        params, opt, stats = carry
+        idx, key = inp  # idx (NL, UM): the unrolls of each of this shard's environments
+        mb = jax.tree.map(lambda a: jax.vmap(lambda a_e, i_e: a_e[i_e])(a, idx), data)  # (NL, UM, ...)
+        mb = jax.tree.map(lambda a: a.reshape((NL * UM,) + a.shape[2:]), mb)
+        eps = local(jax.random.normal(key, (N, UM, T, ACT), jnp.float32)).reshape(NL * UM, T, ACT)
+        grads, sums = grad_fn(params, stats, mb, h, eps)
+        grads = jax.tree.map(psum, grads)
+        upd, opt = tx.update(grads, opt, params)
+        params = jax.tree.map(lambda p, u: p + (-h.learning_rate) * u, params, upd)
+        return (params, opt, stats), jax.tree.map(psum, sums)
+
+    def epoch(carry, key, data: Batch, h: Hyper):
+        k_perm, k_mb = jax.random.split(key)
+        perm = jax.vmap(lambda k: jax.random.permutation(k, U))(jax.random.split(k_perm, N))
+        idx = jnp.swapaxes(local(perm).reshape(NL, M, UM), 0, 1)  # (M, NL, UM)
+        return jax.lax.scan(lambda c, i: minibatch(c, i, data, h), carry, (idx, jax.random.split(k_mb, M)))
+
+    def iteration(st: PPOState, _):
+        h = st.hyper
+        key, k_roll, k_sgd = jax.random.split(st.key, 3)
+        acc0 = {k: jnp.zeros((), jnp.float32) for k in ("reward", "forward_speed", *TERMS)}
+        acc0.update(trials=jnp.zeros((), jnp.int32), nonfinite=jnp.zeros((), jnp.int32))
+        (es, ns, _, _, _, acc), data = jax.lax.scan(
+            unroll, (st.env, st.noise, st.policy, st.obs_stats, h, acc0), jax.random.split(k_roll, U))
+        data = jax.tree.map(lambda a: jnp.swapaxes(a, 0, 1), data)  # (U, NL, ...) -> (NL, U, ...)
+        stats = nn_.obs_update(st.obs_stats, data.obs, psum) if cfg.normalize_obs else st.obs_stats
+        params = {"policy": st.policy, "value": st.value}
+        (params, opt, _), sums = jax.lax.scan(lambda c, k: epoch(c, k, data, h), (params, st.opt, stats),
+                                              jax.random.split(k_sgd, E))
+        norms = (_global_norm(params["policy"]), _global_norm(params["value"]))
+        ok = jnp.all(jnp.isfinite(jnp.stack(norms))) & (jnp.maximum(*norms) < cfg.max_param_norm)
+        take = ok & ~st.diverged
+        params = _tree_where(take, params, {"policy": st.policy, "value": st.value})
+        opt = _tree_where(take, opt, st.opt)
+        stats = _tree_where(take, stats, st.obs_stats)
+        trials = psum(acc["trials"])
+        new = st.replace(policy=params["policy"], value=params["value"], opt=opt, obs_stats=stats, env=es, noise=ns,
+                         key=key, step=st.step + U * T, trials=st.trials + trials, diverged=st.diverged | ~ok)
+        out = {k: psum(acc[k]) / (N * U * T) for k in ("reward", "forward_speed", *TERMS)}
+        out.update({k: jnp.sum(v) / (E * M * COUNT) for k, v in sums.items() if k != "std"})
+        out["std"] = jnp.sum(sums["std"]) / (E * M * COUNT)
+        out.update(trials=trials, nonfinite=psum(acc["nonfinite"]), learn=take)
+        return new, out
+
+    def chunk(st: PPOState) -> tuple[PPOState, dict]:
+        st, o = jax.lax.scan(iteration, st, None, length=ITERS)
+        metrics = {
+            "avg_reward": jnp.mean(o["reward"]),
+            "forward_speed": jnp.mean(o["forward_speed"]),
+            **{k: jnp.mean(o[k]) for k in TERMS},
+            "trials_in_chunk": jnp.sum(o["trials"]),
+            "nonfinite": jnp.sum(o["nonfinite"]),
+            **{k: jnp.mean(o[k]) for k in ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_frac", "std")},
+            "updates_in_chunk": jnp.sum(o["learn"].astype(jnp.int32)) * E * M,
+            "policy_norm": _global_norm(st.policy),
+            "value_norm": _global_norm(st.value),
+            "diverged": st.diverged,
+            "step": st.step,
+            "trials": st.trials,
+        }
+        return st, metrics
+
+    return PPOTrainer(config=cfg, env=env, init=init, chunk=chunk, nets=nets, seq_logp=seq_logp, loss=loss)
+
+
+# ----------------------------------------------------------------------------- evaluation policy
+
+
+def policy(cfg: PPOConfig, env: Any) -> Policy:
+    """``act(params, obs, xi) = ACTION_SCALE * squash(mu_theta(s) + std_theta(s) xi)`` with ``s`` the
+    observation through the run's normaliser (``params``: ``policy``, ``obs_stats``); xi = 0 is the
+    deterministic policy (Brax's mode: tanh of the mean). The exploring policy's noise is the run's
+    process, drawn by nmrl.explore.sample from a key made of the per-step ``eps``'s bits."""
+    cfg = cfg.resolved()
+    nets = nn_.make_networks(cfg.policy_layers, cfg.policy_width, cfg.value_layers, cfg.value_width, env.act_dim,
+                             cfg.learn_std)
+    proc = cfg.spec().process(cfg.control_dt)
+    K = cfg.spec().num_components
+
+    def act(params, obs, xi):
+        mu, std = nn_.mean_std(nets, params["policy"], nn_.normalize(params["obs_stats"], obs, cfg.normalize_obs),
+                               cfg.min_std)
+        return nn_.squash(mu + std * xi, cfg.squash)
+
+    def noise_init(act_dim):
+        return explore.init(proc, jax.random.PRNGKey(0), 1, act_dim)
+
+    def noise_step(p, state, eps):
+        bits = jax.lax.bitcast_convert_type(jnp.asarray(eps, jnp.float32), jnp.uint32)
+        key = jax.random.PRNGKey(0)
+        for j in range(bits.shape[0]):
+            key = jax.random.fold_in(key, bits[j])
+        xi, _, _, state = explore.sample(p, state, key)
+        return state, xi[0]
+
+    assert proc.phi.shape == (K,)
+    return Policy(act=act, noise_init=noise_init, noise_step=noise_step, noise_args=proc)
+
+
+LEARNER = register(Learner(
+    name=NAME,
+    config=PPOConfig,
+    hyper=Hyper.from_config,
+    hyper_fields=HYPER_FIELDS,
+    make=make_ppo,
+    env_fields=("env", "noise"),
+    compact_fields=("policy", "value", "opt", "obs_stats"),
+    policy_fields=("policy", "obs_stats"),
+    policy=policy,
+    doc="PPO (Brax's settings at 0.02 s) with the exact likelihood of any exploration process",
+    help={"exploration": f"exploration process: {', '.join(explore.KINDS)} (docs/exploration.md)",
+          "discount_horizon_s": "discount horizon [s]: gamma = exp(-control_dt / it) (0.95 at 0.02 s)",
+          "gae_horizon_s": "GAE horizon [s]: lambda = exp(-control_dt / it) (0.95 at 0.02 s)",
+          "unroll_s": "unroll length [s] (20 steps at 0.02 s)",
+          "chunk_steps": "control steps per environment per chunk, a multiple of one iteration's (default: one)"},
+    describe=lambda c: {"exploration": c.exploration, "sigma": float(c.sigma)},
+))
