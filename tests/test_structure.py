@@ -136,6 +136,7 @@ def test_imports_point_down_only():
 @pytest.mark.parametrize("module, forbidden", [
     # the paper's ideas are pure JAX: no files, figures, checkpoints, progress bars or processes
     ("nmrl.paper", {"orbax", "matplotlib", "imageio", "rich", "csv", "json", "subprocess", "signal"}),
+    ("nmrl.explore", {"orbax", "matplotlib", "imageio", "rich", "csv", "json", "subprocess", "signal", "os", "pathlib"}),
     # nmrl.runs.devices decides the device count before JAX starts
     ("nmrl.runs.devices", {"jax", "jaxlib"}),
     # the watcher of a distributed process stays small: it never starts JAX
