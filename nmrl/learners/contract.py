@@ -55,7 +55,7 @@ nothing else; the shape is Stoix's ``LearnerFn: state -> (state, metrics)`` and 
   policy), and the noise process of the exploring policy (:class:`Policy`).
 * ``restorable`` / ``fill``: top-level state fields a checkpoint written by an earlier version of the
   learner may lack, and ``fill(trainer, state) -> state`` that sets them (exactly what the older
-  run would have had); ``check(config)``: checks beyond ``config.validate()`` (default: none).
+  run would have had); ``check(config)``: checks made before ``config.validate()`` (default: none).
 
 A new learner provides these and registers itself at import: ``register(Learner(name="x", ...))``
 in its module, and its module path in :data:`BUILTIN` (or the caller imports it before use; a
@@ -135,9 +135,9 @@ class Learner:
         """``config.validate()`` and the learner's own checks (ValueError naming the value)."""
         if not isinstance(config, self.config):
             raise ValueError(f"learner {self.name!r} takes a {self.config.__name__}, got {type(config).__name__}")
-        config.validate()
         if self.check is not None:
             self.check(config)
+        config.validate()
 
 
 _REGISTRY: dict[str, Learner] = {}

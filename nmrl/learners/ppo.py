@@ -271,6 +271,12 @@ class PPOTrainer(NamedTuple):
     seq_logp: Callable[..., jax.Array]
     #: ``loss(params, obs_stats, batch, hyper, eps, count) -> (local loss, sums)`` of one minibatch
     loss: Callable[..., tuple[jax.Array, dict]]
+    #: ``rollout(state, key) -> ((env, noise, sums), data)``: one iteration's unrolls, ``data`` (N, U, T, ...)
+    rollout: Callable[..., Any]
+    #: ``learn(state, data, key) -> (params, opt, obs_stats, loss sums)``: one iteration's update
+    learn: Callable[..., Any]
+    #: ``minibatches(data, key) -> Batch (M, batch_size, T, ...)``: one epoch's minibatches of whole unrolls
+    minibatches: Callable[..., Batch]
 
 
 def _tree_where(c, a, b):
@@ -411,8 +417,7 @@ def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None
     def minibatch(carry, inp, data: Batch, h: Hyper):
         params, opt, stats = carry
         idx, key = inp  # idx (NL, UM): the unrolls of each of this shard's environments
-        mb = jax.tree.map(lambda a: jax.vmap(lambda a_e, i_e: a_e[i_e])(a, idx), data)  # (NL, UM, ...)
-        mb = jax.tree.map(lambda a: a.reshape((NL * UM,) + a.shape[2:]), mb)
+        mb = take(data, idx)
         eps = local(jax.random.normal(key, (N, UM, T, ACT), jnp.float32)).reshape(NL * UM, T, ACT)
         grads, sums = grad_fn(params, stats, mb, h, eps)
         grads = jax.tree.map(psum, grads)
@@ -420,37 +425,59 @@ def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None
         params = jax.tree.map(lambda p, u: p + (-h.learning_rate) * u, params, upd)
         return (params, opt, stats), jax.tree.map(psum, sums)
 
+    def minibatch_indices(key) -> jax.Array:
+        """(M, NL, UM): for each minibatch, the unrolls it takes of each of this shard's environments
+        (one permutation of the U unrolls per environment, drawn for all N from the shared key)."""
+        perm = jax.vmap(lambda k: jax.random.permutation(k, U))(jax.random.split(key, N))
+        return jnp.swapaxes(local(perm).reshape(NL, M, UM), 0, 1)
+
+    def take(data: Batch, idx: jax.Array) -> Batch:
+        """The minibatch of whole unrolls ``idx`` (NL, UM) of ``data`` (NL, U, ...): (NL * UM, ...)."""
+        mb = jax.tree.map(lambda a: jax.vmap(lambda a_e, i_e: a_e[i_e])(a, idx), data)
+        return jax.tree.map(lambda a: a.reshape((NL * UM,) + a.shape[2:]), mb)
+
+    def minibatches(data: Batch, key: jax.Array) -> Batch:
+        """One epoch's minibatches of ``data`` (NL, U, T, ...), stacked: (M, NL * UM, T, ...)."""
+        return jax.vmap(lambda i: take(data, i))(minibatch_indices(key))
+
     def epoch(carry, key, data: Batch, h: Hyper):
         k_perm, k_mb = jax.random.split(key)
-        perm = jax.vmap(lambda k: jax.random.permutation(k, U))(jax.random.split(k_perm, N))
-        idx = jnp.swapaxes(local(perm).reshape(NL, M, UM), 0, 1)  # (M, NL, UM)
-        return jax.lax.scan(lambda c, i: minibatch(c, i, data, h), carry, (idx, jax.random.split(k_mb, M)))
+        return jax.lax.scan(lambda c, i: minibatch(c, i, data, h), carry,
+                            (minibatch_indices(k_perm), jax.random.split(k_mb, M)))
 
-    def iteration(st: PPOState, _):
-        h = st.hyper
-        key, k_roll, k_sgd = jax.random.split(st.key, 3)
+    def rollout(st: PPOState, key: jax.Array):
+        """One iteration's unrolls: ``((env, noise, sums), data)`` with ``data`` (NL, U, T, ...)."""
         acc0 = {k: jnp.zeros((), jnp.float32) for k in ("reward", "forward_speed", *TERMS)}
         acc0.update(trials=jnp.zeros((), jnp.int32), nonfinite=jnp.zeros((), jnp.int32))
         (es, ns, _, _, _, acc), data = jax.lax.scan(
-            unroll, (st.env, st.noise, st.policy, st.obs_stats, h, acc0), jax.random.split(k_roll, U))
-        data = jax.tree.map(lambda a: jnp.swapaxes(a, 0, 1), data)  # (U, NL, ...) -> (NL, U, ...)
+            unroll, (st.env, st.noise, st.policy, st.obs_stats, st.hyper, acc0), jax.random.split(key, U))
+        return (es, ns, acc), jax.tree.map(lambda a: jnp.swapaxes(a, 0, 1), data)  # (U, NL) -> (NL, U)
+
+    def learn(st: PPOState, data: Batch, key: jax.Array):
+        """The observation statistics and ``epochs`` x ``num_minibatches`` Adam steps on ``data``:
+        ``(params, opt, stats, sums)``."""
         stats = nn_.obs_update(st.obs_stats, data.obs, psum) if cfg.normalize_obs else st.obs_stats
         params = {"policy": st.policy, "value": st.value}
-        (params, opt, _), sums = jax.lax.scan(lambda c, k: epoch(c, k, data, h), (params, st.opt, stats),
-                                              jax.random.split(k_sgd, E))
+        (params, opt, _), sums = jax.lax.scan(lambda c, k: epoch(c, k, data, st.hyper), (params, st.opt, stats),
+                                              jax.random.split(key, E))
+        return params, opt, stats, sums
+
+    def iteration(st: PPOState, _):
+        key, k_roll, k_sgd = jax.random.split(st.key, 3)
+        (es, ns, acc), data = rollout(st, k_roll)
+        params, opt, stats, sums = learn(st, data, k_sgd)
         norms = (_global_norm(params["policy"]), _global_norm(params["value"]))
         ok = jnp.all(jnp.isfinite(jnp.stack(norms))) & (jnp.maximum(*norms) < cfg.max_param_norm)
-        take = ok & ~st.diverged
-        params = _tree_where(take, params, {"policy": st.policy, "value": st.value})
-        opt = _tree_where(take, opt, st.opt)
-        stats = _tree_where(take, stats, st.obs_stats)
+        take_it = ok & ~st.diverged
+        params = _tree_where(take_it, params, {"policy": st.policy, "value": st.value})
+        opt = _tree_where(take_it, opt, st.opt)
+        stats = _tree_where(take_it, stats, st.obs_stats)
         trials = psum(acc["trials"])
         new = st.replace(policy=params["policy"], value=params["value"], opt=opt, obs_stats=stats, env=es, noise=ns,
                          key=key, step=st.step + U * T, trials=st.trials + trials, diverged=st.diverged | ~ok)
         out = {k: psum(acc[k]) / (N * U * T) for k in ("reward", "forward_speed", *TERMS)}
-        out.update({k: jnp.sum(v) / (E * M * COUNT) for k, v in sums.items() if k != "std"})
-        out["std"] = jnp.sum(sums["std"]) / (E * M * COUNT)
-        out.update(trials=trials, nonfinite=psum(acc["nonfinite"]), learn=take)
+        out.update({k: jnp.sum(v) / (E * M * COUNT) for k, v in sums.items()})
+        out.update(trials=trials, nonfinite=psum(acc["nonfinite"]), learn=take_it)
         return new, out
 
     def chunk(st: PPOState) -> tuple[PPOState, dict]:
@@ -471,7 +498,8 @@ def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None
         }
         return st, metrics
 
-    return PPOTrainer(config=cfg, env=env, init=init, chunk=chunk, nets=nets, seq_logp=seq_logp, loss=loss)
+    return PPOTrainer(config=cfg, env=env, init=init, chunk=chunk, nets=nets, seq_logp=seq_logp, loss=loss,
+                      rollout=rollout, learn=learn, minibatches=minibatches)
 
 
 # ----------------------------------------------------------------------------- evaluation policy

@@ -2,18 +2,21 @@
 
 One :class:`Checkpointer` per run holds one orbax ``CheckpointManager`` for a whole session (the
 driver, nmrl/runs/driver.py, opens one per point): its ``save(ts, config)`` (or the one-off
-``save(run_dir, ts, config)``) writes the whole :class:`~nmrl.paper.learner.TrainState` (theta, v, every
+``save(run_dir, ts, config)``) writes the whole state of any learner (nmrl/learners/contract.py; for
+the actor-critic the :class:`~nmrl.paper.learner.TrainState`: theta, v, every
 :class:`~nmrl.paper.learner.EnvSlot` with its MJX state, noise, likelihood ratio and traces, the PRNG key,
 the traced hyperparameters, the counters and the divergence flag) to ``RUN_DIR/checkpoints/<step>/``;
 ``restore(run_dir, trainer)`` gives it back bit for bit, so a resumed run continues exactly as an
-uninterrupted one. ``restore_policy`` reads only (theta, v) for evaluation.
+uninterrupted one. ``restore_policy`` reads only the learner's policy parameters (the
+actor-critic's theta, v) for evaluation.
 
 On disk one checkpoint is an orbax step directory with three items::
 
     RUN_DIR/checkpoints/<step>/
-        state/    every non-empty leaf of the TrainState, as a flat dict name -> array
-        policy/   {"theta": ..., "v": ...} again (small; evaluation reads only this)
-        meta/     JSON: schema, config, versions, git commit, model sha256, layout, digests, extra
+        state/    every non-empty leaf of the state, as a flat dict name -> array
+        policy/   the learner's policy_fields again, e.g. {"theta": ..., "v": ...} (small; evaluation
+                  reads only this)
+        meta/     JSON: schema, learner, config, versions, git commit, model sha256, layout, digests, extra
         _CHECKPOINT_METADATA, commit_success.txt   (orbax's own)
 
 Why a flat dict: orbax cannot save zero-size arrays (MJX keeps a few, e.g. ``data.act`` of shape
@@ -74,8 +77,8 @@ import jax.numpy as jnp
 import numpy as np
 
 import nmrl
+from nmrl import learners
 from nmrl.paper.env import MODEL_PATH
-from nmrl.paper.learner import OPT_FIELDS, Params, TrainConfig, TrainState, Trainer
 from nmrl.runs import store
 from nmrl.runs.store import CHECKPOINTS, COMPACT_FILE
 
@@ -89,6 +92,8 @@ __all__ = [
     "load_config",
     "restore",
     "restore_policy",
+    "restore_params",
+    "restore_compact_params",
     "checkpoint_dir",
     "SCHEMA_VERSION",
     "save_compact",
@@ -123,6 +128,11 @@ RESUMABLE_FIELDS = ("steps", "trials")
 RUN_CONFIG = store.CONFIG_FILE
 
 _SEP = "."
+Params = Any
+#: A learner's config (nmrl/learners/contract.py), its state and its Trainer.
+Config = Any
+State = Any
+Trainer = Any
 
 
 class CheckpointError(Exception):
@@ -314,21 +324,40 @@ def _fsync_tree(path: pathlib.Path) -> None:
     store.fsync_path(path.parent)
 
 
-def _policy_template(meta: dict) -> dict[str, Params]:
-    """Shapes of the saved (theta, v), read from the checkpoint's own layout: nothing here assumes an
-    environment's dimensions (``make_train`` accepts any environment)."""
+def _learner_of_meta(meta: dict) -> "learners.Learner":
+    """The learner a checkpoint's or compact state's metadata names (none: the actor-critic)."""
+    try:
+        return learners.get(meta.get(learners.KEY) or learners.DEFAULT)
+    except ValueError as e:
+        raise CheckpointError(f"{meta.get('path', '?')}: {e}") from e
+
+
+def _nest(flat: dict[str, Any], heads: tuple[str, ...]) -> dict[str, Any]:
+    """``{head: tree}`` from flat names ``head.a.b`` (a name equal to ``head`` is a bare array)."""
     tree: dict = {}
-    for name, (shape, dtype) in meta["state_layout"].items():
+    for name, x in flat.items():
         head, _, rest = name.partition(_SEP)
-        if head not in ("theta", "v") or not rest:
+        if head not in heads:
+            continue
+        if not rest:
+            tree[head] = x
             continue
         node = tree.setdefault(head, {})
         *parents, leaf = rest.split(_SEP)
         for k in parents:
             node = node.setdefault(k, {})
-        node[leaf] = jax.ShapeDtypeStruct(tuple(shape), np.dtype(dtype))
-    if set(tree) != {"theta", "v"}:
-        raise CorruptCheckpoint(f"{meta['path']}: the saved layout has no actor/critic parameters")
+        node[leaf] = x
+    return tree
+
+
+def _policy_template(meta: dict) -> dict[str, Params]:
+    """Shapes of the saved policy parameters (the learner's ``policy_fields``), read from the
+    checkpoint's own layout: nothing here assumes an environment's dimensions."""
+    heads = _learner_of_meta(meta).policy_fields
+    tree = _nest({n: jax.ShapeDtypeStruct(tuple(shape), np.dtype(dtype))
+                  for n, (shape, dtype) in meta["state_layout"].items()}, heads)
+    if set(tree) != set(heads):
+        raise CorruptCheckpoint(f"{meta['path']}: the saved layout has no policy parameters ({', '.join(heads)})")
     return tree
 
 
@@ -435,7 +464,7 @@ class Checkpointer:
         with _quiet_absl():
             return bool(self._manager().should_save(int(step)))
 
-    def save(self, ts: TrainState, config: TrainConfig, *, extra: dict | None = None) -> pathlib.Path:
+    def save(self, ts: State, config: Config, *, extra: dict | None = None) -> pathlib.Path:
         """Write the full training state at step ``int(ts.step)`` (see :func:`save`)."""
         extra = {} if extra is None else extra
         try:
@@ -448,7 +477,8 @@ class Checkpointer:
         state_host = {n: np.asarray(x) for n, x in zip(names, leaves)}
         layout = _layout(names, list(state_host.values()))
         state_item = {n: a for n, a in state_host.items() if a.size > 0}
-        policy_item = {"theta": jax.tree.map(np.asarray, ts.theta), "v": jax.tree.map(np.asarray, ts.v)}
+        learner = learners.of(config)
+        policy_item = {f: jax.tree.map(np.asarray, getattr(ts, f)) for f in learner.policy_fields}
         pnames, pleaves, _ = _flatten(policy_item)
         model_sha = _sha256_file(MODEL_PATH)
         try:
@@ -461,8 +491,9 @@ class Checkpointer:
             "schema": SCHEMA_VERSION,
             "step": step,
             "trials": int(ts.trials),
-            "periods": int(ts.periods),
+            **({"periods": int(ts.periods)} if hasattr(ts, "periods") else {}),
             "diverged": bool(ts.diverged),
+            learners.KEY: learner.name,
             "config": dataclasses.asdict(config),
             "versions": _versions(),
             "git_commit": _git_commit(),
@@ -516,8 +547,8 @@ class Checkpointer:
 
 def save(
     run_dir: str | os.PathLike,
-    ts: TrainState,
-    config: TrainConfig,
+    ts: State,
+    config: Config,
     *,
     keep: int = 3,
     extra: dict | None = None,
@@ -574,21 +605,22 @@ def load_metadata(run_dir: str | os.PathLike, step: int | None = None) -> dict:
     return meta
 
 
-def _config_from_meta(meta: dict) -> TrainConfig:
+def _config_from_meta(meta: dict) -> Config:
     path = meta.get("path", "?")
     cfg = meta["config"]
-    known = {f.name for f in dataclasses.fields(TrainConfig)}
-    unknown = sorted(set(cfg) - known)
+    cls = _learner_of_meta(meta).config
+    known = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(cfg) - known - {learners.KEY})
     if unknown:
         raise CheckpointError(f"{path}: the saved config has fields this nmrl does not know: {unknown}")
     try:
-        return TrainConfig(**cfg)
+        return cls(**{k: v for k, v in cfg.items() if k != learners.KEY})
     except TypeError as e:
         raise _err(pathlib.Path(path), "the saved config is invalid", e, CorruptCheckpoint) from e
 
 
-def load_config(run_dir: str | os.PathLike, step: int | None = None) -> TrainConfig:
-    """The TrainConfig a checkpoint was saved with (as passed to :func:`save`)."""
+def load_config(run_dir: str | os.PathLike, step: int | None = None) -> Config:
+    """The config a checkpoint was saved with (as passed to :func:`save`)."""
     return _config_from_meta(load_metadata(run_dir, step))
 
 
@@ -601,8 +633,11 @@ def _check_model(meta: dict) -> None:
         )
 
 
-def _check_config(meta: dict, config: TrainConfig) -> None:
+def _check_config(meta: dict, config: Config) -> None:
     saved = _config_from_meta(meta)
+    if type(saved) is not type(config):
+        raise ForeignCheckpoint(f"{meta['path']}: checkpoint of the learner {learners.of(saved).name!r}, the "
+                                f"trainer is {learners.of(config).name!r}")
     try:
         a = dataclasses.asdict(saved.resolved())
     except ValueError as e:
@@ -618,14 +653,14 @@ def _to_device(x: np.ndarray) -> jax.Array:
     return jax.device_put(x, jax.local_devices()[0])
 
 
-def restore(run_dir: str | os.PathLike, trainer: Trainer, step: int | None = None) -> TrainState:
+def restore(run_dir: str | os.PathLike, trainer: Trainer, step: int | None = None) -> State:
     """Restore the full training state for an exact resume with ``trainer`` (newest step if None).
 
     Checks the model file's sha256 and the config (every field but the budget) against the
     trainer, the saved layout against ``jax.eval_shape(trainer.init, key)``, and the data digest.
     The arrays come back with the template's shapes and dtypes, committed to the default device.
-    A checkpoint saved before the optimizer state was part of the training state gets fresh
-    optimizer states (exact for the paper's sgd rule; see the module docstring).
+    A checkpoint that lacks only state fields the learner may fill (its ``restorable``, e.g. the
+    actor-critic's optimizer states, see the module docstring) gets them from its ``fill``.
     """
     meta = load_metadata(run_dir, step)
     path = pathlib.Path(meta["path"])
@@ -636,7 +671,8 @@ def restore(run_dir: str | os.PathLike, trainer: Trainer, step: int | None = Non
     names, tleaves, treedef = _flatten(template)
     want = _layout(names, tleaves)
     have = meta["state_layout"]
-    opt_names = {n for n in want if n.split(_SEP, 1)[0] in OPT_FIELDS}
+    learner = learners.of(trainer.config)
+    opt_names = {n for n in want if n.split(_SEP, 1)[0] in learner.restorable}
     migrate = not any(n in have for n in opt_names)  # an old checkpoint: no optimizer state saved
     if migrate:
         want = {n: w for n, w in want.items() if n not in opt_names}
@@ -670,24 +706,33 @@ def restore(run_dir: str | os.PathLike, trainer: Trainer, step: int | None = Non
     ]
     ts = jax.tree_util.tree_unflatten(treedef, leaves)
     if migrate and opt_names:
-        opt_theta, opt_v = jax.device_put(trainer.init_opt(ts.theta, ts.v, ts.hyper), jax.local_devices()[0])
-        ts = ts.replace(opt_theta=opt_theta, opt_v=opt_v)
+        ts = jax.device_put(learner.fill(trainer, ts), jax.local_devices()[0])
     return ts
 
 
 def restore_policy(
     run_dir: str | os.PathLike, step: int | None = None, *, check_model: bool = True
-) -> tuple[TrainConfig, Params, Params]:
-    """(config, theta, v) of a checkpoint for evaluation; reads only the small ``policy`` item.
+) -> tuple:
+    """``(config, *params)`` of a checkpoint for evaluation, ``params`` the learner's ``policy_fields`` in
+    order (the actor-critic: ``(config, theta, v)``); reads only the small ``policy`` item.
 
     A run directory without checkpoints but with a compact state (``compact.npz``, as published
     under ``results/``) gives that state's policy instead (:func:`restore_compact_policy`; ``step``
     must then be None or the compact state's step). With ``check_model`` (default) a checkpoint
     trained on another model file raises CheckpointError.
     """
+    meta, config, params = restore_params(run_dir, step, check_model=check_model)
+    return (config, *params.values())
+
+
+def restore_params(run_dir: str | os.PathLike, step: int | None = None, *, check_model: bool = True
+                   ) -> tuple[dict, Config, dict[str, Params]]:
+    """``(meta, config, params)`` of a checkpoint (or of the compact state of a run without
+    checkpoints) for evaluation: ``params`` = {field: tree} over the learner's ``policy_fields``, the
+    argument of its ``Policy.act``; ``meta`` has ``step``, ``trials`` and ``path``."""
     if uses_compact(run_dir):
-        meta, config, theta, v = restore_compact_policy(run_dir, step, check_model=check_model)
-        return config, theta, v
+        meta, config, params = restore_compact_params(run_dir, step, check_model=check_model)
+        return meta, config, params
     meta = load_metadata(run_dir, step)
     path = pathlib.Path(meta["path"])
     if check_model:
@@ -697,8 +742,9 @@ def restore_policy(
     ocp = _ocp()
     restored = _restore_items(path.parent, int(meta["step"]),
                               policy=ocp.args.StandardRestore(_abstract(template))).policy
+    heads = list(template)
     try:
-        pnames, pleaves, _ = _flatten({"theta": restored["theta"], "v": restored["v"]})
+        pnames, pleaves, _ = _flatten({h: restored[h] for h in heads})
         tnames, tleaves, _ = _flatten(template)
     except (KeyError, TypeError) as e:
         raise _err(path, "the policy item has an unexpected structure", e, CorruptCheckpoint) from e
@@ -708,7 +754,7 @@ def restore_policy(
     if _digest(host) != meta["policy_digest"]:
         raise CorruptCheckpoint(f"{path}: the policy data does not match its digest (corrupted checkpoint)")
     to_dev = lambda t: jax.tree.map(_to_device, jax.tree.map(np.asarray, t))  # noqa: E731
-    return config, to_dev(restored["theta"]), to_dev(restored["v"])
+    return meta, config, {h: to_dev(restored[h]) for h in heads}
 
 
 # ----------------------------------------------------------------------------- identity
@@ -718,25 +764,27 @@ def restore_policy(
 #: every earlier run had: a field at that value is left out of the identity, so the digests (and
 #: identity comparisons) of those runs stay what they were (the optimizer chains of issue 16: every
 #: run before them used the paper's rule, plain sgd).
-LATER_FIELDS: dict[str, object] = {"actor_opt": "sgd", "critic_opt": "sgd"}
+LATER_FIELDS: dict[str, object] = {"actor_opt": "sgd", "critic_opt": "sgd", learners.KEY: learners.DEFAULT}
 
 
-def identity_config(config: TrainConfig) -> dict:
-    """The fields of a run's identity: the resolved config without the budget (``RESUMABLE_FIELDS``),
-    and without a field of :data:`LATER_FIELDS` at the value every run had before it existed."""
-    d = dataclasses.asdict(config.resolved())
+def identity_config(config: Config) -> dict:
+    """The fields of a run's identity: the learner's name and the resolved config without the budget
+    (``RESUMABLE_FIELDS``), without a field of :data:`LATER_FIELDS` at the value every run had before
+    it existed (the learner: the actor-critic)."""
+    d = learners.config_dict(config.resolved())
     return {k: v for k, v in d.items()
             if k not in RESUMABLE_FIELDS and not (k in LATER_FIELDS and v == LATER_FIELDS[k])}
 
 
-def identity_digest(config: TrainConfig, model_sha256: str | None) -> str:
+def identity_digest(config: Config, model_sha256: str | None) -> str:
     """sha256 of a run's identity (:func:`identity_config` and the model file's sha256)."""
     text = json.dumps({"config": identity_config(config), "model_sha256": model_sha256}, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-def load_run_config(run_dir: str | os.PathLike) -> TrainConfig | None:
-    """The config ``RUN_DIR/config.json`` the run was created with; None if the run has none."""
+def load_run_config(run_dir: str | os.PathLike) -> Config | None:
+    """The config ``RUN_DIR/config.json`` the run was created with (of the learner it names, the
+    actor-critic if it names none); None if the run has none."""
     path = pathlib.Path(run_dir) / RUN_CONFIG
     if not path.is_file():
         return None
@@ -744,19 +792,24 @@ def load_run_config(run_dir: str | os.PathLike) -> TrainConfig | None:
         d = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
         raise _err(path, "cannot read the run's config", e) from e
-    known = {f.name for f in dataclasses.fields(TrainConfig)}
-    if not isinstance(d, dict) or set(d) - known:
-        extra = sorted(set(d) - known) if isinstance(d, dict) else None
-        raise CheckpointError(f"{path}: not a run config" + (f" (unknown fields {extra})" if extra else ""))
+    if not isinstance(d, dict):
+        raise CheckpointError(f"{path}: not a run config")
     try:
-        cfg = TrainConfig(**d)
+        cls = learners.get(d.get(learners.KEY) or learners.DEFAULT).config
+    except ValueError as e:
+        raise CheckpointError(f"{path}: {e}") from e
+    known = {f.name for f in dataclasses.fields(cls)} | {learners.KEY}
+    if set(d) - known:
+        raise CheckpointError(f"{path}: not a run config (unknown fields {sorted(set(d) - known)})")
+    try:
+        cfg = cls(**{k: v for k, v in d.items() if k != learners.KEY})
         cfg.resolved()
     except (TypeError, ValueError) as e:
         raise _err(path, "the run's config is invalid", e) from e
     return cfg
 
 
-def check_identity(meta: dict, run_config: TrainConfig | None, source: str = "the run's config") -> None:
+def check_identity(meta: dict, run_config: Config | None, source: str = "the run's config") -> None:
     """Refuse a checkpoint (``meta`` from :func:`load_metadata`) that is not of the run ``run_config``.
 
     The checkpoint's own config and model hash must agree with its recorded ``identity`` (when it
@@ -832,35 +885,43 @@ def has_compact(run_dir: str | os.PathLike) -> bool:
     return compact_path(run_dir).is_file()
 
 
-def save_compact(run_dir: str | os.PathLike, ts: TrainState, config: TrainConfig) -> pathlib.Path:
-    """Write the compact continuation state of a run: actor and critic parameters, counters, PRNG key.
-
-    About 42 kB at the paper's network sizes (no traces, no environment or noise state): small
-    enough to commit for every point of a sweep, so that a sweep can continue on a fresh clone
-    (:func:`restore_compact`). Written atomically (a temporary file renamed into place).
-    """
-    arrays = _param_arrays(ts.theta, ts.v)
-    arrays["key"] = np.asarray(jax.random.key_data(ts.key) if jnp.issubdtype(ts.key.dtype, jax.dtypes.prng_key)
-                               else ts.key)
-    for k in ("step", "trials", "periods", "diverged"):
-        arrays[k] = np.asarray(getattr(ts, k))
-    return _write_compact(run_dir, arrays, config, {})
+#: state fields every compact continuation state holds besides the learner's ``compact_fields``
+COMPACT_COUNTERS = ("step", "trials", "diverged")
 
 
-def _param_arrays(theta: Params, v: Params) -> dict[str, np.ndarray]:
+def _field_arrays(parts: dict[str, Any]) -> dict[str, np.ndarray]:
+    """``{field.leaf_name: array}`` of top-level state fields ``{field: tree}`` (a bare array field:
+    ``{field: array}``)."""
     arrays = {}
-    for part, tree in (("theta", theta), ("v", v)):
+    for part, tree in parts.items():
         names, leaves, _ = _flatten(tree)
-        arrays.update({f"{part}{_SEP}{n}": np.asarray(x) for n, x in zip(names, leaves)})
+        arrays.update({(f"{part}{_SEP}{n}" if n else part): np.asarray(x) for n, x in zip(names, leaves)})
     return arrays
 
 
-def _write_compact(run_dir: str | os.PathLike, arrays: dict[str, np.ndarray], config: TrainConfig,
+def save_compact(run_dir: str | os.PathLike, ts: State, config: Config) -> pathlib.Path:
+    """Write the compact continuation state of a run: the learner's ``compact_fields`` (the
+    actor-critic: actor and critic parameters and the count of learned periods), the counters and
+    the PRNG key.
+
+    About 42 kB for the actor-critic at the paper's network sizes (no traces, no environment or
+    noise state): small enough to commit for every point of a sweep, so that a sweep can continue on
+    a fresh clone (:func:`restore_compact`). Written atomically (a temporary file renamed into place).
+    """
+    learner = learners.of(config)
+    arrays = _field_arrays({f: getattr(ts, f) for f in tuple(learner.compact_fields) + COMPACT_COUNTERS})
+    arrays["key"] = np.asarray(jax.random.key_data(ts.key) if jnp.issubdtype(ts.key.dtype, jax.dtypes.prng_key)
+                               else ts.key)
+    return _write_compact(run_dir, arrays, config, {})
+
+
+def _write_compact(run_dir: str | os.PathLike, arrays: dict[str, np.ndarray], config: Config,
                    extra: dict) -> pathlib.Path:
-    """``arrays`` and their metadata (config, model hash, versions, digest, ``extra``) as one npz,
-    written atomically into ``run_dir`` (created if missing)."""
-    meta = {"format": COMPACT_FORMAT, "schema": COMPACT_SCHEMA, **extra, "config": dataclasses.asdict(config),
-            "model_sha256": _sha256_file(MODEL_PATH), "versions": _versions(), "digest": _digest(arrays)}
+    """``arrays`` and their metadata (learner, config, model hash, versions, digest, ``extra``) as one
+    npz, written atomically into ``run_dir`` (created if missing)."""
+    meta = {"format": COMPACT_FORMAT, "schema": COMPACT_SCHEMA, **extra, learners.KEY: learners.of(config).name,
+            "config": dataclasses.asdict(config), "model_sha256": _sha256_file(MODEL_PATH), "versions": _versions(),
+            "digest": _digest(arrays)}
     arrays = {**arrays, "meta": np.frombuffer(json.dumps(meta).encode(), np.uint8)}
     path = compact_path(run_dir)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -869,15 +930,20 @@ def _write_compact(run_dir: str | os.PathLike, arrays: dict[str, np.ndarray], co
     return path
 
 
-def save_compact_policy(run_dir: str | os.PathLike, config: TrainConfig, theta: Params, v: Params, *,
-                        step: int, trials: int) -> pathlib.Path:
-    """Write a policy (actor and critic parameters, the step and trial counters) in the compact format,
-    for evaluation only: it has no PRNG key, so :func:`restore_compact` refuses to continue from it.
+def save_compact_policy(run_dir: str | os.PathLike, config: Config, *params: Params, step: int,
+                        trials: int) -> pathlib.Path:
+    """Write a policy (the learner's ``policy_fields``, in order: the actor-critic's theta and v; the
+    step and trial counters) in the compact format, for evaluation only: it has no PRNG key, so
+    :func:`restore_compact` refuses to continue from it.
 
     This is how ``results/`` publishes a policy whose full training state is not kept (e.g. one
     copied out of an orbax checkpoint's ``policy`` item). Written atomically.
     """
-    arrays = _param_arrays(theta, v)
+    fields = learners.of(config).policy_fields
+    if len(params) != len(fields):
+        raise TypeError(f"save_compact_policy needs {len(fields)} parameter trees ({', '.join(fields)}), "
+                        f"got {len(params)}")
+    arrays = _field_arrays(dict(zip(fields, params)))
     arrays["step"] = np.asarray(step, np.int32)
     arrays["trials"] = np.asarray(trials, np.int32)
     return _write_compact(run_dir, arrays, config, {"kind": POLICY_ONLY})
@@ -911,15 +977,15 @@ def load_compact(run_dir: str | os.PathLike) -> tuple[dict, dict[str, np.ndarray
     return meta, arrays
 
 
-def restore_compact(run_dir: str | os.PathLike, trainer: Trainer) -> TrainState:
-    """Continue a run from its compact state: the saved parameters, counters and key; every
-    environment starts a new trial (reset state, traces z, y = 0, a new nm-period), as at any
-    trial start. Statistically, not bitwise, equal to resuming from the full checkpoint.
+def restore_compact(run_dir: str | os.PathLike, trainer: Trainer) -> State:
+    """Continue a run from its compact state: the saved ``compact_fields``, counters and key; every
+    environment starts a new trial (the actor-critic: reset state, traces z, y = 0, a new nm-period),
+    as at any trial start. Statistically, not bitwise, equal to resuming from the full checkpoint.
 
     The new environment states are drawn from the saved key: ``k_init, key = split(saved key)``,
-    ``ts = trainer.init(k_init)`` with theta, v, the counters and ``key`` replaced. The optimizer
-    states are not saved in the compact state: they start fresh (for the paper's sgd rule that
-    loses nothing, its state holds no statistics; see the module docstring).
+    ``ts = trainer.init(k_init)`` with the saved fields, the counters and ``key`` replaced. State the
+    learner does not keep there starts fresh (the actor-critic's optimizer states: for the paper's
+    sgd rule that loses nothing, its state holds no statistics; see the module docstring).
     """
     meta, arrays = load_compact(run_dir)
     if meta.get("kind") == POLICY_ONLY:
@@ -927,25 +993,28 @@ def restore_compact(run_dir: str | os.PathLike, trainer: Trainer) -> TrainState:
                               f"not a continuation state; training cannot continue from it")
     _check_model(meta)
     _check_config(meta, trainer.config)
+    learner = learners.of(trainer.config)
     key = jnp.asarray(arrays["key"])
     k_init, key = jax.random.split(key)
     ts = trainer.init(k_init)
     parts = {}
-    for part in ("theta", "v"):
+    for part in tuple(learner.compact_fields) + COMPACT_COUNTERS:
         names, leaves, treedef = _flatten(getattr(ts, part))
+        keys = [f"{part}{_SEP}{n}" if n else part for n in names]
         try:
-            got = [arrays[f"{part}{_SEP}{n}"] for n in names]
+            got = [arrays[k] for k in keys]
         except KeyError as e:
             raise CheckpointError(f"{meta['path']}: the compact state lacks {e.args[0]!r}") from e
-        for n, a, t in zip(names, got, leaves):
+        out = []
+        for k, a, t in zip(keys, got, leaves):
+            if part in COMPACT_COUNTERS and a.shape == ():  # counters: the state's own dtype
+                a = a.astype(np.dtype(t.dtype))
             if a.shape != tuple(t.shape) or a.dtype != np.dtype(t.dtype):
-                raise CheckpointError(f"{meta['path']}: {part}.{n} has {a.shape} {a.dtype}, expected "
+                raise CheckpointError(f"{meta['path']}: {k} has {a.shape} {a.dtype}, expected "
                                       f"{tuple(t.shape)} {t.dtype}")
-        parts[part] = jax.tree_util.tree_unflatten(treedef, [jnp.asarray(a) for a in got])
-    return ts.replace(theta=parts["theta"], v=parts["v"], key=key,
-                      step=jnp.asarray(arrays["step"], jnp.int32), trials=jnp.asarray(arrays["trials"], jnp.int32),
-                      periods=jnp.asarray(arrays["periods"], jnp.int32),
-                      diverged=jnp.asarray(arrays["diverged"], bool))
+            out.append(jnp.asarray(a))
+        parts[part] = jax.tree_util.tree_unflatten(treedef, out)
+    return learners.replace_state(ts, key=key, **parts)
 
 
 def uses_compact(run_dir: str | os.PathLike) -> bool:
@@ -955,13 +1024,14 @@ def uses_compact(run_dir: str | os.PathLike) -> bool:
     return has_compact(run) and not checkpoint_dir(run).exists()
 
 
-def restore_compact_policy(run_dir: str | os.PathLike, step: int | None = None, *, check_model: bool = True
-                           ) -> tuple[dict, TrainConfig, Params, Params]:
-    """``(meta, config, theta, v)`` of a run's compact state, for evaluation (no trainer, no MJX).
+def restore_compact_params(run_dir: str | os.PathLike, step: int | None = None, *, check_model: bool = True
+                           ) -> tuple[dict, Config, dict[str, Params]]:
+    """``(meta, config, params)`` of a run's compact state, for evaluation (no trainer, no MJX):
+    ``params`` = {field: tree} over the learner's ``policy_fields``.
 
     ``meta`` is the compact state's metadata with ``step`` and ``trials`` (the saved counters) and
-    ``path``. The parameter tree is rebuilt from the saved names; its shapes are checked against
-    the saved config's networks by the caller's use (``rollout`` applies them). CheckpointError if
+    ``path``. The parameter trees are rebuilt from the saved names; their shapes are checked against
+    the saved config's networks by the caller's use (a rollout applies them). CheckpointError if
     ``step`` is given and is not the saved step, if the state is corrupted, or (``check_model``)
     trained on another model file.
     """
@@ -973,20 +1043,20 @@ def restore_compact_policy(run_dir: str | os.PathLike, step: int | None = None, 
     if check_model:
         _check_model(meta)
     config = _config_from_meta(meta)
-    parts: dict[str, dict] = {"theta": {}, "v": {}}
-    for name, a in arrays.items():
-        head, _, rest = name.partition(_SEP)
-        if head not in parts or not rest:
-            continue
-        node = parts[head]
-        *parents, leaf = rest.split(_SEP)
-        for k in parents:
-            node = node.setdefault(k, {})
-        node[leaf] = _to_device(a)
-    if not parts["theta"] or not parts["v"]:
-        raise CorruptCheckpoint(f"{meta['path']}: the compact state has no actor/critic parameters")
+    heads = _learner_of_meta(meta).policy_fields
+    params = _nest({n: _to_device(a) for n, a in arrays.items()}, heads)
+    if set(params) != set(heads):
+        raise CorruptCheckpoint(f"{meta['path']}: the compact state has no policy parameters ({', '.join(heads)})")
     meta.update(step=saved, trials=int(arrays["trials"]))
-    return meta, config, parts["theta"], parts["v"]
+    return meta, config, {h: params[h] for h in heads}
+
+
+def restore_compact_policy(run_dir: str | os.PathLike, step: int | None = None, *, check_model: bool = True
+                           ) -> tuple:
+    """``(meta, config, *params)`` of a run's compact state (:func:`restore_compact_params`), the
+    learner's ``policy_fields`` in order (the actor-critic: ``(meta, config, theta, v)``)."""
+    meta, config, params = restore_compact_params(run_dir, step, check_model=check_model)
+    return (meta, config, *params.values())
 
 
 # ----------------------------------------------------------- checkpoints of other learners' trees

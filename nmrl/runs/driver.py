@@ -1,7 +1,9 @@
 """The one driver of training runs: 1..P points, chunk by chunk, with signals and progress.
 
-Between two chunks of ``chunk_steps`` control steps (one ``jit``-compiled ``lax.scan``, see
-nmrl/paper/learner.py) the driver only appends one metrics row per point to its
+The driver runs any learner of nmrl/learners/ (the contract: nmrl/learners/contract.py; the
+paper's actor-critic is ``ac``): a run's config is of one learner, whose ``make`` gives the pure
+``init`` and ``chunk``. Between two chunks of ``chunk_steps`` control steps (one ``jit``-compiled
+``lax.scan``) the driver only appends one metrics row per point to its
 ``metrics.jsonl``, checkpoints the points (one :class:`~nmrl.runs.checkpoint.Checkpointer` per
 point, saving every ``checkpoint_every`` chunks, when a point finishes and when a signal stops
 the loop) and shows progress. Two layouts of the same loop:
@@ -47,7 +49,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nmrl.paper.learner import Hyper, TrainConfig, Trainer, make_train
+from nmrl import learners
 from nmrl.runs import checkpoint, distributed as dist, sharding, store
 from nmrl.runs import points as pts
 from nmrl.runs.store import (CONFIG_FILE, METRICS_FILE, RESUMES_FILE, RUN_FILES, append_metrics,  # noqa: F401
@@ -57,6 +59,9 @@ from nmrl.runs.store import (CONFIG_FILE, METRICS_FILE, RESUMES_FILE, RUN_FILES,
 BUDGET_FIELDS = checkpoint.RESUMABLE_FIELDS
 #: JAX PRNG seeds are 32-bit: larger (or negative) seeds wrap around to another seed's key.
 SEED_MAX = 2**32 - 1
+#: A learner's config and Trainer (nmrl/learners/contract.py).
+Config = object
+Trainer = object
 
 
 class RunError(Exception):
@@ -90,14 +95,15 @@ def physics_timestep() -> float:
     return float(mujoco.MjModel.from_xml_path(str(MODEL_PATH)).opt.timestep)
 
 
-def check_config(cfg: TrainConfig) -> None:
-    """``cfg.validate()`` and what only shows later (in the environment, the PRNG, the budget): a
-    ValueError naming the value and what is allowed, before anything is built or written."""
-    for name in ("alpha", "sigma", "gamma", "lam", "control_dt", "stop_prob", "reward_scale"):
-        v = getattr(cfg, name)
-        if isinstance(v, float) and not math.isfinite(v):
-            raise ValueError(f"{name}={v!r} is invalid: must be a finite number")
-    cfg.validate()
+def check_config(cfg: Config) -> None:
+    """The learner's checks (``Learner.validate``: its own, then ``cfg.validate()``) and what only
+    shows later (in the environment, the PRNG, the budget): a ValueError naming the value and what
+    is allowed, before anything is built or written."""
+    try:
+        learner = learners.of(cfg)
+    except TypeError as e:
+        raise ValueError(str(e)) from e
+    learner.validate(cfg)
     if not (isinstance(cfg.seed, int) and not isinstance(cfg.seed, bool) and 0 <= cfg.seed <= SEED_MAX):
         raise ValueError(f"seed={cfg.seed!r} is invalid: must be an integer in [0, {SEED_MAX}] "
                          f"(JAX's PRNG seeds are 32-bit; others wrap around to another seed)")
@@ -147,7 +153,7 @@ def existing_step(run_dir: pathlib.Path) -> int | None:
         return None
 
 
-def _train_devices(cfg: TrainConfig, devices: int | None = None) -> list:
+def _train_devices(cfg: Config, devices: int | None = None) -> list:
     """The devices the environment batch is split over: ``devices`` per process (default: all local
     devices). One process lowers the count to the largest that divides N; several processes
     (nmrl/runs/distributed.py) use the same count on each and need N to be a multiple of the total."""
@@ -167,16 +173,16 @@ def _train_devices(cfg: TrainConfig, devices: int | None = None) -> list:
     return devs
 
 
-def _num_shards(cfg: TrainConfig, devices: int | None = None) -> int:
+def _num_shards(cfg: Config, devices: int | None = None) -> int:
     """How many devices (of every process) the environment batch is split over (:func:`_train_devices`)."""
     return len(_train_devices(cfg, devices))
 
 
-def _sharded_trainer(cfg: TrainConfig, trainer, devices: int | None = None):
+def _sharded_trainer(cfg: Config, trainer, devices: int | None = None):
     n = _num_shards(cfg, devices)
     if n == 1:
         return trainer
-    return make_train(cfg, env=trainer.env, axis_name=sharding.AXIS, num_shards=n)
+    return learners.of(cfg).make(cfg, env=trainer.env, axis_name=sharding.AXIS, num_shards=n)
 
 
 def stop_on_signals() -> tuple[dict, Callable[[], None]]:
@@ -208,19 +214,19 @@ def compile_chunk(fn, ts, donate: bool = True):
     return compiled, time.time() - t0
 
 
-def metrics_row(cfg: TrainConfig, m: dict, wall: float, points: int = 1) -> dict:
+def metrics_row(cfg: Config, m: dict, wall: float, points: int = 1) -> dict:
     """One metrics.jsonl object from a chunk's metrics (``points`` programs shared the wall time)."""
     return {"chunk": m["step"] // cfg.chunk_steps, **m, "total_steps": m["step"] * cfg.num_envs,
             "wall_s": wall, "steps_per_s": points * cfg.chunk_steps * cfg.num_envs / wall}
 
 
-def budget_done(cfg: TrainConfig, ts_step: int, ts_trials: int) -> bool:
+def budget_done(cfg: Config, ts_step: int, ts_trials: int) -> bool:
     if cfg.steps is not None:
         return ts_step >= cfg.steps
     return ts_trials >= cfg.trials
 
 
-def budget_text(cfg: TrainConfig) -> str:
+def budget_text(cfg: Config) -> str:
     """The budget :func:`budget_done` checks, as the command line gives it: ``steps=N`` or ``trials=N``."""
     return f"steps={cfg.steps}" if cfg.steps is not None else f"trials={cfg.trials}"
 
@@ -232,7 +238,7 @@ class _Progress:
     own speed, not the run's whole progress over this session's time.
     """
 
-    def __init__(self, cfg: TrainConfig, enabled: bool, done0: int = 0):
+    def __init__(self, cfg: Config, enabled: bool, done0: int = 0):
         self.cfg = cfg
         self.enabled = enabled
         self.rich = enabled and sys.stderr.isatty()
@@ -270,7 +276,7 @@ class _Progress:
             self.bar.stop()
 
 
-def _given_changes(ident: TrainConfig, given: dict, out: pathlib.Path) -> None:
+def _given_changes(ident: Config, given: dict, out: pathlib.Path) -> None:
     """Refuse options given with ``--resume`` that would change the run's identity, naming them all."""
     base = ident.resolved()
     bad = []
@@ -288,11 +294,11 @@ def _given_changes(ident: TrainConfig, given: dict, out: pathlib.Path) -> None:
                        f"it: {', '.join(bad)}; only the budget (--steps or --trials) may change")
 
 
-def _budget(cfg: TrainConfig) -> dict:
+def _budget(cfg: Config) -> dict:
     return {k: getattr(cfg, k) for k in BUDGET_FIELDS}
 
 
-def _resume(cfg: TrainConfig, out: pathlib.Path, given: dict | None, step: int | None, env=None):
+def _resume(cfg: Config, out: pathlib.Path, given: dict | None, step: int | None, env=None):
     """Everything a resume of the run in ``out`` checks and reads, nothing written:
     ``(config, trainer, state, record)``, the config with the session's budget (``given``'s, else
     ``cfg``'s, else the run's own), the state from the checkpoint ``step`` or the newest one, else from
@@ -333,7 +339,10 @@ def _resume(cfg: TrainConfig, out: pathlib.Path, given: dict | None, step: int |
         new_budget = _budget(cfg)
     if all(v is None for v in new_budget.values()):
         new_budget = None
-    trainer = make_train(run_cfg, env=env)
+    if type(cfg) is not type(run_cfg) and given is not None:
+        raise RunError(f"--resume continues the run in {out} with its own learner {learners.of(run_cfg).name!r}; "
+                       f"--learner {learners.of(cfg).name} would change it")
+    trainer = learners.of(run_cfg).make(run_cfg, env=env)
 
     def load(s: int):
         meta = checkpoint.load_metadata(out, s)
@@ -392,7 +401,7 @@ class _Point:
 
     name: str
     dir: pathlib.Path
-    cfg: TrainConfig
+    cfg: Config
     trainer: Trainer
     ts: object
     frozen: bool = False
@@ -425,7 +434,8 @@ class _OneRun:
         self.n_dev = n_dev = len(devs)
         trainer = _sharded_trainer(p.cfg, p.trainer, devices)
         if n_dev > 1:
-            program, self.place = sharding.shard_train_chunk(trainer.chunk, p.ts, sharding.make_mesh(devs))
+            program, self.place = sharding.shard_train_chunk(trainer.chunk, p.ts, sharding.make_mesh(devs),
+                                                             learners.of(p.cfg).env_fields)
         else:
             program, self.place = trainer.chunk, jax.device_put
         self.ts = self.place(p.ts)  # committed inputs: no second, hidden compile of the chunk
@@ -549,9 +559,11 @@ def _drive(ps: Sequence[_Point], layout, *, stages: list[list[int]], checkpoint_
                     done[i] = True  # its last good checkpoint is kept; frozen from now on
                     if not freeze_diverged:
                         last = ckpts[i].latest_step() if writer else "the newest"
+                        norms = ", ".join(f"{k.removesuffix('_norm')} norm {row[k]:.3g}"
+                                          for k in learners.norm_keys(row))
                         raise Diverged(
-                            f"training diverged at step {row['step']} (theta norm {row['theta_norm']:.3g}, v norm "
-                            f"{row['v_norm']:.3g}, limit {p.cfg.max_param_norm:g}); the last good checkpoint "
+                            f"training diverged at step {row['step']} ({norms}, limit {p.cfg.max_param_norm:g}); "
+                            f"the last good checkpoint "
                             f"(step {last}) is kept in {p.dir}. Try smaller step sizes.")
                     continue
                 finished = budget_done(p.cfg, row["step"], row["trials"])
@@ -604,7 +616,7 @@ def _agreed(signum: int | None, want: np.ndarray) -> tuple[int | None, np.ndarra
 # ----------------------------------------------------------------------------- one run
 
 
-def train(cfg: TrainConfig, out: str | os.PathLike, *, resume: bool = False, progress: bool = True,
+def train(cfg: Config, out: str | os.PathLike, *, resume: bool = False, progress: bool = True,
           keep: int = 3, max_chunks: int | None = None, devices: int | None = None,
           given: dict | None = None, step: int | None = None) -> list[dict]:
     """Run (or resume) training into ``out``; returns the metrics rows written in this call.
@@ -645,7 +657,7 @@ def train(cfg: TrainConfig, out: str | os.PathLike, *, resume: bool = False, pro
         check_config(cfg)
         cfg = cfg.resolved()
         _fresh_out(out)
-        trainer = make_train(cfg)
+        trainer = learners.of(cfg).make(cfg)
         _num_shards(cfg, devices)
         dist.barrier("train-checked")
         if dist.is_writer():
@@ -694,14 +706,15 @@ def _progress_table(names: Sequence[str], rows_by_point: dict, elapsed: float) -
     return "\n".join(lines)
 
 
-def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[TrainConfig], *,
+def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[Config], *,
                resume: bool = False, progress: bool = True, keep: int = 2, max_chunks: int | None = None,
                checkpoint_every: int = 1, on_chunk: Callable[[], None] | None = None,
                table: bool = True, priority: Sequence[Sequence[int]] | None = None, group: int = 1,
                devices: int | None = None, before_start: Callable[[], None] | None = None) -> list[dict]:
     """Train every config as one compiled program; point ``names[i]`` lives in ``out/points/<name>/``.
 
-    The configs may differ only in the traced :class:`Hyper` fields and the seed (one program).
+    The configs are of one learner and may differ only in its traced ``hyper_fields`` and the seed
+    (one program).
     Layout (nmrl/runs/points.py): the points are split over ``devices`` local devices (default:
     all), stepped one after another on each (``group`` points vmapped together). ``priority`` is a
     list of stages, each a list of point indices: a stage's points run only when every earlier
@@ -764,11 +777,12 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[T
             for p in ps:  # every point's checks passed: now write
                 _begin_resumed(p)
     else:
-        trainers = [make_train(configs[0])]
-        trainers += [make_train(c, env=trainers[0].env) for c in configs[1:]]
+        learner = learners.of(configs[0])
+        trainers = [learner.make(configs[0])]
+        trainers += [learner.make(c, env=trainers[0].env) for c in configs[1:]]
         init = jax.jit(jax.vmap(trainers[0].init))
         keys = jnp.stack([jax.random.PRNGKey(c.seed) for c in configs])
-        ts = init(keys, pts.stack_trees([Hyper.from_config(c) for c in configs]))
+        ts = init(keys, pts.stack_trees([learner.hyper(c) for c in configs]))
         ps = [_Point(n, d, c, tr, pts.unstack(ts, i)) for i, (n, d, c, tr) in enumerate(zip(names, dirs, configs, trainers))]
         del ts
         dist.barrier("points-checked")

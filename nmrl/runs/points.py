@@ -1,7 +1,8 @@
 """Many training states as one program: stacking points and laying them out over the devices.
 
-A *point* is one training run (one config, one seed). The points of a sweep or study differ only
-in the traced :class:`~nmrl.paper.learner.Hyper` fields and the seed, so one compiled program runs
+A *point* is one training run (one config, one seed). The points of a sweep or study are of one
+learner and differ only in its traced hyperparameters (``hyper_fields``, nmrl/learners/contract.py)
+and the seed, so one compiled program runs
 all of them (:func:`points_program`, chosen by measurement in benchmarks/bench_sweep.py): MJX's
 cost per environment step on a CPU grows with the batch one device holds, so the points are split
 over the local devices with ``shard_map`` (no communication; on a CPU nmrl.runs.devices exposes
@@ -13,16 +14,14 @@ earlier stage) is skipped by ``lax.cond``.
 from __future__ import annotations
 
 import dataclasses
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import jax
 import jax.numpy as jnp
 from jax.sharding import PartitionSpec as P
 
-from nmrl.paper.learner import Hyper, TrainConfig
+from nmrl import learners
 from nmrl.runs import sharding
-
-HYPER_FIELDS = tuple(Hyper._fields)
 
 
 def stack_trees(trees):
@@ -35,19 +34,24 @@ def unstack(tree, i: int):
     return jax.tree.map(lambda x: x[i], tree)
 
 
-def program_key(cfg: TrainConfig) -> TrainConfig:
-    """The part of a config that is compiled into the program (everything but Hyper and the seed)."""
-    return dataclasses.replace(cfg, seed=0, **{k: getattr(TrainConfig(), k) for k in HYPER_FIELDS})
+def program_key(cfg: Any) -> Any:
+    """The part of a config that is compiled into the program (everything but the learner's traced
+    hyperparameters and the seed)."""
+    return learners.program_key(cfg)
 
 
-def check_one_program(names: Sequence[str], configs: Sequence[TrainConfig]) -> None:
-    """ValueError unless every config compiles to the program of the first one."""
+def check_one_program(names: Sequence[str], configs: Sequence[Any]) -> None:
+    """ValueError unless every config is of one learner and compiles to the program of the first one."""
+    lr = learners.of(configs[0])
     key0 = program_key(configs[0])
     for n, c in zip(names, configs):
+        if type(c) is not type(configs[0]):
+            raise ValueError(f"point {n!r} is of the learner {learners.of(c).name!r}, {names[0]!r} of {lr.name!r}: "
+                             f"one program runs one learner")
         if program_key(c) != key0:
             diff = [f.name for f in dataclasses.fields(c) if getattr(program_key(c), f.name) != getattr(key0, f.name)]
             raise ValueError(f"point {n!r} differs from {names[0]!r} in {diff}: one program can only vary "
-                             f"{', '.join(HYPER_FIELDS)} and the seed")
+                             f"{', '.join(lr.hyper_fields)} and the seed")
 
 
 def stages(priority, num_points: int) -> list[list[int]]:

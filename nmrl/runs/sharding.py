@@ -26,7 +26,7 @@ recompiles (tens of seconds on 2 cores) -- which looked like a "30x slower" 2-de
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import jax
 import numpy as np
@@ -95,20 +95,22 @@ def shard_map_batch(f: Callable, mesh: Mesh | None = None, jit: bool = True) -> 
     return jax.jit(g) if jit else g
 
 
-def train_state_specs(ts: Any) -> Any:
-    """PartitionSpecs for a learner ``TrainState``: its per-environment ``slots`` split over ``"b"``,
-    everything else (parameters, optimizer states, key, hyperparameters, counters) replicated."""
+def train_state_specs(ts: Any, env_fields: Sequence[str] = ("slots",)) -> Any:
+    """PartitionSpecs for a learner's state: its per-environment fields (``env_fields``; the
+    actor-critic's ``slots``) split over ``"b"``, everything else (parameters, optimizer states, key,
+    hyperparameters, counters) replicated."""
     def spec(path, _x):
-        return P(AXIS) if getattr(path[0], "name", None) == "slots" else P()
+        return P(AXIS) if getattr(path[0], "name", None) in env_fields else P()
 
     return jax.tree_util.tree_map_with_path(spec, ts)
 
 
-def shard_train_chunk(chunk: Callable, ts: Any, mesh: Mesh) -> tuple[Callable, Callable]:
-    """(program, place): ``chunk`` (built with ``make_train(..., axis_name=AXIS, num_shards=mesh.size)``)
-    under ``shard_map`` over the environment axis, and a function that lays a TrainState out as the
-    program expects (call it on the initial state and on every returned state)."""
-    specs = train_state_specs(ts)
+def shard_train_chunk(chunk: Callable, ts: Any, mesh: Mesh, env_fields: Sequence[str] = ("slots",)
+                      ) -> tuple[Callable, Callable]:
+    """(program, place): ``chunk`` (built with ``make(..., axis_name=AXIS, num_shards=mesh.size)``)
+    under ``shard_map`` over the environment axis of ``env_fields``, and a function that lays a state
+    out as the program expects (call it on the initial state and on every returned state)."""
+    specs = train_state_specs(ts, env_fields)
     shardings = jax.tree.map(lambda s: NamedSharding(mesh, s), specs)
     program = jax.shard_map(chunk, mesh=mesh, in_specs=(specs,), out_specs=(specs, P()), check_vma=False)
 

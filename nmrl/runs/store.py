@@ -23,7 +23,6 @@ import csv
 import dataclasses
 import io
 import json
-import math
 import os
 import pathlib
 import re
@@ -31,6 +30,8 @@ import shutil
 from typing import Any, Iterator, Sequence
 
 import numpy as np
+
+from nmrl import learners
 
 CONFIG_FILE = "config.json"
 METRICS_FILE = "metrics.jsonl"
@@ -93,11 +94,16 @@ def atomic_write_json(path: str | os.PathLike, obj: Any, indent: int | None = 2)
 
 
 def write_config(run_dir: str | os.PathLike, cfg: Any) -> pathlib.Path:
-    """Write ``RUN_DIR/config.json`` (a dataclass config; the directory is created)."""
+    """Write ``RUN_DIR/config.json`` (the directory is created): a learner's config with the learner's
+    name (``{"learner": name, **fields}``, nmrl/learners/contract.py), any other dataclass as its fields."""
     run_dir = pathlib.Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     path = run_dir / CONFIG_FILE
-    atomic_write_json(path, dataclasses.asdict(cfg))
+    try:
+        d = learners.config_dict(cfg)
+    except TypeError:  # not a learner's config
+        d = dataclasses.asdict(cfg)
+    atomic_write_json(path, d)
     return path
 
 
@@ -156,8 +162,9 @@ def remove_metrics(run_dir: str | os.PathLike) -> None:
 
 
 def is_diverged(m: dict) -> bool:
-    """A metrics row of a diverged chunk (the flag, or a non-finite parameter norm)."""
-    return bool(m["diverged"]) or not all(math.isfinite(m[k]) for k in ("theta_norm", "v_norm"))
+    """A metrics row of a diverged chunk (the flag, or a non-finite parameter norm: a metric whose
+    name ends in ``_norm``, nmrl/learners/contract.py)."""
+    return learners.is_diverged(m)
 
 
 # ----------------------------------------------------------------------------- CSV tables
