@@ -14,8 +14,9 @@ piecewise AR process, eq. (4), with covariance (5) (alpha = phi_1, l = period).
 The density of a sequence is the product of the per-step conditionals p(xi_t | xi since the last
 reset), computed by a Kalman filter over z with a noiseless observation ``u_t = xi_t / sigma =
 w^T z_t``: predicted belief ``N(Phi m, Phi P Phi + Q)`` (or ``N(0, I)`` at a reset), innovation
-variance ``s = w^T P^- w >= min_k (1 - phi_k^2)``, the update in Joseph form ``P = A P^- A^T``,
-``A = I - k w^T``, which keeps P symmetric positive semi-definite in float32 when phi is close to 1.
+variance ``s = w^T P^- w >= min_k (1 - phi_k^2)`` (bounded away from 0 by the process noise), the
+update in Joseph form ``P = A P^- A^T``, ``A = I - k w^T``, symmetrised, which keeps P symmetric
+positive semi-definite in float32 when phi is close to 1.
 The covariance recursion does not depend on sigma or on the data, only on the reset pattern, so
 the n action dimensions share one K x K covariance. For K = 1 the filter is the AR(1) innovation
 form of eq. (4): ``e_t = (u_t - phi u_{t-1}) / sqrt(1 - phi^2)``; the joint density of one period is
@@ -97,17 +98,19 @@ def _filter_step(proc: Process, mean: jax.Array, cov: jax.Array, u: jax.Array, f
     Returns (log p(u_t | past) summed over the n dimensions, mean (K, n), cov (K, K)).
     """
     phi, w = proc.phi.astype(u.dtype), proc.w.astype(u.dtype)
-    K = phi.shape[0]
-    eye = jnp.eye(K, dtype=u.dtype)
+    eye = jnp.eye(phi.shape[0], dtype=u.dtype)
+    # elementwise products and sums only: K is small, and batched K x K matmuls are slow on CPU
     m_pred = jnp.where(fresh, 0.0, phi[:, None] * mean)
-    P_pred = jnp.where(fresh, eye, phi[:, None] * cov * phi[None, :] + jnp.diag(_q(phi)))
-    Pw = P_pred @ w
-    s = w @ Pw  # innovation variance (units of sigma^2), >= min_k (1 - phi_k^2) * sum_k w_k^2
-    e = u - w @ m_pred  # (n,)
+    P_pred = jnp.where(fresh, eye, phi[:, None] * cov * phi[None, :] + eye * _q(phi)[None, :])
+    Pw = jnp.sum(P_pred * w[None, :], axis=-1)
+    s = jnp.sum(w * Pw)  # innovation variance (units of sigma^2), >= min_k (1 - phi_k^2) * sum_k w_k^2
+    e = u - jnp.sum(w[:, None] * m_pred, axis=0)  # (n,)
     k = Pw / s
     new_mean = m_pred + k[:, None] * e[None, :]
-    A = eye - k[:, None] * w[None, :]
-    new_cov = A @ P_pred @ A.T  # Joseph form (no observation noise)
+    # Joseph form (I - k w^T) P (I - k w^T)^T expanded (no observation noise): first-order errors in
+    # k cancel, and for K = 1 it is exactly 0
+    kP = k[:, None] * Pw[None, :]
+    new_cov = P_pred - kP - kP.T + s * (k[:, None] * k[None, :])
     new_cov = 0.5 * (new_cov + new_cov.T)
     n = u.shape[-1]
     logp = -0.5 * (n * (_LOG_2PI + jnp.log(s)) + jnp.sum(e * e) / s)
