@@ -366,3 +366,44 @@ def test_deterministic_policy_is_the_squashed_mean(nm_trainer):
         ns, xi = pol.noise_step(pol.noise_args, ns, jnp.asarray(np.random.default_rng(t).normal(size=2), jnp.float32))
         xs.append(np.asarray(xi))
     assert np.all(np.isfinite(xs)) and np.asarray(xs).shape == (12, 2)
+
+
+SHARD_CHECK = r'''
+import json, sys
+sys.path.insert(0, sys.argv[1])
+import jax, jax.numpy as jnp
+from tiny_env import TinyEnv
+from nmrl.learners import ppo
+from nmrl.runs import sharding
+cfg = ppo.PPOConfig(num_envs=4, batch_size=4, num_minibatches=2, epochs=2, unroll_s=0.1, policy_layers=1,
+                    policy_width=8, value_layers=1, value_width=8, exploration="nm-periods")
+env = TinyEnv(stop_prob=0.1)
+one = ppo.make_ppo(cfg, env)
+two = ppo.make_ppo(cfg, env, axis_name=sharding.AXIS, num_shards=2)
+st = one.init(jax.random.PRNGKey(0))
+s1, m1 = jax.jit(one.chunk)(st)
+program, place = sharding.shard_train_chunk(two.chunk, st, sharding.make_mesh(), env_fields=("env", "noise"))
+s2, m2 = program(place(st))
+leaves = lambda s: [x.tolist() for x in jax.tree.leaves((s.policy, s.value, s.opt, s.obs_stats, s.noise))]
+print(json.dumps({"devices": len(jax.devices()), "m1": {k: float(v) for k, v in m1.items()},
+                  "m2": {k: float(v) for k, v in m2.items()}, "s1": leaves(s1), "s2": leaves(s2)}))
+'''
+
+
+@pytest.mark.slow
+def test_sharded_chunk_equals_unsharded():
+    """Two CPU devices (shard_map over the environments, as nmrl/runs/sharding.py runs a learner):
+    the same draws, minibatches and updates as one device, up to float rounding."""
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2", "JAX_PLATFORMS": "cpu"}
+    out = subprocess.run([sys.executable, "-c", SHARD_CHECK, str(REPO / "tests")], env=env, capture_output=True,
+                         text=True, timeout=600, check=True).stdout
+    r = json.loads(out.strip().splitlines()[-1])
+    assert r["devices"] == 2
+    for k, v in r["m1"].items():
+        np.testing.assert_allclose(r["m2"][k], v, rtol=1e-5, atol=1e-6, err_msg=k)
+    for a, b in zip(r["s1"], r["s2"]):
+        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-5, atol=1e-6)
