@@ -118,6 +118,37 @@ def test_monte_carlo_covariance_matches_the_definition(name):
     np.testing.assert_allclose(emp / s2, C / s2, atol=5 * math.sqrt(2 / len(x)))
 
 
+def test_long_trial_stays_stationary_in_float32():
+    """3,000 steps at 5 ms (6 times the slowest colored component's time constant, phi = 0.998)
+    without a reset: the float32 sampler's variance and its covariances at 1, 10 and 100 steps over
+    the trial's last 101 steps are the definition's (Monte Carlo over 2 x 500 environments)."""
+    proc = E.ExplorationSpec("colored", sigma=0.5).process(0.005)
+    T, B = 3000, 500
+
+    @jax.jit
+    def tail(key):  # the last 101 draws of T, and how many draws were fresh
+        st = E.init(proc, key, B, 2)
+
+        def step(carry, k):
+            st, n_fresh = carry
+            xi, _, fresh, st = E.sample(proc, st, k)
+            return (st, n_fresh + jnp.sum(fresh)), xi
+
+        keys = jax.random.split(key, T)
+        (st, n_fresh), _ = jax.lax.scan(step, (st, 0), keys[:-101])
+        (_, n_fresh), xi = jax.lax.scan(step, (st, n_fresh), keys[-101:])
+        return xi, n_fresh
+
+    xi, n_fresh = tail(jax.random.key(9))
+    assert int(n_fresh) == B  # only the first draw of each trial is fresh
+    x = np.asarray(xi, np.float64).transpose(1, 2, 0).reshape(-1, 101) / float(proc.sigma)  # (B * n, 101)
+    phi, w, _, _ = params64(proc)
+    N = len(x)
+    for h in (0, 1, 10, 100):
+        emp = float(np.mean(x[:, :101 - h] * x[:, h:]))  # over every pair h apart in the window
+        assert abs(emp - np.sum(w**2 * phi**h)) < 5 * math.sqrt(2 / N), (h, emp, np.sum(w**2 * phi**h))
+
+
 def test_autocorrelation_at_100_ms_is_the_same_at_20_10_and_5_ms():
     """The correlation of xi_t and xi_{t + 0.1 s}, averaged over the position in a period, from the
     process parameters at each control step: one physical process at every step."""

@@ -22,6 +22,11 @@ the n action dimensions share one K x K covariance. For K = 1 the filter is the 
 form of eq. (4): ``e_t = (u_t - phi u_{t-1}) / sqrt(1 - phi^2)``; the joint density of one period is
 eq. (7) with Lambda = [phi^|i-j|]. Cost: O(T K^2 n), linear in the length, differentiable in xi.
 
+:func:`sample` draws from the same factorisation: xi_t from its conditional law given the earlier xi
+(the filter's prediction), then the filter update. The sequence then has exactly the joint law above
+(chain rule), the step costs n normal draws whatever K, and its ``logp`` is the density it was
+drawn from.
+
 Every function is pure and jit/vmap friendly; every leaf of :class:`Process` is an array, so points
 with different processes (the same K) vmap in one program. ``sigma`` may be 1: the filter then gives
 the density of a unit-variance correlation structure ``u``, and a learner that scales it by its own
@@ -74,7 +79,8 @@ class NoiseState(NamedTuple):
     """Per-environment state (leading batch axis B).
 
     Attributes:
-        z: (B, K, n) latent components (the sampler's exact state).
+        z: (B, K, n) E[z_t | xi since the last reset], the latent components as far as the xi
+            determine them (for K = 1, z itself; the sampler needs no other state than the belief).
         i: (B,) int32 steps since the last reset (0: the next draw starts a period).
         mean: (B, K, n) filter belief about z given the xi observed since the last reset (units of sigma).
         cov: (B, K, K) its covariance (shared by the n action dimensions).
@@ -91,20 +97,30 @@ def _q(phi: jax.Array) -> jax.Array:
     return (1.0 - phi) * (1.0 + phi)
 
 
-def _filter_step(proc: Process, mean: jax.Array, cov: jax.Array, u: jax.Array, fresh: jax.Array
-                 ) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """One Kalman step for one environment: belief about z_{t-1} -> about z_t given ``u_t = w^T z_t``.
+def _predict(proc: Process, mean: jax.Array, cov: jax.Array, fresh: jax.Array
+             ) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
+    """Belief about z_{t-1} -> predicted belief about z_t for one environment.
 
-    Returns (log p(u_t | past) summed over the n dimensions, mean (K, n), cov (K, K)).
+    Returns ``(m_pred (K, n), P_pred (K, K), P_pred w (K,), s)`` with ``s = w^T P_pred w``, the
+    variance of ``u_t = w^T z_t`` given the past (units of sigma^2); at a reset the prior N(0, I).
     """
-    phi, w = proc.phi.astype(u.dtype), proc.w.astype(u.dtype)
-    eye = jnp.eye(phi.shape[0], dtype=u.dtype)
+    dtype = mean.dtype
+    phi, w = proc.phi.astype(dtype), proc.w.astype(dtype)
+    eye = jnp.eye(phi.shape[0], dtype=dtype)
     # elementwise products and sums only: K is small, and batched K x K matmuls are slow on CPU
     m_pred = jnp.where(fresh, 0.0, phi[:, None] * mean)
     P_pred = jnp.where(fresh, eye, phi[:, None] * cov * phi[None, :] + eye * _q(phi)[None, :])
     Pw = jnp.sum(P_pred * w[None, :], axis=-1)
-    s = jnp.sum(w * Pw)  # innovation variance (units of sigma^2), >= min_k (1 - phi_k^2) * sum_k w_k^2
-    e = u - jnp.sum(w[:, None] * m_pred, axis=0)  # (n,)
+    s = jnp.sum(w * Pw)  # >= min_k (1 - phi_k^2) sum_k w_k^2: the process noise keeps it away from 0
+    return m_pred, P_pred, Pw, s
+
+
+def _update(m_pred: jax.Array, P_pred: jax.Array, Pw: jax.Array, s: jax.Array, e: jax.Array
+            ) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Condition the predicted belief on the innovation ``e = u_t - w^T m_pred`` (n,).
+
+    Returns ``(log p(u_t | past) summed over the n dimensions, mean (K, n), cov (K, K))``.
+    """
     k = Pw / s
     new_mean = m_pred + k[:, None] * e[None, :]
     # Joseph form (I - k w^T) P (I - k w^T)^T expanded (no observation noise): first-order errors in
@@ -112,9 +128,20 @@ def _filter_step(proc: Process, mean: jax.Array, cov: jax.Array, u: jax.Array, f
     kP = k[:, None] * Pw[None, :]
     new_cov = P_pred - kP - kP.T + s * (k[:, None] * k[None, :])
     new_cov = 0.5 * (new_cov + new_cov.T)
-    n = u.shape[-1]
+    n = e.shape[-1]
     logp = -0.5 * (n * (_LOG_2PI + jnp.log(s)) + jnp.sum(e * e) / s)
     return logp, new_mean, new_cov
+
+
+def _filter_step(proc: Process, mean: jax.Array, cov: jax.Array, u: jax.Array, fresh: jax.Array
+                 ) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """One Kalman step for one environment: belief about z_{t-1} -> about z_t given ``u_t = w^T z_t``.
+
+    Returns (log p(u_t | past) summed over the n dimensions, mean (K, n), cov (K, K)).
+    """
+    m_pred, P_pred, Pw, s = _predict(proc, mean.astype(u.dtype), cov.astype(u.dtype), fresh)
+    e = u - jnp.sum(proc.w.astype(u.dtype)[:, None] * m_pred, axis=0)
+    return _update(m_pred, P_pred, Pw, s, e)
 
 
 def _sum_log_sigma(sigma: jax.Array, n: int, dtype) -> jax.Array:
@@ -122,11 +149,12 @@ def _sum_log_sigma(sigma: jax.Array, n: int, dtype) -> jax.Array:
 
 
 def init(proc: Process, key: jax.Array, batch: int, act_dim: int) -> NoiseState:
-    """State of ``batch`` environments before their first draw (i = 0: the first draw starts a
-    period; belief = the prior N(0, I)); z is a stationary draw."""
+    """State of ``batch`` environments before their first draw: i = 0 (the first draw starts a
+    period), belief = the prior N(0, I). (``key`` is not needed: the first draw is fresh.)"""
+    del key
     K = proc.phi.shape[0]
     return NoiseState(
-        z=jax.random.normal(key, (batch, K, act_dim), jnp.float32),
+        z=jnp.zeros((batch, K, act_dim), jnp.float32),
         i=jnp.zeros((batch,), jnp.int32),
         mean=jnp.zeros((batch, K, act_dim), jnp.float32),
         cov=jnp.broadcast_to(jnp.eye(K, dtype=jnp.float32), (batch, K, K)),
@@ -137,23 +165,26 @@ def sample(proc: Process, state: NoiseState, key: jax.Array
            ) -> tuple[jax.Array, jax.Array, jax.Array, NoiseState]:
     """Draw xi_t for every environment.
 
+    xi_t is drawn from its conditional law given the xi since the last reset, N(sigma w^T m_pred,
+    sigma^2 s), the filter's prediction, and the belief is then updated with it: by the chain rule
+    the sequence has exactly the process's joint law, with n normal draws per step whatever K.
+
     Returns:
         ``(xi (B, n), logp (B,), fresh (B,) bool, new_state)``: ``logp`` is log p(xi_t | xi since the
         last reset) summed over the n dimensions (what :func:`log_prob` gives for the same sequence);
         ``fresh`` is True where this draw started a period or a trial.
     """
-    z = state.z
-    eps = jax.random.normal(key, z.shape, z.dtype)
+    dtype = state.mean.dtype
+    B, _, n = state.mean.shape
     fresh = state.i == 0
-    phi = proc.phi.astype(z.dtype)[None, :, None]
-    z_new = jnp.where(fresh[:, None, None], eps, phi * z + jnp.sqrt(_q(phi)) * eps)
-    u = jnp.einsum("k,bkn->bn", proc.w.astype(z.dtype), z_new)
-    logp, mean, cov = jax.vmap(_filter_step, in_axes=(None, 0, 0, 0, 0))(proc, state.mean, state.cov, u, fresh)
-    n = u.shape[-1]
-    xi = jnp.asarray(proc.sigma, z.dtype) * u
-    logp = logp - _sum_log_sigma(proc.sigma, n, z.dtype)
+    m_pred, P_pred, Pw, s = jax.vmap(_predict, in_axes=(None, 0, 0, 0))(proc, state.mean, state.cov, fresh)
+    e = jnp.sqrt(s)[:, None] * jax.random.normal(key, (B, n), dtype)
+    u = jnp.einsum("k,bkn->bn", proc.w.astype(dtype), m_pred) + e
+    logp, mean, cov = jax.vmap(_update)(m_pred, P_pred, Pw, s, e)
+    xi = jnp.asarray(proc.sigma, dtype) * u
+    logp = logp - _sum_log_sigma(proc.sigma, n, dtype)
     i = jnp.remainder(state.i + 1, proc.period).astype(jnp.int32)
-    return xi, logp, fresh, NoiseState(z=z_new, i=i, mean=mean, cov=cov)
+    return xi, logp, fresh, NoiseState(z=mean, i=i, mean=mean, cov=cov)
 
 
 def reset(proc: Process, state: NoiseState, mask: jax.Array) -> NoiseState:
