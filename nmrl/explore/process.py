@@ -191,7 +191,8 @@ def reset(proc: Process, state: NoiseState, mask: jax.Array) -> NoiseState:
     """Where ``mask`` (B,): the next draw starts afresh (i = 0, belief = the prior N(0, I))."""
     K = proc.phi.shape[0]
     eye = jnp.eye(K, dtype=state.cov.dtype)
-    return state._replace(
+    return NoiseState(
+        z=jnp.where(mask[:, None, None], 0.0, state.z),
         i=jnp.where(mask, 0, state.i).astype(jnp.int32),
         mean=jnp.where(mask[:, None, None], 0.0, state.mean),
         cov=jnp.where(mask[:, None, None], eye, state.cov),
