@@ -96,6 +96,19 @@ def _rollout(proc: E.Process, key: jax.Array, reset_mask: jax.Array) -> tuple:
     return jax.lax.scan(body, st, (jax.random.split(k1, reset_mask.shape[0]), reset_mask))[1]
 
 
+#: log_prob of B environments' fragments, time-major (T, B, ...) as _rollout returns them
+_lp_batch = jax.jit(jax.vmap(E.log_prob, in_axes=(None, 0, 0, 1, 1)))
+
+
+@jax.jit
+def _fragment64(proc: E.Process, xi: jax.Array, fresh: jax.Array, split: jax.Array) -> jax.Array:
+    """Summed log_prob of xi[t0:] from the belief that filtering xi[:t0] gives (split[t] = t < t0;
+    one environment, float64 under enable_x64): the earlier steps enter only through the belief."""
+    K, n = proc.phi.shape[0], xi.shape[1]
+    lp, m, P = E.filter_sequence(proc, jnp.zeros((K, n), xi.dtype), jnp.eye(K, dtype=xi.dtype), xi, fresh)
+    return jnp.sum(jnp.where(split, 0.0, lp))
+
+
 # --------------------------------------------------------------------------- sampling
 
 
@@ -201,22 +214,20 @@ def test_log_prob_from_a_carried_belief_is_the_dense_conditional(name):
     (float32, as a rollout stores it) equals log p(fragment | the trial's earlier xi) by the Schur
     complement of the dense covariance."""
     proc = SPECS[name].process(DT)
-    T, t0, B = 16, 7, 3
+    T, t0, B = 20, 10, 4
     mask = np.zeros((T, B), bool)
-    mask[11, 1] = True  # a trial ends inside the fragment of environment 1
+    mask[13, 1] = True  # a trial ends inside the fragment of environment 1
     xi, logp, fresh, mean, cov = _rollout(proc, jax.random.key(2), jnp.asarray(mask))
+    lp = _lp_batch(proc, mean[t0], cov[t0], xi[t0:], fresh[t0:])
     xi, fresh = np.asarray(xi), np.asarray(fresh)
-    lp = jax.vmap(E.log_prob, in_axes=(None, 0, 0, 1, 1))(proc, mean[t0], cov[t0], xi[t0:], fresh[t0:])
     for b in range(B):
         want = dense_conditional_logpdf(dense_cov(proc, fresh[:, b]), xi[:, b].astype(np.float64), t0)
         np.testing.assert_allclose(float(jnp.sum(lp[b])), want, rtol=2e-5, atol=2e-4)
-        # the same from a float64 belief rebuilt by filtering the fragment's past
+        # the same in float64 from the belief that filtering the trial's earlier steps gives
         with jax.enable_x64(True):
-            K = proc.phi.shape[0]
-            _, m, P = E.filter_sequence(proc, jnp.zeros((K, 2)), jnp.eye(K), jnp.asarray(xi[:t0, b], jnp.float64),
-                                        jnp.asarray(fresh[:t0, b]))
-            lp64 = E.log_prob(proc, m, P, jnp.asarray(xi[t0:, b], jnp.float64), jnp.asarray(fresh[t0:, b]))
-            np.testing.assert_allclose(float(jnp.sum(lp64)), want, rtol=1e-10, atol=1e-10)
+            lp64 = _fragment64(proc, jnp.asarray(xi[:, b], jnp.float64), jnp.asarray(fresh[:, b]),
+                               jnp.arange(T) < t0)
+            np.testing.assert_allclose(float(lp64), want, rtol=1e-10, atol=1e-10)
 
 
 @pytest.mark.parametrize("name", ["nm-periods", "ou", "colored", "white"])
@@ -228,9 +239,8 @@ def test_sample_logp_equals_log_prob(name):
     mask = np.zeros((T, B), bool)
     mask[5, 0] = mask[13, 2] = True
     xi, logp, fresh, mean, cov = _rollout(proc, jax.random.key(3), jnp.asarray(mask))
-    lp = jax.vmap(E.log_prob, in_axes=(None, 0, 0, 1, 1))
-    for a, b in ((0, 9), (9, T)):
-        got = lp(proc, mean[a], cov[a], xi[a:b], fresh[a:b])
+    for a, b in ((0, 10), (10, T)):
+        got = _lp_batch(proc, mean[a], cov[a], xi[a:b], fresh[a:b])
         np.testing.assert_allclose(np.asarray(got), np.asarray(logp[a:b]).T, rtol=1e-5, atol=1e-5)
 
 
@@ -267,11 +277,14 @@ def test_theta_gradient_equals_autodiff_of_the_dense_density():
             return sum(jax.scipy.stats.multivariate_normal.logpdf(x2[:, j], mean[:, j], cov) for j in range(n))
 
         for a in (0, t0):
-            np.testing.assert_allclose(kalman(W, a), dense(W, a), rtol=1e-10)
-            np.testing.assert_allclose(jax.grad(kalman)(W, a), jax.grad(dense)(W, a), rtol=1e-8, atol=1e-10)
-        gx = jax.grad(lambda x: jnp.sum(E.log_prob(proc, jnp.zeros((K, n)), jnp.eye(K), x, jnp.asarray(fresh))))(A)
-        gd = jax.grad(lambda x: sum(jax.scipy.stats.multivariate_normal.logpdf(x[:, j], jnp.zeros(T), Cj)
-                                    for j in range(n)))(A)
+            vk, gk = jax.jit(jax.value_and_grad(kalman), static_argnums=1)(W, a)
+            vd, gd = jax.jit(jax.value_and_grad(dense), static_argnums=1)(W, a)
+            np.testing.assert_allclose(vk, vd, rtol=1e-10)
+            np.testing.assert_allclose(gk, gd, rtol=1e-8, atol=1e-10)
+        gx = jax.jit(jax.grad(lambda x: jnp.sum(E.log_prob(proc, jnp.zeros((K, n)), jnp.eye(K), x,
+                                                           jnp.asarray(fresh)))))(A)
+        gd = jax.jit(jax.grad(lambda x: sum(jax.scipy.stats.multivariate_normal.logpdf(x[:, j], jnp.zeros(T), Cj)
+                                            for j in range(n))))(A)
         np.testing.assert_allclose(gx, gd, rtol=1e-8, atol=1e-10)
 
 
@@ -409,6 +422,16 @@ def test_colored_spectrum_error_against_1_over_f_beta(beta):
     np.testing.assert_allclose(np.sum(w32**2), 1.0, rtol=1e-6)  # marginal std = sigma
 
 
+def test_colored_fit_of_the_sampled_spectrum():
+    """The alternative fit (weights for the spectrum sampled at 20 ms, not used by the spec): the
+    sampled spectrum, by FFT of its autocovariance, is within 0.6 dB of 1/f over the band."""
+    tau = colored.time_constants(0.25, 25.0, 6)
+    w = colored.fit_weights(1.0, 0.25, 25.0, tau, control_dt=0.02)
+    acov = (w**2) @ np.exp(-np.arange(int(40 * tau.max() / 0.02))[None, :] * 0.02 / tau[:, None])
+    f, S = _fft_psd(acov)
+    assert _db_error(f / 0.02, S, 1.0, 0.25, 25.0) <= 0.6
+
+
 # --------------------------------------------------------------------------- spec, conversion, bad input
 
 
@@ -423,6 +446,15 @@ def test_seconds_to_steps_conversion_table():
         np.testing.assert_allclose(float(proc.phi[0]), alpha, atol=1e-6)
         np.testing.assert_allclose(float(proc.phi[0]), 0.8 ** (dt / 0.02), rtol=1e-6)
     assert E.period_steps(0.25, 0.02) == 13 and E.period_steps(0.2, 0.02) == 10  # halves round up
+    colored_phi = {0.02: [0.9922, 0.9705, 0.8924, 0.6483, 0.1920, 0.0019],
+                   0.01: [0.9961, 0.9852, 0.9447, 0.8051, 0.4382, 0.0432],
+                   0.005: [0.9980, 0.9926, 0.9719, 0.8973, 0.6619, 0.2079],
+                   0.0025: [0.9990, 0.9963, 0.9859, 0.9473, 0.8136, 0.4559]}
+    tau = np.array([2.546, 0.6688, 0.1757, 0.04614, 0.01212, 0.003183])  # 1 / (2 pi f), f from 0.0625 to 50 Hz
+    for dt, phi in colored_phi.items():
+        got = np.asarray(E.ExplorationSpec("colored").process(dt).phi, np.float64)
+        np.testing.assert_allclose(got, phi, atol=6e-5)
+        np.testing.assert_allclose(got, np.exp(-dt / tau), atol=1e-4)
 
 
 def test_spec_round_trip_and_command_line_options():
