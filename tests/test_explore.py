@@ -465,9 +465,11 @@ def test_spec_round_trip_and_command_line_options():
     assert {o.field for o in opts} == fields
     for o in opts:
         assert o.help and o.dest.replace("_", "-") == o.flag
-    got = E.from_options({"exploration": "colored", "noise_beta": 0.5, "noise_order": 8, "sigma": 99.0,
-                          "noise_period_s": None})
-    assert got == E.ExplorationSpec("colored", beta=0.5, order=8)
+    got = E.from_options({"exploration": "colored", "beta": 0.5, "order": 8, "sigma": 2.0, "period_s": None,
+                          "l": 10})
+    assert got == E.ExplorationSpec("colored", sigma=2.0, beta=0.5, order=8)
+    with pytest.raises(ValueError, match="period_s is a parameter of nm-periods, not of colored exploration"):
+        E.from_options({"exploration": "colored", "period_s": 0.2})
     assert E.from_options({}) == E.ExplorationSpec("nm-periods")
 
 

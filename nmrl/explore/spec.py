@@ -281,8 +281,9 @@ class CliOption(NamedTuple):
 
 
 def cli_options() -> tuple[CliOption, ...]:
-    """The options of the exploration: ``--exploration`` (the kind) and ``--noise-<parameter>`` for
-    every parameter (prefixed so as not to clash with a learner's own ``--sigma`` or ``--beta``)."""
+    """The options of the exploration: ``--exploration`` (the kind) and ``--<parameter>`` for every
+    parameter (``--sigma``, ``--period-s``, ``--corr-time-s``, ``--beta``, ``--f-min-hz``,
+    ``--f-max-hz``, ``--order``)."""
     opts = []
     for f in dataclasses.fields(ExplorationSpec):
         m = f.metadata
@@ -294,7 +295,7 @@ def cli_options() -> tuple[CliOption, ...]:
             f"{k}: {DEFAULTS[k][f.name]:.4g}" for k in m["kinds"])
         unit = f" [{m['unit']}]" if m["unit"] else ""
         for_kinds = "" if f.name == "sigma" else f"{'/'.join(m['kinds'])} only; "
-        opts.append(CliOption("noise-" + f.name.replace("_", "-"), "noise_" + f.name, f.name, m["type"], None,
+        opts.append(CliOption(f.name.replace("_", "-"), f.name, f.name, m["type"], None,
                               None, f"{for_kinds}{m['help']}{unit} (default: {dflt})"))
     return tuple(opts)
 
@@ -302,7 +303,7 @@ def cli_options() -> tuple[CliOption, ...]:
 def from_options(options: Mapping) -> ExplorationSpec:
     """The spec from parsed options keyed by :func:`cli_options` ``dest`` names (e.g. ``vars(args)``;
     other keys are ignored, None means not given): the kind from ``exploration`` (default
-    nm-periods), every other parameter from ``noise_<field>``."""
+    nm-periods), every other parameter from its field name."""
     kw: dict[str, Any] = {}
     for o in cli_options():
         v = options.get(o.dest)
