@@ -32,10 +32,13 @@ def paired_rounds(rounds: int, first: tuple[str, Callable[[], dict]],
 
 
 def main(run) -> None:
-    """``python -m benchmarks.bench_X [--quick]``: print ``run(quick)`` as JSON."""
+    """``python -m benchmarks.bench_X [--quick | --smoke]``: print ``run(quick, smoke)`` as JSON."""
     import argparse
     import json
 
     ap = argparse.ArgumentParser()
-    ap.add_argument("--quick", action="store_true")
-    print(json.dumps(run(ap.parse_args().quick), indent=1))
+    size = ap.add_mutually_exclusive_group()
+    size.add_argument("--quick", action="store_true")
+    size.add_argument("--smoke", action="store_true")
+    a = ap.parse_args()
+    print(json.dumps(run(a.quick or a.smoke, smoke=a.smoke), indent=1))

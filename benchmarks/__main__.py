@@ -3,9 +3,11 @@
     python -m benchmarks                 # full run   -> benchmarks/results.json, throughput.png
     python -m benchmarks --quick         # ~1 minute  -> benchmarks/results_quick.json, throughput_quick.png
     python -m benchmarks --only env,sweep --out /tmp/r.json
-    nmrl bench [--quick]                 # the same
+    python -m benchmarks --smoke         # every section at its smallest setting: checks that the
+                                         # harness runs (tests/test_benchmarks.py); writes nothing
 
-Benchmarks (each module has ``run(quick) -> dict``):
+Benchmarks (each a module ``benchmarks/bench_<name>.py`` with ``run(quick, smoke=False) -> dict``;
+``smoke`` is the smallest setting, a module without that parameter is run quick):
 
 * ``env``        MJX physics steps/s vs MuJoCo C (``mujoco.rollout``), MJX on 1 and 2 CPU devices,
                  C with 1 and 2 threads (benchmarks/bench_env.py; MJX in subprocesses with a timeout);
@@ -35,6 +37,8 @@ from __future__ import annotations
 import argparse
 import contextlib
 import datetime
+import importlib
+import inspect
 import json
 import os
 import pathlib
@@ -51,7 +55,8 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # see benchmarks/bench_likel
 HERE = pathlib.Path(__file__).resolve().parent
 ROOT = HERE.parent
 
-SECTIONS = ("env", "learning", "likelihood", "sweep", "scaling", "distributed", "baseline")
+SECTIONS = ("env", "learning", "likelihood", "sweep", "scaling", "distributed", "baseline", "explore")
+SIZES = ("full", "quick", "smoke")
 TOP_KEYS = ("meta", "machine", *SECTIONS, "summary")
 
 # env: control steps (batch x T) per timed MJX call, the same in quick and full mode so that a quick
@@ -59,30 +64,33 @@ TOP_KEYS = ("meta", "machine", *SECTIONS, "summary")
 ENV_STEPS_PER_CALL = 4096
 ENV_FULL_BATCHES = [64, 256, 1024]
 ENV_QUICK_BATCHES = [64]
+ENV_SMOKE = {"batches": [8], "steps_per_call": 64}  # T = 8: the harness's paths, not a measurement
 
 
 # ------------------------------------------------------------------------------- sections
 
 
-def bench_env_section(quick: bool) -> dict:
+def bench_env_section(size: str) -> dict:
     """MJX (1 device, 2 devices shard_map) vs MuJoCo C (1, 2 threads); C measured before, between
     and after the MJX subprocesses, and its median taken, so C and MJX see the same load."""
     from benchmarks import bench_env
 
-    sizes = ENV_QUICK_BATCHES if quick else ENV_FULL_BATCHES
+    quick = size != "full"
+    sizes = ENV_SMOKE["batches"] if size == "smoke" else ENV_QUICK_BATCHES if quick else ENV_FULL_BATCHES
+    steps_per_call = ENV_SMOKE["steps_per_call"] if size == "smoke" else ENV_STEPS_PER_CALL
     rep = 1 if quick else 3
     timeout = 240 if quick else 600
     t0 = time.perf_counter()
     threads = sorted({1, 2, os.cpu_count() or 1})
     c_runs, mjx, load = [], {}, {}
-    c_runs.append(bench_env.c_rollout(sizes, ENV_STEPS_PER_CALL, threads, repeats=rep))
+    c_runs.append(bench_env.c_rollout(sizes, steps_per_call, threads, repeats=rep))
     load["before"] = list(os.getloadavg())
-    mjx["1dev_single"] = bench_env.mjx_subprocess(sizes, "single", 1, ENV_STEPS_PER_CALL, rep, timeout=timeout)
-    c_runs.append(bench_env.c_rollout(sizes, ENV_STEPS_PER_CALL, threads, repeats=rep))
+    mjx["1dev_single"] = bench_env.mjx_subprocess(sizes, "single", 1, steps_per_call, rep, timeout=timeout)
+    c_runs.append(bench_env.c_rollout(sizes, steps_per_call, threads, repeats=rep))
     load["between"] = list(os.getloadavg())
-    mjx["2dev_shard_map"] = bench_env.mjx_subprocess(sizes, "shard_map", 2, ENV_STEPS_PER_CALL, rep,
+    mjx["2dev_shard_map"] = bench_env.mjx_subprocess(sizes, "shard_map", 2, steps_per_call, rep,
                                                       timeout=timeout)
-    c_runs.append(bench_env.c_rollout(sizes, ENV_STEPS_PER_CALL, threads, repeats=rep))
+    c_runs.append(bench_env.c_rollout(sizes, steps_per_call, threads, repeats=rep))
     load["after"] = list(os.getloadavg())
     c = []
     for nt in threads:
@@ -104,7 +112,8 @@ def bench_env_section(quick: bool) -> dict:
     return {
         "benchmark": "Half-Cheetah physics steps/s: MJX (jit scan of vmap(env.step)) vs MuJoCo C rollout",
         "quick": quick,
-        "config": {"batches": sizes, "control_steps_per_call": ENV_STEPS_PER_CALL, "repeats": rep,
+        "size": size,
+        "config": {"batches": sizes, "control_steps_per_call": steps_per_call, "repeats": rep,
                    "c_threads": threads, "mjx_statistic": "best of repeats (bench_env.py)",
                    "c_statistic": "median over 3 runs (before, between, after the MJX runs) of the best of repeats",
                    "timeout_s": timeout},
@@ -118,34 +127,33 @@ def bench_env_section(quick: bool) -> dict:
     }
 
 
-def run_section(name: str, quick: bool) -> dict:
+def errors_in(tree, path: str = "") -> list[str]:
+    """Every ``error`` entry (and a true ``failed`` flag) in a section's result, as "path: message"."""
+    out = []
+    if isinstance(tree, dict):
+        for k, v in tree.items():
+            if k == "error" or (k == "failed" and v is True):
+                out.append(f"{path or '.'}: {str(v)[:200]}")
+            else:
+                out += errors_in(v, f"{path}.{k}")
+    elif isinstance(tree, list):
+        for i, v in enumerate(tree):
+            out += errors_in(v, f"{path}[{i}]")
+    return out
+
+
+def run_section(name: str, size: str) -> dict:
+    """Run one section at ``size`` (one of SIZES): ``env`` here, every other one as
+    ``benchmarks.bench_<name>.run(quick, smoke=...)``."""
+    if size not in SIZES:
+        raise ValueError(f"size={size!r}: one of {SIZES}")
     if name == "env":
-        return bench_env_section(quick)
-    if name == "learning":
-        from benchmarks import bench_learning
-
-        return bench_learning.run(quick)
-    if name == "likelihood":
-        from benchmarks import bench_likelihood
-
-        return bench_likelihood.run(quick)
-    if name == "sweep":
-        from benchmarks import bench_sweep
-
-        return bench_sweep.run(quick)
-    if name == "scaling":
-        from benchmarks import bench_scaling
-
-        return bench_scaling.run(quick)
-    if name == "distributed":
-        from benchmarks import bench_distributed
-
-        return bench_distributed.run(quick)
-    if name == "baseline":
-        from benchmarks import bench_baseline
-
-        return bench_baseline.run(quick)
-    raise ValueError(name)
+        return bench_env_section(size)
+    if name not in SECTIONS:
+        raise ValueError(f"unknown benchmark {name!r}; one of {SECTIONS}")
+    mod = importlib.import_module(f"benchmarks.bench_{name}")
+    smoke = {"smoke": True} if size == "smoke" and "smoke" in inspect.signature(mod.run).parameters else {}
+    return mod.run(size != "full", **smoke)
 
 
 # ------------------------------------------------------------------------------- machine
@@ -275,7 +283,7 @@ def table(res: dict) -> str:
                      _f(sw["sweep_speedup_over_single_vmap"], 2, "×"),
                      f"{a['compile_s']:.1f} / {b['compile_s']:.1f}"))
         rows.append(("sweep vs MuJoCo C, ctrl steps/s",
-                     f"the same (with learning) vs mujoco.rollout, {sw['mujoco_c']['nthreads']} threads, B=64 "
+                     f"the same (with learning) vs mujoco.rollout, {sw['mujoco_c']['nthreads']} threads, B={sw['mujoco_c']['batch']} "
                      f"(physics only); 10⁵ trials × 24 points: {sw['hours_for_1e5_trials_x_24_points']:.1f} h",
                      _f(a["control_steps_per_s"]), _f(sw["mujoco_c"]["control_steps_per_s"]),
                      _f(sw["sweep_over_mujoco_c"], 2, "×"), "–"))
@@ -386,7 +394,11 @@ def _atomic_write(path: pathlib.Path, text: str) -> None:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m benchmarks", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--quick", action="store_true", help="small batches, few repeats (~1 minute with a warm cache)")
+    sizes = ap.add_mutually_exclusive_group()
+    sizes.add_argument("--quick", action="store_true", help="small batches, few repeats (~1 minute with a warm cache)")
+    sizes.add_argument("--smoke", action="store_true",
+                      help="every section at its smallest setting, to check that the harness runs (numbers "
+                           "meaningless); writes only --out, if given, and no figure")
     ap.add_argument("--out", type=pathlib.Path, default=None,
                     help="JSON output (default benchmarks/results.json; --quick: benchmarks/results_quick.json)")
     ap.add_argument("--only", default=",".join(SECTIONS),
@@ -398,9 +410,11 @@ def main(argv: list[str] | None = None) -> int:
     if bad or not only:
         print(f"--only: unknown benchmark(s) {bad}; choose from {','.join(SECTIONS)}", file=sys.stderr)
         return 2
-    out = args.out or HERE / ("results_quick.json" if args.quick else "results.json")
-    png = out.with_name("throughput_quick.png" if args.quick else "throughput.png") if args.out is None \
-        else out.with_suffix(".png")
+    size = "smoke" if args.smoke else "quick" if args.quick else "full"
+    out = args.out if args.out or args.smoke else HERE / ("results_quick.json" if args.quick else "results.json")
+    png = None if args.smoke or args.no_plot else (
+        out.with_name("throughput_quick.png" if args.quick else "throughput.png") if args.out is None
+        else out.with_suffix(".png"))
 
     import jax  # may already be imported (``nmrl bench``): then the environment variable came too late
 
@@ -409,7 +423,7 @@ def main(argv: list[str] | None = None) -> int:
 
     t0 = time.perf_counter()
     res: dict = {k: None for k in TOP_KEYS}
-    if set(only) != set(SECTIONS) and out.exists():  # keep the sections not re-run
+    if set(only) != set(SECTIONS) and out is not None and out.exists():  # keep the sections not re-run
         try:
             old = json.loads(out.read_text())
             res.update({k: old.get(k) for k in SECTIONS})
@@ -422,26 +436,32 @@ def main(argv: list[str] | None = None) -> int:
         t1 = time.perf_counter()
         try:
             with contextlib.redirect_stdout(sys.stderr):  # progress lines; stdout is the table
-                res[name] = run_section(name, args.quick)
+                res[name] = run_section(name, size)
+            inner = errors_in(res[name])
+            if inner:  # a contender failed or hung inside the section: reported, and the exit status says so
+                failed.append(name)
+                print(f"== {name}: failed inside: {'; '.join(inner)}", file=sys.stderr, flush=True)
         except Exception as e:  # noqa: BLE001 -- one broken benchmark must not lose the others
             failed.append(name)
             res[name] = {"error": f"{type(e).__name__}: {e}", "traceback": traceback.format_exc()[-3000:]}
             print(res[name]["traceback"], file=sys.stderr, flush=True)
         print(f"== {name}: {time.perf_counter() - t1:.1f} s", file=sys.stderr, flush=True)
     res["machine"]["load_avg_at_end"] = list(os.getloadavg())
-    res["meta"] = {"quick": args.quick, "sections_run": only, "failed": failed,
-                   "command": "python -m benchmarks" + (" --quick" if args.quick else "")
+    res["meta"] = {"quick": size != "full", "size": size, "sections_run": only, "failed": failed,
+                   "command": "python -m benchmarks" + ("" if size == "full" else f" --{size}")
                    + ("" if set(only) == set(SECTIONS) else f" --only {','.join(only)}"),
                    "date": datetime.datetime.now().isoformat(timespec="seconds"),
                    "wall_s": time.perf_counter() - t0}
     res["summary"] = summary(res)
-    _atomic_write(out, json.dumps(res, indent=1, default=float) + "\n")
+    if out is not None:
+        _atomic_write(out, json.dumps(res, indent=1, default=float) + "\n")
     md = table(res)
     print(md)
     m = res["machine"]
     print(f"\n{m['cpu']}, {m['cpu_count']} cores; load avg {m['load_avg_at_start'][0]:.2f} at start, "
-          f"{m['load_avg_at_end'][0]:.2f} at end; wall {res['meta']['wall_s']:.0f} s; wrote {out}")
-    if not args.no_plot:
+          f"{m['load_avg_at_end'][0]:.2f} at end; wall {res['meta']['wall_s']:.0f} s"
+          + (f"; wrote {out}" if out is not None else ""))
+    if png is not None:
         try:
             plot(res, png)
             print(f"wrote {png}")

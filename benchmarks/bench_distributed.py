@@ -9,7 +9,8 @@ time the "compiled the training chunk in X s" line (reported apart; the persiste
 may make it a cache hit). The contenders alternate (2 processes, 1 process, 2 processes, ...) and the
 ratio is the median over rounds of the per-round ratio, so a background load affects both alike.
 
-``run(quick) -> dict``; ``python -m benchmarks.bench_distributed [--quick]`` prints it.
+``run(quick, smoke=False) -> dict`` (``smoke``: 8 environments, two 10-step chunks, one round);
+``python -m benchmarks.bench_distributed [--quick]`` prints it.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ from benchmarks import main, paired_rounds, subprocess_env
 
 NUM_ENVS = 64
 CHUNK_STEPS = 100
-COMMON = ["--num-envs", str(NUM_ENVS), "--chunk-steps", str(CHUNK_STEPS)]
+SMOKE = {"num_envs": 8, "chunk_steps": 10, "chunks": 2, "hidden": 8}
 _COMPILED = re.compile(r"compiled the training chunk .* in ([\d.]+) s")
 
 
@@ -39,11 +40,11 @@ def _port() -> int:
         return s.getsockname()[1]
 
 
-def one_run(processes: int, steps: int, timeout: float) -> dict:
-    """One ``nmrl train`` of ``steps`` control steps as ``processes`` processes (1: with 2 devices)."""
+def one_run(processes: int, steps: int, timeout: float, options: list[str]) -> dict:
+    """One ``nmrl train [options]`` of ``steps`` control steps as ``processes`` processes (1: with 2 devices)."""
     with tempfile.TemporaryDirectory(prefix="nmrl_bench_dist_") as tmp:
         out = pathlib.Path(tmp) / "run"
-        base = [sys.executable, "-m", "nmrl.cli", "train", *COMMON, "--steps", str(steps), "--out", str(out)]
+        base = [sys.executable, "-m", "nmrl.cli", "train", *options, "--steps", str(steps), "--out", str(out)]
         if processes == 1:
             cmds = [base + ["--devices", "2"]]
         else:
@@ -70,17 +71,22 @@ def one_run(processes: int, steps: int, timeout: float) -> dict:
                 "per_chunk_steps_per_s": rates, "wall_s": wall}
 
 
-def run(quick: bool = False) -> dict:
+def run(quick: bool = False, smoke: bool = False) -> dict:
     rounds = 1 if quick else 3
-    steps = CHUNK_STEPS * (4 if quick else 8)
+    num_envs, chunk_steps = (SMOKE["num_envs"], SMOKE["chunk_steps"]) if smoke else (NUM_ENVS, CHUNK_STEPS)
+    steps = chunk_steps * (SMOKE["chunks"] if smoke else 4 if quick else 8)
+    options = ["--num-envs", str(num_envs), "--chunk-steps", str(chunk_steps)]
+    if smoke:
+        options += ["--hidden-actor", str(SMOKE["hidden"]), "--hidden-critic", str(SMOKE["hidden"])]
     timeout = 900
     t0 = time.perf_counter()
-    runs, ratios = paired_rounds(rounds, ("two_processes_one_device_each", lambda: one_run(2, steps, timeout)),
-                                 ("one_process_two_devices", lambda: one_run(1, steps, timeout)))
+    runs, ratios = paired_rounds(rounds, ("two_processes_one_device_each", lambda: one_run(2, steps, timeout, options)),
+                                 ("one_process_two_devices", lambda: one_run(1, steps, timeout, options)))
     out = {
         "benchmark": "nmrl train: 2 processes x 1 CPU device (jax.distributed, gloo) vs 1 process x 2 devices",
-        "quick": quick,
-        "config": {"num_envs": NUM_ENVS, "chunk_steps": CHUNK_STEPS, "steps": steps, "rounds": rounds,
+        "quick": quick, "smoke": smoke,
+        "config": {"num_envs": num_envs, "chunk_steps": chunk_steps, "steps": steps, "rounds": rounds,
+                   "options": options,
                    "preset": "paper", "statistic": "median over rounds of the per-round ratio of the runs' "
                    "median per-chunk control steps/s (first chunk left out)"},
         "runs": runs,

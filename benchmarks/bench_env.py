@@ -9,7 +9,7 @@ Run: ``python benchmarks/bench_env.py [--quick] [--out benchmarks/env.json]``
   ctrl uniform in [-T_i, T_i] (the magnitude of the paper's torques), nthread = 1 and os.cpu_count().
 * Devices: every MJX measurement runs in a subprocess, once with 1 host device and once with
   ``XLA_FLAGS=--xla_force_host_platform_device_count=2`` and the batch split over the 2 devices
-  (several ways of splitting it; see docs/model.md, "Throughput").
+  (several ways of splitting it; see docs/performance.md).
 """
 
 from __future__ import annotations

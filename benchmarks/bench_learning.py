@@ -12,7 +12,7 @@ train, ...) so that a background load hits both alike; the figures are medians. 
 
     python benchmarks/bench_learning.py [--quick]
 
-``run(quick) -> dict``; ``python -m benchmarks`` collects it.
+``run(quick, smoke=False) -> dict``; ``python -m benchmarks`` collects it.
 """
 
 from __future__ import annotations
@@ -34,6 +34,8 @@ import jax.numpy as jnp  # noqa: E402
 CHUNK_STEPS = 32
 FULL_BATCHES = (64, 256)
 QUICK_BATCHES = (64,)
+#: the smallest setting (``smoke``): one batch of 8, 4-step chunks, one round -- runs the paths, measures nothing
+SMOKE = {"batches": (8,), "chunk_steps": 4, "rounds": 1}
 
 
 def interleave(calls: dict[str, Callable[[], object]], rounds: int) -> dict[str, list[float]]:
@@ -134,13 +136,14 @@ def measure(batch: int, chunk_steps: int, rounds: int) -> dict:
     }
 
 
-def run(quick: bool = False) -> dict:
-    batches = QUICK_BATCHES if quick else FULL_BATCHES
-    rounds = 3 if quick else 9
+def run(quick: bool = False, smoke: bool = False) -> dict:
+    batches = SMOKE["batches"] if smoke else QUICK_BATCHES if quick else FULL_BATCHES
+    rounds = SMOKE["rounds"] if smoke else 3 if quick else 9
+    chunk_steps = SMOKE["chunk_steps"] if smoke else CHUNK_STEPS
     t0 = time.perf_counter()
     res = []
     for B in batches:
-        r = measure(B, CHUNK_STEPS, rounds)
+        r = measure(B, chunk_steps, rounds)
         res.append(r)
         print(f"learning B={B}: train {r['train']['control_steps_per_s']:,.0f} ctrl steps/s, env "
               f"{r['env']['control_steps_per_s']:,.0f}; overhead {100 * r['overhead']:.1f}% "
@@ -148,8 +151,8 @@ def run(quick: bool = False) -> dict:
               file=sys.stderr, flush=True)
     return {
         "benchmark": "training chunk vs environment-only scan, same batch and chunk length, interleaved",
-        "quick": quick,
-        "config": {"batches": list(batches), "chunk_steps": CHUNK_STEPS, "rounds": rounds,
+        "quick": quick, "smoke": smoke,
+        "config": {"batches": list(batches), "chunk_steps": chunk_steps, "rounds": rounds,
                    "network": {"actor": [31, 100, 6], "critic": [31, 200, 1]}, "l": 10, "delta": 4,
                    "statistic": "median over rounds of the per-round ratio env_time/train_time"},
         "results": res,

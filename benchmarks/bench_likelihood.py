@@ -14,7 +14,7 @@ all jitted, compile (first call) apart from steady state (median of repeats):
     python benchmarks/bench_likelihood.py            # full run, writes likelihood_ratio.{json,png}
     python benchmarks/bench_likelihood.py --quick    # a few seconds, prints only (unless --out)
 
-``run(quick)`` returns the results as a dict (for a ``python -m benchmarks`` harness).
+``run(quick, smoke=False)`` returns the results as a dict (for a ``python -m benchmarks`` harness).
 """
 
 from __future__ import annotations
@@ -43,6 +43,7 @@ from nmrl.paper.noise import lambda_inv_matvec, likelihood_ratio  # noqa: E402
 HERE = Path(__file__).resolve().parent
 FULL_L = (1, 2, 5, 10, 30, 100, 300, 1000)
 QUICK_L = (1, 10, 100)
+SMOKE_L = (1, 10)  # the smallest setting: the harness's paths, one or two calls each
 N_ACT, N_OBS, N_HID = 6, 31, 100
 ALPHA = 0.8
 KRON_MAX_L = 300
@@ -125,10 +126,10 @@ def machine() -> dict:
     }
 
 
-def run(quick: bool = False) -> dict:
+def run(quick: bool = False, smoke: bool = False) -> dict:
     """Time every contender for every l; returns {'machine', 'config', 'results'}."""
-    ls = QUICK_L if quick else FULL_L
-    min_time, max_reps = (0.02, 20) if quick else (0.25, 200)
+    ls = SMOKE_L if smoke else QUICK_L if quick else FULL_L
+    min_time, max_reps = (0.0, 2) if smoke else (0.02, 20) if quick else (0.25, 200)
     rng = np.random.default_rng(0)
     alpha = jnp.float32(ALPHA)
     sigma = jnp.ones((N_ACT,), jnp.float32)
@@ -163,7 +164,7 @@ def run(quick: bool = False) -> dict:
         "benchmark": "nm-period likelihood ratio: (Lambda^-1 (x) Sigma^-1) u, tridiagonal vs dense",
         "machine": machine(),
         "config": {"ls": list(ls), "n": N_ACT, "alpha": ALPHA, "actor": [N_OBS, N_HID, N_ACT],
-                   "quick": quick, "steady_state": "median wall time of repeated calls after the first",
+                   "quick": quick, "smoke": smoke, "steady_state": "median wall time of repeated calls after the first",
                    "compile": "wall time of the first call (trace + compile + one run)"},
         "results": results,
     }

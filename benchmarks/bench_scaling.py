@@ -12,14 +12,15 @@ In full mode a second worker without the flag (a plain 1-device process) times `
 check that forcing 2 host devices does not slow the 1-device program (not interleaved: a separate
 process, so only roughly comparable).
 
-Splitting a *single* run's environment batch over devices needs a psum of the summed update and is
-not implemented (README, "Many devices and hosts"), so only the points axis is measured.
+Only the points axis is measured here; a single run's environment batch split over devices (its
+summed update ``psum``-ed) is what bench_distributed.py times through ``nmrl train``.
 
-Every worker runs with a timeout: a 2-device shard_map run has hung before (docs/model.md section 6), and
-a hang is reported as ``{"error": "timeout ..."}`` with whatever the worker printed, instead of
-blocking the harness.
+Every worker runs with a timeout: a 2-device shard_map of the bare environment has been seen to
+hang at batch 4096 (docs/performance.md), and a hang is reported as ``{"error": "timeout ..."}``
+with whatever the worker printed, instead of blocking the harness.
 
-``run(quick) -> dict``; ``python benchmarks/bench_scaling.py [--quick]`` prints it.
+``run(quick, smoke=False) -> dict`` (``smoke``: 4 environments per point, 4-step chunks, one
+round); ``python benchmarks/bench_scaling.py [--quick]`` prints it.
 """
 
 from __future__ import annotations
@@ -38,9 +39,10 @@ POINTS = 2
 NUM_ENVS = 64  # per point; the same in quick and full mode (compile-cache reuse)
 CHUNK_STEPS = 32
 L = 10
+SMOKE = {"num_envs": 4, "chunk_steps": 4, "rounds": 1}
 
 
-def _worker(modes: list[str], rounds: int) -> dict:
+def _worker(modes: list[str], rounds: int, num_envs: int = NUM_ENVS, chunk_steps: int = CHUNK_STEPS) -> dict:
     import jax
     import jax.numpy as jnp
 
@@ -50,7 +52,7 @@ def _worker(modes: list[str], rounds: int) -> dict:
     from nmrl.runs.driver import compile_chunk
 
     devs = jax.local_devices()
-    configs = [TrainConfig(num_envs=NUM_ENVS, chunk_steps=CHUNK_STEPS, l=L, seed=s).resolved()
+    configs = [TrainConfig(num_envs=num_envs, chunk_steps=chunk_steps, l=L, seed=s).resolved()
                for s in range(POINTS)]
     trainer = make_train(configs[0])
     keys = jnp.stack([jax.random.PRNGKey(c.seed) for c in configs])
@@ -87,7 +89,7 @@ def _worker(modes: list[str], rounds: int) -> dict:
 
         calls[mode] = call
     times = interleave(calls, rounds)
-    work = POINTS * NUM_ENVS * CHUNK_STEPS
+    work = POINTS * num_envs * chunk_steps
     res = {"devices": len(devs), "modes": {}}
     for mode in modes:
         res["modes"][mode] = {**info[mode], **timing(times[mode], work)}
@@ -97,7 +99,8 @@ def _worker(modes: list[str], rounds: int) -> dict:
     return res
 
 
-def worker_subprocess(ndev: int, modes: list[str], rounds: int, timeout: float) -> dict:
+def worker_subprocess(ndev: int, modes: list[str], rounds: int, timeout: float, num_envs: int = NUM_ENVS,
+                      chunk_steps: int = CHUNK_STEPS) -> dict:
     env = dict(os.environ)
     env["JAX_PLATFORMS"] = "cpu"
     env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
@@ -107,7 +110,7 @@ def worker_subprocess(ndev: int, modes: list[str], rounds: int, timeout: float) 
     extra = " ".join(f for f in extra.split() if not f.startswith("--xla_force_host_platform_device_count"))
     env["XLA_FLAGS"] = f"{flags} {extra}".strip()
     cmd = [sys.executable, str(pathlib.Path(__file__).resolve()), "--worker", "--rounds", str(rounds),
-           "--modes", *modes]
+           "--num-envs", str(num_envs), "--chunk-steps", str(chunk_steps), "--modes", *modes]
     t0 = time.perf_counter()
     try:
         p = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=timeout)
@@ -128,21 +131,22 @@ def worker_subprocess(ndev: int, modes: list[str], rounds: int, timeout: float) 
     return res
 
 
-def run(quick: bool = False) -> dict:
-    rounds = 2 if quick else 7
+def run(quick: bool = False, smoke: bool = False) -> dict:
+    rounds = SMOKE["rounds"] if smoke else 2 if quick else 7
+    num_envs, chunk_steps = (SMOKE["num_envs"], SMOKE["chunk_steps"]) if smoke else (NUM_ENVS, CHUNK_STEPS)
     timeout = 150 if quick else 420
     t0 = time.perf_counter()
     out = {
         "benchmark": "training chunk (sweep points) on 1 vs 2 CPU devices via nmrl.runs.sharding shard_map",
-        "quick": quick,
-        "config": {"points": POINTS, "l": L, "num_envs_per_point": NUM_ENVS, "chunk_steps": CHUNK_STEPS,
+        "quick": quick, "smoke": smoke,
+        "config": {"points": POINTS, "l": L, "num_envs_per_point": num_envs, "chunk_steps": chunk_steps,
                    "rounds": rounds, "timeout_s": timeout, "split": "points (sweep axis)",
                    "statistic": "median over rounds of the per-round ratio t_1dev/t_2dev"},
-        "two_device_process": worker_subprocess(2, ["1dev", "2dev"], rounds, timeout),
+        "two_device_process": worker_subprocess(2, ["1dev", "2dev"], rounds, timeout, num_envs, chunk_steps),
         "one_device_process": None,
     }
     if not quick:
-        out["one_device_process"] = worker_subprocess(1, ["1dev"], rounds, timeout)
+        out["one_device_process"] = worker_subprocess(1, ["1dev"], rounds, timeout, num_envs, chunk_steps)
     two = out["two_device_process"]
     out["speedup_2dev_over_1dev"] = two.get("speedup_2dev_over_1dev")
     out["hung_or_failed"] = "error" in two
@@ -159,11 +163,14 @@ if __name__ == "__main__":
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--smoke", action="store_true")
     ap.add_argument("--worker", action="store_true")
     ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--num-envs", type=int, default=NUM_ENVS)
+    ap.add_argument("--chunk-steps", type=int, default=CHUNK_STEPS)
     ap.add_argument("--modes", nargs="+", default=["1dev", "2dev"])
     a = ap.parse_args()
     if a.worker:
-        print(json.dumps(_worker(a.modes, a.rounds)))
+        print(json.dumps(_worker(a.modes, a.rounds, a.num_envs, a.chunk_steps)))
     else:
-        print(json.dumps(run(a.quick), indent=1))
+        print(json.dumps(run(a.quick, a.smoke), indent=1))

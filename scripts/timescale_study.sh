@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Issue 9: does learning survive a finer time discretization? (nmrl/experiments/study.py)
+# Does learning survive a finer time discretization? (nmrl/experiments/study.py)
 # delta in {0.02, 0.01, 0.005} s x {stationary, nm-periods of 0.1, 0.2, 0.4 s}: a 3x3 step-size grid
 # per arm (1 seed, 40 simulated s), then 3 seeds per arm at the chosen step sizes (150 simulated s),
 # then the per-period gradient variance of fixed policies, then the figures.
