@@ -1,4 +1,4 @@
-"""A run directory cannot be silently mixed, overwritten or crashed (issue 19).
+"""A run directory cannot be silently mixed, overwritten or crashed.
 
 Every case runs the ``nmrl`` command in-process (``cli.main``) on a copy of one small real run
 (8 environments, 25-step chunks, 3 chunks: checkpoints 25, 50, 75) and compares the sha256 of every

@@ -170,9 +170,10 @@ OLD_RUN = REPO / "tests" / "data" / "schema1_sgd_run"
 
 
 def test_restore_checkpoint_without_optimizer_state(tmp_path):
-    """A checkpoint of the hand-written update (before issue 16; tests/data/schema1_sgd_run, made by
-    tests/data/make_schema1_sgd_checkpoint.py at a849a9d) has no optimizer state. It restores with
-    fresh optimizer states, and one chunk from its step 5 reproduces the old code's own step 10."""
+    """A checkpoint of the hand-written update (tests/data/schema1_sgd_run, made by
+    tests/data/make_schema1_sgd_checkpoint.py with the code of a849a9d) has no optimizer state. It
+    restores with fresh optimizer states, and one chunk from its step 5 reproduces that code's own
+    step 10."""
     run = _copy_run(OLD_RUN, tmp_path / "old")
     layout = checkpoint.load_metadata(run, 5)["state_layout"]
     assert not any(n.startswith("opt_") for n in layout)  # really the old layout

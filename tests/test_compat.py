@@ -29,7 +29,7 @@ from nmrl.runs import checkpoint, store
 DATA = pathlib.Path(__file__).resolve().parent / "data"
 #: metrics that depend on the machine's speed, not on the computation
 TIMING = {"wall_s", "steps_per_s"}
-#: metrics added after f021abf (issue 16: global norms of the summed pseudo-gradients and updates)
+#: metrics f021abf's code does not write (global norms of the summed pseudo-gradients and updates)
 ADDED = {f"{k}_{p}_{s}" for k in ("gnorm", "unorm") for p in ("theta", "v") for s in ("mean", "max")}
 
 

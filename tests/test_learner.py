@@ -18,7 +18,7 @@ replicated: init splits the key into (actor, critic, env, carry); each control s
 its own key) and the initial network parameters (flax ``networks.init_params`` with the actor/critic
 keys). The MLP a~(s) = W2 arctan(W1 s + b1) + b2 is re-implemented here.
 
-Since issue 16 the learner's update goes through optax (``optax.sgd`` on the negated
+The learner's update goes through optax (``optax.sgd`` on the negated
 pseudo-gradient, step sizes injected from Hyper). The references above keep the paper's
 hand-written rule theta += beta^theta sum_e d_e z_e; ``hand_written_update`` (section 9) recomputes
 that rule in float32 around every control step of a chunk and checks the optax update against it
@@ -449,7 +449,7 @@ def test_vmap_over_l_and_seed_matches_separate_runs():
 
 
 def hand_written_update(before, after, cfg: TrainConfig):
-    """The update of the code before issue 16, recomputed from the states around one control step:
+    """The paper's hand-written update, recomputed from the states around one control step:
     theta + beta^theta sum_e d_e z_e and v + beta^v sum_e d_e y_e (float32), with
     d_e = r_bar + gamma^l V(s_next; v) - V(s_start; v) for every environment whose period ended at
     that step (in-period index back to 0, not stopped) and d_e = 0 otherwise; z_e, y_e are the

@@ -1,4 +1,4 @@
-"""The optimizer vocabulary (issue 16, part 2): ``actor_opt`` / ``critic_opt`` chains of sgd, adam and
+"""The optimizer vocabulary: ``actor_opt`` / ``critic_opt`` chains of sgd, adam and
 clipping by global norm, checked against independent computations.
 
 * parsing: canonical forms; every bad spec is a ValueError naming the bad value and listing the

@@ -1,6 +1,6 @@
 """Writes tests/data/f021abf_train_run/ and tests/data/f021abf_sweep_run/: a tiny ``nmrl train`` run
-and a tiny ``nmrl sweep`` run directory written by the code of commit f021abf, the last commit
-before the package was layered (issue 15), and the metrics the same code writes when it runs them
+and a tiny ``nmrl sweep`` run directory written by the code of commit f021abf (the flat, unlayered
+package), and the metrics the same code writes when it runs them
 on without interruption (``expected_*.jsonl``).
 
 * ``f021abf_train_run``: ``nmrl train`` (2 environments, 4 hidden units, l = 2, Delta = 1, chunks of

@@ -1,5 +1,5 @@
-"""Writes tests/data/schema1_sgd_run/: a tiny run saved by the code BEFORE the update went
-through optax (commit a849a9d, issue 16): its TrainState has no optimizer state.
+"""Writes tests/data/schema1_sgd_run/: a tiny run saved by the code of commit a849a9d, whose update
+does not go through optax: its TrainState has no optimizer state.
 
 Two checkpoints of one uninterrupted run, at step 5 and step 10, and the compact continuation state
 (compact.npz) of step 5 (chunks of 5 control steps, 2
