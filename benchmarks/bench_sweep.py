@@ -1,4 +1,4 @@
-"""The paper's 24-point sweep with learning: the new layout vs one vmap on one device vs MuJoCo C.
+"""The paper's 24-point sweep with learning: the layout of nmrl sweep vs one vmap on one device vs MuJoCo C.
 
 In one run (a worker subprocess with ``XLA_FLAGS=--xla_force_host_platform_device_count=<cores>``,
 the contenders interleaved round by round: a, b, a, b, ...):
@@ -27,7 +27,7 @@ import time
 
 LS = (1, 2, 3, 5, 10, 15, 20, 30)
 SEEDS = 3
-NUM_ENVS = 32  # per point, the new layout (scripts/fig3_paper.sh)
+NUM_ENVS = 32  # per point, the layout of nmrl sweep (scripts/fig3_paper.sh)
 OLD_NUM_ENVS = 64  # per point, results/fig3_fast
 CHUNK_STEPS = {True: 10, False: 40}  # control steps per call, (a); (b) runs the same total work
 #: the smallest setting: l = 1, 10, one seed, 4 (a) / 8 (b) environments, 4-step calls, one round
@@ -120,7 +120,7 @@ def run(quick: bool = False, smoke: bool = False, timeout: float = 1800) -> dict
     a = w["new"]["control_steps_per_s"]
     hours = 24 * 1e5 * 250 / a / 3600
     res = {
-        "benchmark": "24-point sweep with learning, control steps/s of the whole machine: new layout vs "
+        "benchmark": "24-point sweep with learning, control steps/s of the whole machine: the layout of nmrl sweep vs "
                      "single vmap on one device vs MuJoCo C",
         "quick": quick, "smoke": smoke,
         "worker": w,

@@ -1,4 +1,4 @@
-"""The nm-period actor-critic's deterministic policies at a sample budget, for the PPO comparison (issue 18).
+"""The nm-period actor-critic's deterministic policies at a sample budget, for the PPO comparison.
 
     python scripts/ac_milestones.py --src runs/ac_1e6 --label 1e6                 # a sweep directory
     python scripts/ac_milestones.py --git-rev cc7020e --label 1e7                 # published compact states

@@ -1,10 +1,10 @@
 #!/usr/bin/env bash
-# The project's two long runs across sessions: the paper-scale Fig. 3 sweep (issue 14,
-# scripts/fig3_paper.sh) and the Brax PPO baseline (issue 18, scripts/baseline_ppo.sh).
+# The project's two long runs, resumable on any machine: the paper-scale Fig. 3 sweep
+# (scripts/fig3_paper.sh) and the Brax PPO baseline (scripts/baseline_ppo.sh).
 #
-#   scripts/background.sh start    # at the start of a session (also on a fresh clone)
+#   scripts/background.sh start    # start or resume both (also on a fresh clone)
 #   scripts/background.sh status   # their last lines, the sweep's last chunk times, what runs
-#   scripts/background.sh stop     # before the session ends: SIGTERM, wait for the saves, publish
+#   scripts/background.sh stop     # before the machine goes away: SIGTERM, wait for the saves, publish
 #
 # start: with 2 or more cores and Brax installed (pip install -e '.[brax]'), the sweep runs on
 #   core 0 and PPO on core 1 (CPUS=..., one XLA device each): the sweep's devices step in one
@@ -13,7 +13,7 @@
 #   (full checkpoints in runs/, else the compact states published under results/). A run already
 #   going is left alone. Logs: runs/fig3_paper.log, runs/baseline_ppo.log. Once PPO has finished
 #   every seed (2.5*10^7 control steps each), the sweep gets every core: at start when PPO is
-#   already done, and during a session by a hand-off that follows the PPO script when it ends
+#   already done, and while they run by a hand-off that follows the PPO script when it ends
 #   normally (SIGTERM the pinned sweep, wait for its save, resume it on every core).
 # stop: SIGTERM to both; the sweep saves every active point after its chunk, PPO after the
 #   iteration in flight (up to ~5 min on one core); then scripts/publish_fig3_paper.py and

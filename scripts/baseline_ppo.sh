@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The peer on the same robot (issue 18): Brax PPO on the paper's Half-Cheetah, 2.5*10^7 control
+# The peer on the same robot: Brax PPO on the paper's Half-Cheetah, 2.5*10^7 control
 # steps per seed (the samples of 10^5 trials), seeds 0 1 2 one after another, niced (the machine
 # is shared with the paper-scale Fig. 3 run). Needs the optional extra: pip install -e '.[brax]'.
 #

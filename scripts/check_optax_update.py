@@ -1,7 +1,7 @@
-"""Is the optax update (issue 16) bit-identical to the hand-written one it replaced?
+"""Is the optax update bit-identical to the paper's hand-written rule?
 
-Loads nmrl/paper/learner.py as of the commit before the change (``--old``, default a849a9d: theta +=
-beta^theta * sum_e d_e z_e written by hand) next to the current nmrl.paper.learner, runs both on the same
+Loads the learner of commit a849a9d (``--old``; its update theta += beta^theta * sum_e d_e z_e is
+written by hand) next to the current nmrl.paper.learner, runs both on the same
 configs and seeds, and compares theta, v and the per-environment state after every chunk, bit for
 bit. Prints one line per case and exits 1 if any case differs.
 
@@ -45,7 +45,7 @@ TinyEnv = _tiny_env()
 def load_old(commit: str):
     src = subprocess.run(["git", "show", f"{commit}:nmrl/learner.py"], cwd=ROOT, check=True,
                          capture_output=True, text=True).stdout
-    # that commit's nmrl was one flat folder; its modules live in nmrl/paper/ now (issue 15)
+    # that commit's nmrl is one flat folder; the modules it imports live in nmrl/paper/
     src = src.replace("from nmrl import networks, noise", "from nmrl.paper import networks, noise")
     src = src.replace("from nmrl.env import", "from nmrl.paper.env import")
     path = pathlib.Path(tempfile.mkdtemp()) / "learner_old.py"

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# The confirmation sweep of a fast preset (issue 16): the reduced Fig. 3 layout of
+# The confirmation sweep of a fast preset: the reduced Fig. 3 layout of
 # results/fig3_fast/ -- l in {1,2,3,5,10,15,20,30} x 3 seeds, 64 environments per point, 250-step
-# chunks -- to 5,000 trials per point, niced. PRESET picks the preset (default: the new fast one).
+# chunks -- to 5,000 trials per point, niced. PRESET picks the preset (default: fast_clip).
 #
 # Resumable: run it again; it continues from the checkpoints in $OUT (runs/ is not in git: on a
 # fresh clone it starts over, ~1 h of a quiet 2-core machine). Publish with:

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# Fig. 3 at the reduced scale this 2-core machine allows in one session: the paper's sweep
+# Fig. 3 at a reduced scale a 2-core machine runs in about an hour: the paper's sweep
 # (l in {1,2,3,5,10,15,20,30} x 3 seeds, 64 environments per point) with the "fast" step sizes,
-# stopped at 2500 trials per point. Wall time measured here: see README ("Reproducing Fig. 3").
+# stopped at 2500 trials per point. Wall time measured: docs/fig3.md (reduced scale).
 # Resumable: run it again to continue; raise TRIALS to go further.
 set -euo pipefail
 cd "$(dirname "$0")/.."

@@ -1,4 +1,4 @@
-"""Does a random initial period phase change the first 10^4 trials? (issue: Fig. 3 at the paper's budget)
+"""Does a random initial period phase change the first 10^4 trials of Fig. 3 at the paper's budget?
 
 In a fresh run every environment starts its first nm-period at step 0, so for the first few hundred
 control steps the periods of all N environments end at the same steps (t = l, 2l, ...) and the

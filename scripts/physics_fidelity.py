@@ -69,8 +69,8 @@ FLOOR_FACTOR = 10.0
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 #: a published Fig. 3 point (its compact continuation state; nmrl eval reads it): the paper-scale
-#: sweep's best l = 10 seed at 10^5 trials, whose gait is published; the README table (session 11) is
-#: measured on it. The first table used results/fig3_fast/policies/l10_best (git history up to 81c7f70).
+#: sweep's best l = 10 seed at 10^5 trials, whose gait is published; the table in docs/performance.md
+#: is measured on it.
 DEFAULT_RUN = ROOT / "results" / "fig3_paper" / "points" / "l10_s2"
 DEFAULT_OUT = ROOT / "results" / "physics_fidelity" / "fidelity.json"
 QUICK_OUT = ROOT / "results" / "physics_fidelity" / "fidelity_quick.json"

@@ -1,4 +1,4 @@
-"""Publish the PPO baseline against the nm-period actor-critic (issue 18) under results/baseline_ppo/.
+"""Publish the PPO baseline against the nm-period actor-critic under results/baseline_ppo/.
 
     .venv/bin/python scripts/publish_baseline_ppo.py [--src runs/baseline_ppo] [--dest results/baseline_ppo]
 

@@ -1,19 +1,19 @@
-"""Publish the fast-preset comparison (issue 16): ``results/fast_preset/``.
+"""Publish the fast-preset comparison: ``results/fast_preset/``.
 
 Reads per-point metrics (``metrics.jsonl``, one row per chunk) of
 
-* the old ``fast`` preset's reduced Fig. 3 sweep, ``results/fig3_fast/metrics/l<l>_s<seed>.jsonl``
+* the ``fast`` preset's reduced Fig. 3 sweep, ``results/fig3_fast/metrics/l<l>_s<seed>.jsonl``
   (8 l x 3 seeds, 64 environments per point, 250-step chunks, ~5,200 trials per point; sgd with
   beta^theta = 1e-5, beta^v = 5e-4), used as the baseline as it is (not re-run);
 * the candidate sweeps given with ``--run NAME=DIR`` (``DIR/points/l<l>_s<seed>/metrics.jsonl``,
-  e.g. the confirmation sweep of the new preset; a sweep still running is read as far as it got);
+  e.g. the confirmation sweep of ``fast_clip``; a sweep still running is read as far as it got);
 * the screening sweeps given with ``--screen NAME=DIR`` (a few points each).
 
 Writes ``results.csv`` (baseline and ``--run`` sweeps; columns l, seed, preset, trials, avg_reward,
 peak, collapsed, then diverged, first_below_half, chunks), ``screening.csv`` (the same for the
 screening sweeps), ``summary.json`` (per preset: points, collapsed, diverged; the mean learning
-curve over the points on a common trial grid and its mean up to the old preset's first collapse)
-and ``learning_curves.png`` (one panel per l: each seed's curve, old vs new).
+curve over the points on a common trial grid and its mean up to ``fast``'s first collapse)
+and ``learning_curves.png`` (one panel per l: each seed's curve, ``fast`` against the candidates).
 
 Definitions (per point; rows = chunks in order):
 
@@ -25,7 +25,7 @@ Definitions (per point; rows = chunks in order):
 * ``first_below_half``: the trials at which the 5-chunk running mean first fell below half of the
   running peak, once that peak exceeded 0.3 (empty if never).
 
-Usage (the full command of this session: results/fast_preset/README.md):
+Usage (the full command that wrote the published files: results/fast_preset/README.md):
     python scripts/publish_fast_preset.py --run fast_clip=runs/fast_preset/fast_clip \
         [--screen NAME=DIR ...] [--rename OLD=NEW ...]
 """

@@ -1,4 +1,4 @@
-"""Publish the paper-scale Fig. 3 sweep as it grows: results/fig3_paper/ (committed every session).
+"""Publish the paper-scale Fig. 3 sweep as it grows: results/fig3_paper/ (committed whenever it is published).
 
     .venv/bin/python scripts/publish_fig3_paper.py [--src runs/fig3_paper] [--dest results/fig3_paper]
 
@@ -41,8 +41,8 @@ from nmrl.experiments import sweep
 from nmrl.paper.learner import TrainConfig
 from nmrl.runs import store
 
-MILESTONES = (10_000, 20_000, 30_000, 50_000, 100_000)  # 2*10^4: the intermediate comparison issue 14 asks
-# for; 5*10^4: half the budget, where every l is compared a session or more before 10^5
+MILESTONES = (10_000, 20_000, 30_000, 50_000, 100_000)  # 2*10^4: an intermediate comparison; 5*10^4: half
+# the budget, where every l can be compared long before all reach 10^5
 
 
 def progress(src: pathlib.Path, spec: sweep.SweepSpec) -> dict:
@@ -104,7 +104,7 @@ def progress(src: pathlib.Path, spec: sweep.SweepSpec) -> dict:
 
 
 def answers(p: dict, spec: sweep.SweepSpec) -> dict:
-    """The plain answers of issue 14 at every milestone all the compared points have reached:
+    """The plain answers at every milestone all the compared points have reached:
     l = 10 against l = 1 (difference of the seed means with its 95% Welch interval, and the relative
     difference; paper: 4.59 vs 3.28, +40%), the best l (highest seed mean, among the l whose seeds
     all reached the milestone) and, for l = 30, divergences and collapses (a seed whose last

@@ -3,7 +3,7 @@
     python scripts/publish_timescale.py runs/timescale results/timescale
 
 Copies study.json, grid.csv, final.csv, gradvar.csv, timescale.png, grid.png and every point's
-metrics.jsonl (grid/ and final/, no checkpoints), then prints the README tables: reward per second
+metrics.jsonl (grid/ and final/, no checkpoints), then prints the tables of docs/timescale.md: reward per second
 (mean and 95% t-interval over seeds) per delta and arm, the change from 0.02 s, the chosen step
 sizes, and the gradient statistics.
 """
