@@ -317,7 +317,6 @@ def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None
     COUNT = float(cfg.batch_size * T)  # samples per minibatch (all shards)
     nets = nn_.make_networks(cfg.policy_layers, cfg.policy_width, cfg.value_layers, cfg.value_width, ACT,
                              cfg.learn_std)
-    K = cfg.spec().num_components
     adam = optax.scale_by_adam()
     tx = adam if cfg.max_grad_norm is None else optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), adam)
 
@@ -514,7 +513,6 @@ def policy(cfg: PPOConfig, env: Any) -> Policy:
     nets = nn_.make_networks(cfg.policy_layers, cfg.policy_width, cfg.value_layers, cfg.value_width, env.act_dim,
                              cfg.learn_std)
     proc = cfg.spec().process(cfg.control_dt)
-    K = cfg.spec().num_components
 
     def act(params, obs, xi):
         mu, std = nn_.mean_std(nets, params["policy"], nn_.normalize(params["obs_stats"], obs, cfg.normalize_obs),
@@ -532,7 +530,6 @@ def policy(cfg: PPOConfig, env: Any) -> Policy:
         xi, _, _, state = explore.sample(p, state, key)
         return state, xi[0]
 
-    assert proc.phi.shape == (K,)
     return Policy(act=act, noise_init=noise_init, noise_step=noise_step, noise_args=proc)
 
 
