@@ -1,8 +1,14 @@
 """Command line: ``nmrl train``, ``nmrl sweep``, ``nmrl eval``, ``nmrl study``, ``nmrl baseline``.
 
-Every field of :class:`nmrl.paper.learner.TrainConfig` is an option of ``train`` and ``sweep``
-(``--beta-theta 2e-6``, ``--num-envs 256``, ``--actor-opt clip:10,sgd``, ...). Bad values exit with status 2 and a message that
-names the value, before anything is written.
+``--learner NAME`` picks the learner (nmrl/learners/; default ``ac``, the paper's actor-critic;
+a resume takes the run's own). Every field of the learner's config is an option of ``train`` and
+``sweep`` (the actor-critic's :class:`nmrl.paper.learner.TrainConfig`: ``--beta-theta 2e-6``,
+``--num-envs 256``, ``--actor-opt clip:10,sgd``, ...; ``nmrl train --learner NAME --help`` lists
+them), and ``--exploration {white,nm-periods,ou,colored}`` with the process's parameters in seconds
+or Hz sets the learner's exploration noise (the actor-critic: ``white`` is l = 1, ``nm-periods``
+l = round(period_s / control_dt) and alpha = exp(-control_dt / corr_time_s); its default stays the
+paper's nm-periods, ``--l``/``--alpha``). Bad values exit with status 2 and a message that names the
+value, before anything is written.
 
 Exit status: 0 done, 2 bad input (one line ``nmrl: error: ...`` on stderr, nothing written),
 3 diverged (the last good checkpoint is kept), 4 another process of a distributed run failed
@@ -35,52 +41,113 @@ from nmrl.runs import launch as _launch
 
 # nmrl.paper.learner (and with it JAX) is imported only after nmrl.runs.devices.configure has set the host
 # device count (main()). The budget of a run given none is TrainConfig's (nmrl.paper.learner.DEFAULT_STEPS).
-_SWEEP_FIELDS = {"l", "seed"}  # given as lists to ``nmrl sweep``
+_SWEEP_SEED = "seed"  # ``nmrl sweep`` gives --seeds (a count) and the learner's sweep_field as a list
 _NOT_OPTIONS = {"grad_stats"}  # diagnostics set by nmrl.experiments.gradvar, not training options
 #: Longest ``nmrl eval --seconds`` (the GIF keeps every frame in memory: 25 per simulated second).
 MAX_EVAL_SECONDS = 600.0
 SEED_MAX = 2**32 - 1  # = nmrl.runs.driver.SEED_MAX (not imported here: nmrl.runs.driver imports JAX)
 
 
-def _field_type(f: dataclasses.Field) -> type:
-    from nmrl.paper.learner import TrainConfig
-
-    hints = typing.get_type_hints(TrainConfig)
+def _field_type(cls: type, f: dataclasses.Field) -> type:
+    hints = typing.get_type_hints(cls)
     t = hints[f.name]
     args = [a for a in typing.get_args(t) if a is not type(None)]
     return args[0] if args else t
 
 
-def add_config_options(p: argparse.ArgumentParser, skip: set[str] = frozenset()) -> None:
-    from nmrl.paper.learner import OPT_HELP, PRESETS, TrainConfig
+def _bool(text: str) -> bool:
+    if text.lower() in ("1", "true", "yes", "on"):
+        return True
+    if text.lower() in ("0", "false", "no", "off"):
+        return False
+    raise argparse.ArgumentTypeError(f"{text!r} is not a boolean (true or false)")
 
-    docs = {"preset": f"step-size and update-rule preset: {', '.join(sorted(PRESETS))}",
-            "actor_opt": f"actor update rule: {OPT_HELP} (default: the preset's)",
-            "critic_opt": "critic update rule, as --actor-opt (default: the preset's)"}
-    for f in dataclasses.fields(TrainConfig):
-        if f.name in skip or f.name in _NOT_OPTIONS:
+
+def _learner(name: str | None = None):
+    """The learner ``name`` (default: the actor-critic); ValueError naming it and the allowed ones."""
+    from nmrl import learners
+
+    return learners.get(name or learners.DEFAULT)
+
+
+def _options(learner, skip: set[str] = frozenset()) -> list[dataclasses.Field]:
+    return [f for f in dataclasses.fields(learner.config)
+            if f.name not in skip and f.name not in _NOT_OPTIONS and f.name not in learner.hidden]
+
+
+def add_config_options(p: argparse.ArgumentParser, skip: set[str] = frozenset(), learner=None) -> None:
+    """One option per field of the learner's config (nmrl/learners/contract.py), its help from the
+    learner's ``help`` and the field's default."""
+    learner = learner or _learner()
+    g = p.add_argument_group(f"options of the learner {learner.name!r} ({learner.doc})" if learner.doc
+                             else f"options of the learner {learner.name!r}")
+    for f in _options(learner, skip):
+        t = _field_type(learner.config, f)
+        t = _bool if t is bool else t
+        doc = learner.help.get(f.name, "")
+        if f.name in ("actor_opt", "critic_opt") and learner.name == "ac":
+            g.add_argument("--" + f.name.replace("_", "-"), dest=f.name, type=t, default=None, help=doc)
             continue
-        t = _field_type(f)
-        doc = docs.get(f.name, "")
-        if f.name in ("actor_opt", "critic_opt"):
-            p.add_argument("--" + f.name.replace("_", "-"), dest=f.name, type=t, default=None, help=doc)
-            continue
-        p.add_argument("--" + f.name.replace("_", "-"), dest=f.name, type=t, default=None,
-                       help=f"{doc} (default: {f.default})".strip())
+        default = f.default if f.default is not dataclasses.MISSING else "?"
+        g.add_argument("--" + f.name.replace("_", "-"), dest=f.name, type=t, default=None,
+                       help=f"{doc} (default: {default})".strip())
 
 
 def given_options(args: argparse.Namespace, skip: set[str] = frozenset()) -> dict:
-    """The TrainConfig fields given on the command line (name -> value)."""
-    from nmrl.paper.learner import TrainConfig
-
-    return {f.name: getattr(args, f.name) for f in dataclasses.fields(TrainConfig)
+    """The config fields of the command's learner given on the command line (name -> value)."""
+    learner = _learner(getattr(args, "learner", None))
+    return {f.name: getattr(args, f.name) for f in dataclasses.fields(learner.config)
             if f.name not in skip and getattr(args, f.name, None) is not None}
 
 
 def config_from_args(args: argparse.Namespace, skip: set[str] = frozenset()):
-    from nmrl.paper.learner import TrainConfig
+    """The learner's config from the options given, with the exploration process (``--exploration``
+    and its parameters in seconds/Hz) applied by the learner (:func:`_with_exploration`)."""
+    learner = _learner(getattr(args, "learner", None))
+    given = given_options(args, skip)
+    return _with_exploration(args, learner, learner.config(**given), set(given))
 
-    return TrainConfig(**given_options(args, skip))
+
+# ----------------------------------------------------------------------------- exploration processes
+
+def _exploration_params() -> dict[str, tuple[type, str]]:
+    """The parameters of the exploration processes (name -> (type, help)), from nmrl.explore's
+    ExplorationSpec (its ``cli_options``) but ``sigma`` (each learner's own ``--sigma``); the options
+    are ``--<name>`` (``--period-s``, ``--corr-time-s``, ...)."""
+    from nmrl import explore
+
+    return {o.field: (o.type, o.help) for o in explore.cli_options() if o.field not in ("kind", "sigma")}
+
+
+def add_exploration_options(p: argparse.ArgumentParser, learner) -> None:
+    from nmrl import explore
+
+    kinds = ", ".join(explore.KINDS)
+    g = p.add_argument_group("exploration process (nmrl.explore; times in seconds, frequencies in Hz)")
+    g.add_argument("--exploration", default=None, metavar="KIND",
+                   help=f"the exploration noise process: {kinds}; the learner {learner.name!r} takes "
+                        f"{', '.join(learner.explorations)}" +
+                        (" (default: the paper's nm-periods with --l and --alpha)" if learner.name == "ac" else ""))
+    for name, (t, doc) in _exploration_params().items():
+        g.add_argument("--" + name.replace("_", "-"), dest="x_" + name, type=t, default=None, metavar=name.upper(),
+                       help=doc)
+
+
+def _with_exploration(args: argparse.Namespace, learner, cfg, given: set[str]):
+    """``cfg`` with the process of ``--exploration`` and its parameters applied by the learner
+    (``Learner.exploration``); the config as it is when none is given. ValueError naming a bad
+    process, one the learner cannot use, or a parameter that contradicts another option."""
+    kind = getattr(args, "exploration", None)
+    params = {k[2:]: v for k, v in vars(args).items() if k.startswith("x_") and v is not None}
+    if kind is None and not params:
+        return cfg
+    from nmrl import explore
+
+    if kind is not None and kind not in explore.KINDS:
+        raise ValueError(f"--exploration={kind!r} is unknown: choose one of {', '.join(explore.KINDS)}")
+    if learner.exploration is None:
+        raise ValueError(f"the learner {learner.name!r} takes no --exploration (a process the learner cannot use)")
+    return learner.exploration(cfg, kind, params, frozenset(given))
 
 
 def _fail(msg: str) -> int:
@@ -172,7 +239,7 @@ def _peer_failure(args: argparse.Namespace, e: BaseException) -> int | None:
 def cmd_train(args: argparse.Namespace) -> int:
     from nmrl.runs import checkpoint, driver as run, store
 
-    def check() -> tuple[dict, "TrainConfig"]:
+    def check() -> tuple[dict, object]:
         given, cfg = given_options(args), config_from_args(args)
         run.check_config(cfg)
         if args.step is not None and args.step < 0:
@@ -240,12 +307,24 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from nmrl.experiments import sweep
     from nmrl.runs import checkpoint, driver
 
+    learner = _learner(args.learner)
+    field = learner.sweep_field
+
     def check() -> "sweep.SweepSpec":
-        base = config_from_args(args, skip=_SWEEP_FIELDS)
-        if args.l is None and not args.resume:
-            raise ValueError("--l is required (the period lengths, e.g. --l 1 2 3 5 10 15 20 30)")
-        spec = sweep.SweepSpec(ls=tuple(args.l or (1,)), seeds=args.seeds, base=base,
-                               first=tuple(args.first or ()))
+        if field is not None and getattr(args, "x_period_s", None) is not None:
+            raise ValueError(f"give the swept period lengths as --{field}, not --period-s")
+        base = config_from_args(args, skip=_sweep_skip(learner))
+        if args.vary is not None:
+            return _varied_spec(args, learner, base)
+        values = getattr(args, field, None) if field is not None else None
+        plain = learner.config(**given_options(args, skip=_sweep_skip(learner)))
+        if field is not None and values is not None and getattr(plain, field) != getattr(base, field):
+            raise ValueError(f"--exploration {args.exploration or ''} sets {field}={getattr(base, field)!r}, which "
+                             f"the sweep varies (--{field} {' '.join(map(str, values))}): give one of the two")
+        if field is not None and values is None and not args.resume:
+            raise ValueError(f"--{field} is required (the values of the sweep, e.g. --l 1 2 3 5 10 15 20 30)")
+        spec = sweep.SweepSpec(ls=tuple(values or (1,)) if field is not None else (None,), seeds=args.seeds,
+                               base=base, first=tuple(args.first or ()), field=field)
         spec.validate()
         if args.checkpoint_every < 1:
             raise ValueError(f"--checkpoint-every={args.checkpoint_every} is invalid: must be >= 1")
@@ -260,12 +339,12 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     try:
         sweep.run_sweep(spec, args.out, resume=args.resume, progress=not args.quiet,
                         checkpoint_every=args.checkpoint_every, group=args.group, devices=n_dev,
-                        given=given_options(args, skip=_SWEEP_FIELDS) if args.resume else None)
+                        given=given_options(args, skip=_sweep_skip(learner)) if args.resume else None)
     except (sweep.SweepError, driver.RunError, checkpoint.CheckpointError, ValueError) as e:
         return _fail(str(e))
     except driver.Stopped as e:
         print(f"nmrl: sweep stopped by signal {e.signum}; every active point was saved. Continue with: nmrl sweep "
-              f"--resume --l 1 --out {args.out}", file=sys.stderr)
+              f"--resume --out {args.out}", file=sys.stderr)
         return e.exit_status
     except Exception as e:  # noqa: BLE001 - several processes: a peer that is gone
         peer = _peer_failure(args, e)
@@ -275,13 +354,64 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _sweep_skip(learner) -> set[str]:
+    return {_SWEEP_SEED} | ({learner.sweep_field} if learner.sweep_field else set())
+
+
+def _learner_option(p: argparse.ArgumentParser, learner) -> None:
+    p.add_argument("--learner", default=learner.name, metavar="NAME",
+                   help=f"the learner (nmrl/learners/): {', '.join(_learner_names())} (default: ac, the paper's "
+                        f"actor-critic; with --resume: the run's own); its options are listed below")
+
+
+def _learner_names() -> list[str]:
+    from nmrl import learners
+
+    return learners.names()
+
+
+def _varied_spec(args: argparse.Namespace, learner, base):
+    """The spec of ``nmrl sweep --vary FIELD V1 V2 ...``: one point per value of the traced field and seed."""
+    from nmrl.experiments import sweep
+
+    name, *raw = args.vary
+    if name not in learner.hyper_fields:
+        raise ValueError(f"--vary {name} is invalid: the learner {learner.name!r} varies one of its traced "
+                         f"hyperparameters: {', '.join(learner.hyper_fields)}")
+    if not raw:
+        raise ValueError(f"--vary {name} needs values, e.g. --vary {name} V1 V2")
+    f = next(f for f in dataclasses.fields(learner.config) if f.name == name)
+    t = _field_type(learner.config, f)
+    try:
+        values = tuple(t(x) for x in raw)
+    except ValueError:
+        raise ValueError(f"--vary {name} {' '.join(raw)} is invalid: its values are {t.__name__} numbers") from None
+    if getattr(args, name, None) is not None:
+        raise ValueError(f"give {name} as --vary {name} or as --{name.replace('_', '-')}, not both")
+    sf = learner.sweep_field
+    if sf is not None and sf != name and getattr(args, sf, None) is not None:
+        one = getattr(args, sf)
+        if len(one) != 1:
+            raise ValueError(f"--{sf} takes one value when --vary {name} is the swept field, got {one}")
+        base = dataclasses.replace(base, **{sf: one[0]})
+    first = tuple(t(x) for x in (args.first or ()))
+    spec = sweep.SweepSpec(ls=values, seeds=args.seeds, base=base, first=first, field=name)
+    spec.validate()
+    return spec
+
+
+def build_parser(learner=None) -> argparse.ArgumentParser:
+    """The command line; ``train`` and ``sweep`` take the options of ``learner`` (default: ac)."""
+    learner = learner or _learner()
     ap = argparse.ArgumentParser(prog="nmrl", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
 
-    p = sub.add_parser("train", help="train one (l, seed) point (Table II)")
-    add_config_options(p)
+    p = sub.add_parser("train", help="train one run of a learner (default: the paper's actor-critic, Table II)")
+    _learner_option(p, learner)
+    add_config_options(p, learner=learner)
+    if learner.exploration is not None:
+        add_exploration_options(p, learner)
     p.add_argument("--out", required=True, help="run directory (config, metrics.jsonl, checkpoints)")
     p.add_argument("--resume", action="store_true",
                    help="continue the run in --out from its newest checkpoint with its own config "
@@ -294,14 +424,28 @@ def build_parser() -> argparse.ArgumentParser:
     add_distributed_options(p)
     p.set_defaults(func=cmd_train)
 
-    p = sub.add_parser("sweep", help="the sweep over l and seeds as one vmapped program (Fig. 3)")
-    add_config_options(p, skip=_SWEEP_FIELDS)
-    p.add_argument("--l", type=int, nargs="+", default=None,
-                   help="period lengths, e.g. 1 2 3 5 10 15 20 30 (with --resume: the saved ones)")
-    p.add_argument("--seeds", type=int, default=3, help="seeds per l (0..seeds-1)")
+    field = learner.sweep_field
+    p = sub.add_parser("sweep", help="points of a learner (the actor-critic: over l and seeds, Fig. 3) as one "
+                                     "compiled program")
+    _learner_option(p, learner)
+    add_config_options(p, skip=_sweep_skip(learner), learner=learner)
+    if learner.exploration is not None:
+        add_exploration_options(p, learner)
+    if field is not None:
+        t = _field_type(learner.config, next(f for f in dataclasses.fields(learner.config) if f.name == field))
+        p.add_argument("--" + field.replace("_", "-"), dest=field, type=t, nargs="+", default=None,
+                       help=f"the values of {field} (one point per value and seed), e.g. 1 2 3 5 10 15 20 30 "
+                            f"(with --resume: the saved ones)")
+    p.add_argument("--vary", nargs="+", default=None, metavar="FIELD_OR_VALUE",
+                   help=f"--vary FIELD V1 V2 ...: sweep one traced hyperparameter of the learner "
+                        f"({', '.join(learner.hyper_fields)}) instead" +
+                        (f" of --{field}" if field else " of the seeds alone"))
+    p.add_argument("--seeds", type=int, default=3, help="seeds per value (0..seeds-1)")
     p.add_argument("--checkpoint-every", type=int, default=1, help="checkpoint the points every K chunks")
-    p.add_argument("--first", type=int, nargs="+", default=None,
-                   help="l values whose points (all seeds) run to the budget before the others start")
+    p.add_argument("--first", type=_field_type(learner.config, next(f for f in dataclasses.fields(learner.config)
+                                                                    if f.name == field)) if field else int,
+                   nargs="+", default=None,
+                   help=f"{field or 'the'} values whose points (all seeds) run to the budget before the others start")
     p.add_argument("--group", type=int, default=1,
                    help="points vmapped together on one device (default 1: one after another)")
     p.add_argument("--devices", default=_devices.AUTO,
@@ -331,6 +475,36 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+def _flag(argv: list[str], name: str) -> str | None:
+    """The value of ``--name V`` or ``--name=V`` in ``argv`` (the last one), without parsing the rest."""
+    val = None
+    for i, a in enumerate(argv):
+        if a == name and i + 1 < len(argv):
+            val = argv[i + 1]
+        elif a.startswith(name + "="):
+            val = a[len(name) + 1:]
+    return val
+
+
+def learner_name(argv: list[str]) -> str | None:
+    """The learner a ``train``/``sweep`` command line names (``--learner``), else with ``--resume`` the
+    one its ``--out`` holds (config.json, sweep.json: no name is the actor-critic); None: the default."""
+    name = _flag(argv, "--learner")
+    if name is not None or "--resume" not in argv:
+        return name
+    out = _flag(argv, "--out")
+    if out is None:
+        return None
+    spec = os.path.join(out, "sweep.json" if argv[:1] == ["sweep"] else "config.json")
+    try:
+        with open(spec) as f:
+            saved = json.load(f)
+    except (OSError, ValueError):
+        return None
+    name = saved.get("learner") if isinstance(saved, dict) else None
+    return name if isinstance(name, str) else None
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv[:1] in (["train"], ["sweep"]):
@@ -350,11 +524,17 @@ def main(argv: list[str] | None = None) -> int:
         from nmrl.experiments import study
 
         return study.main(argv[1:])
+    learner = None
+    if argv[:1] in (["train"], ["sweep"]):
+        try:
+            learner = _learner(learner_name(argv))
+        except ValueError as e:
+            return _fail(str(e).replace("learner=", "--learner=", 1))
     if argv[:1] in (["train"], ["sweep"]) and os.environ.get(_launch.CHILD_ENV) != "1":
         watched = _watch(argv)
         if watched is not None:
             return watched
-    args = build_parser().parse_args(argv)
+    args = build_parser(learner).parse_args(argv)
     args.argv = argv
     status = args.func(args)
     if getattr(args, "coordinator", None) is not None and "jax" in sys.modules:

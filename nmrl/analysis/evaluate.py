@@ -1,11 +1,14 @@
 """Evaluate a saved policy: one trial of T seconds per policy, a JSON summary and pictures.
 
-``evaluate(run_dir)`` restores only (config, theta, v) of a checkpoint (:func:`nmrl.runs.checkpoint.restore_policy`),
-builds the Half-Cheetah with the run's control step (no random stopping, no automatic reset: a
-rollout is one trial of ``seconds``), and runs one jitted ``lax.scan`` rollout for
+``evaluate(run_dir)`` restores only the config and the policy parameters of a checkpoint
+(:func:`nmrl.runs.checkpoint.restore_params`; the actor-critic's theta, v), builds the Half-Cheetah
+with the run's control step (no random stopping, no automatic reset: a rollout is one trial of
+``seconds``), and runs one jitted ``lax.scan`` rollout of the run's learner's policy
+(nmrl/learners/contract.py, ``Policy``) for
 
-* ``deterministic``: a_t = a~(s_t; theta);
-* ``exploring``:     a_t = a~(s_t; theta) + xi_t, xi the run's nm-period AR noise (4) with its l, alpha, sigma.
+* ``deterministic``: a_t = act(params, s_t, 0) (the actor-critic: a~(s_t; theta));
+* ``exploring``:     a_t = act(params, s_t, xi_t), xi the learner's exploration noise (the actor-critic:
+  a~(s_t; theta) + xi_t, xi the run's nm-period AR noise (4) with its l, alpha, sigma).
 
 Both use the same compiled program (the noise is scaled by a traced 0 or 1). The result is a
 JSON-able dict (see :func:`evaluate`) written to ``RUN_DIR/eval/eval.json``; with ``render`` the
@@ -32,13 +35,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from nmrl import learners
 from nmrl.paper import geometry as g
-from nmrl.paper import networks, noise
-from nmrl.paper.env import ACT_DIM, REWARD_TERMS, EnvConfig, HalfCheetah, forward_kinematics
+from nmrl.paper.env import REWARD_TERMS, EnvConfig, HalfCheetah, forward_kinematics
 from nmrl.runs import checkpoint
 from nmrl.runs.store import atomic_path, atomic_write_text
 
-__all__ = ["evaluate", "rollout", "rollout_policy", "summarize", "plot_strobe", "write_gif", "GROUND_KEYS"]
+__all__ = ["evaluate", "rollout", "rollout_params", "rollout_policy", "summarize", "plot_strobe", "write_gif", "GROUND_KEYS"]
 
 #: ground_share key -> metric of nmrl.paper.env.
 GROUND_KEYS = {"heel": "heel_ground", "knee": "knee_ground", "head": "head_ground"}
@@ -60,41 +63,51 @@ def _env(control_dt: float) -> HalfCheetah:
 
 
 @functools.lru_cache(maxsize=8)
-def _rollout_fn(control_dt: float, hidden_actor: int, n_steps: int):
-    """A jitted (theta, key, noise_scale, alpha, l, sigma) -> (traj, pos0, x0) for one trial."""
-    env = _env(control_dt)
-    actor = networks.make_actor(hidden_actor, ACT_DIM)
+def _rollout_fn(program: Any, n_steps: int):
+    """A jitted (params, key, noise_scale, noise_args) -> (traj, pos0, x0) for one trial of the
+    learner's policy (nmrl/learners/contract.py, ``Policy``): ``a_t = act(params, s_t, noise_scale *
+    xi_t)``, xi the learner's exploration noise. ``program``: the config with its traced fields at
+    their defaults (:func:`nmrl.learners.program_key`), so every point of a sweep shares it."""
+    env = _env(float(program.control_dt))
+    pol = learners.of(program).policy(program, env)
 
-    def run(theta, key, noise_scale, alpha, l, sigma):
+    def run(params, key, noise_scale, noise_args):
         k_reset, k_eps = jax.random.split(key)
         s0 = env.reset(k_reset)
-        eps = jax.random.normal(k_eps, (n_steps, ACT_DIM), jnp.float32)
+        eps = jax.random.normal(k_eps, (n_steps, env.act_dim), jnp.float32)
 
         def step(carry, e):
-            s, ar = carry
-            mean = actor.apply(theta, s.obs)
-            ar, xi = noise.ar_step(ar, e, alpha, l, sigma)
-            s = env.step(s, mean + noise_scale * xi)
+            s, ns = carry
+            ns, xi = pol.noise_step(noise_args, ns, e)
+            s = env.step(s, pol.act(params, s.obs, noise_scale * xi))
             pos, _ = forward_kinematics(s.data.qpos)
             out = {"reward": s.reward, "pos": pos}
             for k in (*REWARD_TERMS, "forward_speed", "x", "nonfinite", *GROUND_KEYS.values()):
                 out[k] = s.metrics[k]
-            return (s, ar), out
+            return (s, ns), out
 
-        _, traj = jax.lax.scan(step, (s0, noise.ar_init(ACT_DIM)), eps)
+        _, traj = jax.lax.scan(step, (s0, pol.noise_init(env.act_dim)), eps)
         pos0, _ = forward_kinematics(s0.data.qpos)
         return traj, pos0, s0.metrics["x"]
 
     return jax.jit(run)
 
 
-def rollout(config, theta, *, seconds: float, seed: int, exploring: bool) -> dict[str, np.ndarray]:
-    """One trial of ``seconds`` with the run's config; numpy arrays per step (``pos``: (T+1, 10, 2))."""
+def rollout_params(config, params: dict, *, seconds: float, seed: int, exploring: bool) -> dict[str, np.ndarray]:
+    """One trial of ``seconds`` of a run's policy: ``params`` {field: tree} over its learner's
+    ``policy_fields`` (what :func:`nmrl.runs.checkpoint.restore_params` gives), the deterministic
+    policy or (``exploring``) the exploring one; numpy arrays per step (``pos``: (T+1, 10, 2))."""
     n_steps = _num_steps(seconds, config.control_dt)
-    fn = _rollout_fn(float(config.control_dt), int(config.hidden_actor), n_steps)
-    traj, pos0, x0 = fn(theta, jax.random.PRNGKey(seed), jnp.float32(1.0 if exploring else 0.0),
-                        jnp.float32(config.alpha), jnp.int32(config.l), jnp.float32(config.sigma))
+    fn = _rollout_fn(learners.program_key(config), n_steps)
+    noise_args = learners.of(config).policy(config, _env(float(config.control_dt))).noise_args
+    traj, pos0, x0 = fn(params, jax.random.PRNGKey(seed), jnp.float32(1.0 if exploring else 0.0), noise_args)
     return _host_traj(traj, pos0, x0, config.control_dt)
+
+
+def rollout(config, theta, *, seconds: float, seed: int, exploring: bool) -> dict[str, np.ndarray]:
+    """One trial of ``seconds`` of the actor-critic's policy a = a~(s; theta) (+ xi, the run's
+    nm-period AR noise (4), when ``exploring``): :func:`rollout_params` with ``{"theta": theta}``."""
+    return rollout_params(config, {"theta": theta}, seconds=seconds, seed=seed, exploring=exploring)
 
 
 @functools.lru_cache(maxsize=8)
@@ -213,7 +226,8 @@ def evaluate(
 ) -> dict:
     """Evaluate a checkpoint (newest good one if ``step`` is None); returns the JSON-able summary.
 
-    Keys: ``run_dir, step, trials, seconds, steps, seed, control_dt, l, alpha, sigma`` and, under
+    Keys: ``run_dir, step, trials, seconds, steps, seed, control_dt``, the learner's own description
+    (``Learner.describe``; the actor-critic: ``l, alpha, sigma``; other learners also ``learner``) and, under
     ``deterministic`` and ``exploring``: ``avg_reward`` (per control step), ``forward_speed`` (m/s,
     mean), ``distance`` (m the trunk moved), ``terms`` (each reward term (8)-(14), mean per step),
     ``ground_share`` {heel, knee, head} (share of steps with that joint on the ground),
@@ -226,13 +240,15 @@ def evaluate(
     """
     run = pathlib.Path(run_dir)
     _num_steps(seconds, 1.0)  # a bad ``seconds`` fails before anything is read
-    step, (meta, (config, theta, _v)), skipped = select_policy(run, step)
+    step, (meta, (config, *_)), skipped = select_policy(run, step)
+    params = meta.pop("params")
     warn = warn or (lambda m: print(f"warning: {m}", file=sys.stderr, flush=True))
     for e in skipped:
         warn(f"{e}; evaluating the newest good checkpoint, step {step}, instead")
     n_steps = _num_steps(seconds, config.control_dt)
-    det = rollout(config, theta, seconds=seconds, seed=seed, exploring=False)
-    exp = rollout(config, theta, seconds=seconds, seed=seed, exploring=True)
+    learner = learners.of(config)
+    det = rollout_params(config, params, seconds=seconds, seed=seed, exploring=False)
+    exp = rollout_params(config, params, seconds=seconds, seed=seed, exploring=True)
     out_dir = pathlib.Path(out_dir) if out_dir is not None else run / EVAL_DIR
     result: dict[str, Any] = {
         "run_dir": str(run),
@@ -242,9 +258,8 @@ def evaluate(
         "steps": n_steps,
         "seed": int(seed),
         "control_dt": float(config.control_dt),
-        "l": int(config.l),
-        "alpha": float(config.alpha),
-        "sigma": float(config.sigma),
+        **({} if learner.name == learners.DEFAULT else {learners.KEY: learner.name}),
+        **(learner.describe(config) if learner.describe is not None else {}),
         "deterministic": summarize(det),
         "exploring": summarize(exp),
     }
@@ -259,22 +274,27 @@ def evaluate(
 
 
 def select_policy(run: pathlib.Path, step: int | None = None):
-    """``(step, (meta, (config, theta, v)), skipped)`` of the checkpoint ``step`` of ``run``, or of its newest
-    good one (skipping corrupted ones: ``skipped``); refuses a checkpoint of another run.
+    """``(step, (meta, (config, *params)), skipped)`` of the checkpoint ``step`` of ``run``, or of its
+    newest good one (skipping corrupted ones: ``skipped``); refuses a checkpoint of another run.
+    ``params`` are the learner's ``policy_fields`` in order (the actor-critic: theta, v), also as the
+    dict ``meta["params"]``.
 
     A run without checkpoints but with a compact state (a published policy: ``compact.npz``) is
-    evaluated from that state (:func:`nmrl.runs.checkpoint.restore_compact_policy`)."""
+    evaluated from that state (:func:`nmrl.runs.checkpoint.restore_compact_params`)."""
     run_cfg = checkpoint.load_run_config(run)
     source = str(run / checkpoint.RUN_CONFIG)
     if checkpoint.uses_compact(run):
-        meta, config, theta, v = checkpoint.restore_compact_policy(run, step)
+        meta, config, params = checkpoint.restore_compact_params(run, step)
         checkpoint.check_identity(meta, run_cfg, source)
-        return meta["step"], (meta, (config, theta, v)), []
+        meta["params"] = params
+        return meta["step"], (meta, (config, *params.values())), []
 
     def load(s: int):
         meta = checkpoint.load_metadata(run, s)
         checkpoint.check_identity(meta, run_cfg, source)
-        return meta, checkpoint.restore_policy(run, s)
+        _, config, params = checkpoint.restore_params(run, s)
+        meta["params"] = params
+        return meta, (config, *params.values())
 
     return checkpoint.newest_good(run, load, step)
 

@@ -48,10 +48,13 @@ import numpy as np
 from nmrl.analysis import stats
 from nmrl.experiments import gradvar
 from nmrl.experiments.timescale import DELTA_0, at_control_step
-from nmrl.paper.learner import TrainConfig, make_train
+from nmrl import learners
 from nmrl.runs import checkpoint, driver, store
 from nmrl.runs.store import read_csv, read_metrics, write_csv
 
+#: the study's learner: the paper's actor-critic (its arms are period lengths l, its grid the step sizes)
+LEARNER = learners.get("ac")
+TrainConfig = LEARNER.config
 SPEC_FILE = "study.json"
 GRID_COLUMNS = ("dt", "arm", "period_s", "l", "delta", "beta_theta", "beta_v", "steps", "seconds",
                 "trials", "score", "avg_reward", "diverged", "chosen")
@@ -285,7 +288,7 @@ def _policies(out: pathlib.Path, spec: StudySpec) -> list[tuple[str, object, obj
     names say which seed, e.g. ``trained_p0.2s_s1``."""
     dt0 = max(spec.dts)
     cfg0 = spec.arm_config(dt0, None)
-    tr = make_train(dataclasses.replace(cfg0, num_envs=1, steps=1))
+    tr = LEARNER.make(dataclasses.replace(cfg0, num_envs=1, steps=1))
     init = tr.init(jax.random.PRNGKey(0))
     pols = [("initial", init.theta, init.v)]
     period_arms = [p for p in spec.periods if p is not None]
@@ -298,7 +301,7 @@ def _policies(out: pathlib.Path, spec: StudySpec) -> list[tuple[str, object, obj
         best = max(scores, key=lambda s: scores[s])
         d = _dt_dir(out, "final", dt0) / "points" / f"{arm_name(p)}_s{best}"
         cfg = checkpoint.load_config(d)
-        ts = checkpoint.restore(d, make_train(cfg))
+        ts = checkpoint.restore(d, learners.of(cfg).make(cfg))
         pols.append((f"trained_{arm_name(p)}_s{best}", ts.theta, ts.v))
     return pols
 

@@ -1,8 +1,11 @@
 """The sweep over the period length l (and seeds) as one program: the paper's Fig. 3 (Sec. V-D).
 
 Every (l, seed) point is one training state; the states are stacked and one jitted program runs
-the learner's chunk on all of them. l lives in the traced ``Hyper`` pytree (nmrl/paper/learner.py): the
-in-period index is a counter compared with l, so no padding is needed and no point recompiles.
+the learner's chunk on all of them. l lives in the actor-critic's traced ``Hyper`` pytree
+(nmrl/paper/learner.py): the in-period index is a counter compared with l, so no padding is needed
+and no point recompiles. Any learner (nmrl/learners/contract.py) sweeps the same way over one of
+its traced hyperparameters (``SweepSpec.field``, e.g. ``l``; None: over seeds only), its points
+named ``{field}{value}_s{seed}`` (``s{seed}``).
 
 The points run through the one driver (nmrl.runs.driver.run_points) in the layout of
 nmrl/runs/points.py, chosen by measurement in benchmarks/bench_sweep.py: the points split over the
@@ -13,7 +16,7 @@ tests/test_sweep.py).
 
 Layout of ``OUT``::
 
-    sweep.json                       the sweep's spec (l values, seeds, base config)
+    sweep.json                       the sweep's spec (learner, field, its values, seeds, base config)
     points/l{l}_s{seed}/             a complete run directory per point (config.json,
                                      metrics.jsonl, checkpoints/, compact.npz): ``nmrl eval``
                                      and ``nmrl train --resume`` work on it
@@ -40,8 +43,8 @@ import pathlib
 import time
 from typing import Sequence
 
+from nmrl import learners
 from nmrl.analysis import plots, stats
-from nmrl.paper.learner import TrainConfig
 from nmrl.runs import distributed as dist, driver, store
 from nmrl.runs.driver import Stopped  # noqa: F401  (raised by run_sweep after a signal)
 from nmrl.runs.points import slot_order, stack_trees  # noqa: F401  (the sweep's layout, nmrl/runs/points.py)
@@ -57,31 +60,48 @@ class SweepError(Exception):
     """The sweep cannot start or resume (message says why)."""
 
 
+def _default_base():
+    return learners.get(learners.DEFAULT).config()
+
+
 @dataclasses.dataclass(frozen=True)
 class SweepSpec:
-    ls: tuple[int, ...]
+    #: the values of ``field`` (for the actor-critic's Fig. 3: the period lengths l)
+    ls: tuple
     seeds: int
-    base: TrainConfig = TrainConfig()
-    #: l values whose points (every seed) run to the budget before the other points start
-    first: tuple[int, ...] = ()
+    base: object = dataclasses.field(default_factory=_default_base)
+    #: values whose points (every seed) run to the budget before the other points start
+    first: tuple = ()
+    #: the traced hyperparameter the sweep varies (one of the learner's ``hyper_fields``); None:
+    #: the points differ in the seed only (``ls`` must then be ``(None,)``)
+    field: str | None = "l"
 
     def validate(self) -> None:
+        learner = learners.of(self.base)
+        f = self.field
+        if f is None:
+            if tuple(self.ls) != (None,):
+                raise ValueError(f"a sweep over seeds only has no values, got {list(self.ls)}")
+        elif f not in learner.hyper_fields:
+            raise ValueError(f"field={f!r} is invalid: a sweep of the learner {learner.name!r} varies one of its "
+                             f"traced hyperparameters: {', '.join(learner.hyper_fields)}")
         if len(self.ls) == 0:
-            raise ValueError("the list of l values is empty: give at least one, e.g. --l 1 10")
-        for l in self.ls:
-            if not isinstance(l, int) or isinstance(l, bool) or l < 1:
-                raise ValueError(f"l={l!r} is invalid: every l must be an integer >= 1")
+            raise ValueError(f"the list of {f} values is empty: give at least one, e.g. --{f} 1 10")
+        if f == "l":
+            for l in self.ls:
+                if not isinstance(l, int) or isinstance(l, bool) or l < 1:
+                    raise ValueError(f"l={l!r} is invalid: every l must be an integer >= 1")
         dup = sorted({l for l in self.ls if self.ls.count(l) > 1})
         if dup:
-            raise ValueError(f"duplicate l values {dup}: each l may appear once")
+            raise ValueError(f"duplicate {f} values {dup}: each value may appear once")
         if not isinstance(self.seeds, int) or isinstance(self.seeds, bool) or self.seeds < 1:
             raise ValueError(f"seeds={self.seeds!r} is invalid: must be an integer >= 1")
         bad = [l for l in self.first if l not in self.ls]
         if bad or len(set(self.first)) != len(self.first):
-            raise ValueError(f"first={list(self.first)} is invalid: the l values that run first must be "
-                             f"distinct values of the sweep's l list {list(self.ls)}")
+            raise ValueError(f"first={list(self.first)} is invalid: the {f} values that run first must be "
+                             f"distinct values of the sweep's {f} list {list(self.ls)}")
         for cfg in self.point_configs():
-            cfg.validate()
+            learner.validate(cfg)
 
     def stages(self) -> list[list[int]] | None:
         """Point indices by stage: the points of ``first`` (every seed), then the rest."""
@@ -93,28 +113,40 @@ class SweepSpec:
     def points(self) -> list[tuple[int, int]]:
         return [(l, s) for l in self.ls for s in range(self.seeds)]
 
-    def point_configs(self) -> list[TrainConfig]:
-        return [dataclasses.replace(self.base, l=l, seed=s) for l, s in self.points()]
+    def point_configs(self) -> list:
+        if self.field is None:
+            return [dataclasses.replace(self.base, seed=s) for _, s in self.points()]
+        return [dataclasses.replace(self.base, **{self.field: v}, seed=s) for v, s in self.points()]
+
+    def columns(self) -> tuple[str, ...]:
+        """The columns of results.csv: the swept field's (none over seeds only), then the rest."""
+        return (() if self.field is None else (self.field,)) + RESULT_COLUMNS[1:]
 
 
-def point_dir(out: pathlib.Path, l: int, seed: int) -> pathlib.Path:
-    return out / "points" / f"l{l}_s{seed}"
+def point_name(value, seed: int, field: str | None = "l") -> str:
+    return f"s{seed}" if field is None else f"{field}{value:g}_s{seed}" if isinstance(value, float) \
+        else f"{field}{value}_s{seed}"
+
+
+def point_dir(out: pathlib.Path, l, seed: int, field: str | None = "l") -> pathlib.Path:
+    return out / "points" / point_name(l, seed, field)
 
 
 def write_results(out: pathlib.Path, spec: SweepSpec) -> list[dict]:
     """(Re)write results.csv atomically from the points' metrics; returns the rows."""
     rows = []
     for (l, s) in spec.points():
-        d = point_dir(out, l, s)
+        d = point_dir(out, l, s, spec.field)
         m = store.read_metrics(d)
         last = m[-1] if m else {}
         rows.append({
-            "l": l, "seed": s, "trials": last.get("trials", 0), "steps": last.get("step", 0),
+            **({} if spec.field is None else {spec.field: l}),
+            "seed": s, "trials": last.get("trials", 0), "steps": last.get("step", 0),
             "avg_reward": stats.final_avg(m, "avg_reward"), "forward_speed": stats.final_avg(m, "forward_speed"),
             "diverged": bool(any(r["diverged"] for r in m)),
             "checkpoint": os.path.relpath(d, out) if driver.existing_step(d) is not None else "",
         })
-    store.write_csv(out / RESULTS_FILE, RESULT_COLUMNS, rows)
+    store.write_csv(out / RESULTS_FILE, spec.columns(), rows)
     return rows
 
 
@@ -129,14 +161,23 @@ def learning_curves(out: pathlib.Path, results: list[dict]) -> dict[int, list[li
 
 
 def draw(out: pathlib.Path, results: list[dict], path: str | os.PathLike | None = None) -> pathlib.Path:
-    """fig3.png (or ``path``) from the results rows and the points' learning curves."""
+    """fig3.png (or ``path``) from the results rows (of a sweep over l) and the points' learning curves."""
     return plots.fig3(results, learning_curves(out, results), pathlib.Path(path) if path else out / "fig3.png")
 
 
 def _write_spec(out: pathlib.Path, spec: SweepSpec) -> None:
     out.mkdir(parents=True, exist_ok=True)
     store.atomic_write_json(out / SPEC_FILE, {"ls": list(spec.ls), "seeds": spec.seeds, "first": list(spec.first),
-                                              "base": dataclasses.asdict(spec.base)})
+                                              "base": dataclasses.asdict(spec.base),
+                                              learners.KEY: learners.of(spec.base).name, "field": spec.field})
+
+
+def load_spec(out: str | os.PathLike) -> SweepSpec:
+    """The spec a sweep directory's sweep.json holds (no learner named: the actor-critic's, over l)."""
+    saved = json.loads((pathlib.Path(out) / SPEC_FILE).read_text())
+    base = learners.config_from_dict(saved["base"], saved.get(learners.KEY))
+    return SweepSpec(ls=tuple(saved["ls"]), seeds=saved["seeds"], base=base, first=tuple(saved.get("first", ())),
+                     field=saved.get("field", "l"))
 
 
 def run_sweep(spec: SweepSpec, out: str | os.PathLike, *, resume: bool = False, progress: bool = True,
@@ -158,8 +199,11 @@ def run_sweep(spec: SweepSpec, out: str | os.PathLike, *, resume: bool = False, 
     if resume:
         if not (out / SPEC_FILE).exists():
             raise SweepError(f"--resume: {out / SPEC_FILE} not found; is {out} a sweep directory?")
-        saved = json.loads((out / SPEC_FILE).read_text())
-        base = TrainConfig(**saved["base"])
+        saved = load_spec(out)
+        base = saved.base
+        if type(spec.base) is not type(base) and given is not None:
+            raise SweepError(f"--resume continues the sweep in {out} with its own learner {learners.of(base).name!r}; "
+                             f"--learner {learners.of(spec.base).name} would change it")
         if given:
             try:
                 driver._given_changes(base, given, out)
@@ -167,13 +211,12 @@ def run_sweep(spec: SweepSpec, out: str | os.PathLike, *, resume: bool = False, 
                 raise SweepError(str(e).replace("the run in", "the sweep in")) from e
         if spec.base.steps is not None or spec.base.trials is not None:  # the budget may be extended
             base = dataclasses.replace(base, steps=spec.base.steps, trials=spec.base.trials)
-        spec = SweepSpec(ls=tuple(saved["ls"]), seeds=saved["seeds"], base=base,
-                         first=tuple(saved.get("first", ())))
+        spec = dataclasses.replace(saved, base=base)
         spec.validate()
     elif (out / SPEC_FILE).exists():
         raise SweepError(f"{out} already holds a sweep; continue it with --resume or choose another --out")
     base = spec.base.resolved()
-    new_spec = not resume or base != TrainConfig(**saved["base"])
+    new_spec = not resume or base != saved.base
     spec = dataclasses.replace(spec, base=base)
     last_plot = [0.0]
     writer = dist.is_writer()  # several processes (nmrl/runs/distributed.py): only process 0 writes
@@ -182,11 +225,11 @@ def run_sweep(spec: SweepSpec, out: str | os.PathLike, *, resume: bool = False, 
         if not writer:
             return
         results = write_results(out, spec)
-        if plot and time.time() - last_plot[0] >= PLOT_EVERY_S:
+        if plot and spec.field == "l" and time.time() - last_plot[0] >= PLOT_EVERY_S:
             draw(out, results)
             last_plot[0] = time.time()
 
-    names = [point_dir(out, l, s).name for l, s in spec.points()]
+    names = [point_name(l, s, spec.field) for l, s in spec.points()]
     begun: list[bool] = []
 
     def before_start() -> None:  # every check passed: the sweep's own files
@@ -202,7 +245,7 @@ def run_sweep(spec: SweepSpec, out: str | os.PathLike, *, resume: bool = False, 
     finally:
         if begun and writer:
             results = write_results(out, spec)
-            if plot and (out / "points").is_dir():
+            if plot and spec.field == "l" and (out / "points").is_dir():
                 draw(out, results)
     return results
 
@@ -213,4 +256,4 @@ def load_results(out: str | os.PathLike) -> list[dict]:
 
 
 __all__: Sequence[str] = ("SweepSpec", "SweepError", "Stopped", "run_sweep", "load_results", "point_dir",
-                          "write_results", "draw")
+                          "point_name", "load_spec", "write_results", "draw")

@@ -18,10 +18,12 @@ period to be accumulated over (Table II, step 1): the actor-critic refuses it.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import jax.numpy as jnp
 
+from nmrl import explore
 from nmrl.learners.contract import Learner, Policy, register
 from nmrl.paper import networks, noise
 from nmrl.paper.learner import OPT_FIELDS, OPT_HELP, PRESETS, Hyper, TrainConfig, make_train
@@ -42,8 +44,10 @@ def check(cfg: TrainConfig) -> None:
 
 def exploration_fields(kind: str, control_dt: float, period_s: float | None = None,
                        corr_time_s: float | None = None) -> dict:
-    """The TrainConfig fields (l, alpha) of an exploration process given in seconds; ValueError for a
-    process the actor-critic cannot use or a time shorter than the control step."""
+    """The TrainConfig fields (l, alpha) of an exploration process given in seconds (only those whose
+    parameter is given: l = round(period_s / control_dt), alpha = exp(-control_dt / corr_time_s);
+    ``white``: l = 1), validated by nmrl.explore's ExplorationSpec; ValueError for a process the
+    actor-critic cannot use or a bad time (e.g. a period shorter than the control step)."""
     if kind not in EXPLORATIONS:
         raise ValueError(f"exploration={kind!r} is a process the learner 'ac' cannot use: its likelihood ratio "
                          f"is accumulated over nm-periods (Table II); allowed: {', '.join(EXPLORATIONS)}")
@@ -51,17 +55,34 @@ def exploration_fields(kind: str, control_dt: float, period_s: float | None = No
         if period_s is not None or corr_time_s is not None:
             raise ValueError("exploration='white' takes no --period-s or --corr-time-s")
         return {"l": 1}
+    explore.ExplorationSpec(kind=kind, period_s=period_s, corr_time_s=corr_time_s).validate(control_dt)
     out: dict = {}
     if period_s is not None:
-        if not (math.isfinite(period_s) and period_s >= control_dt):
-            raise ValueError(f"period_s={period_s!r} is invalid: must be a finite time >= the control step "
-                             f"{control_dt:g} s")
-        out["l"] = max(1, round(period_s / control_dt))
+        out["l"] = explore.period_steps(period_s, control_dt)
     if corr_time_s is not None:
-        if not (math.isfinite(corr_time_s) and corr_time_s > 0):
-            raise ValueError(f"corr_time_s={corr_time_s!r} is invalid: must be a finite time > 0 s")
-        out["alpha"] = math.exp(-control_dt / corr_time_s)
+        out["alpha"] = explore.alpha_from_corr_time(corr_time_s, control_dt)
     return out
+
+
+def exploration(cfg: TrainConfig, kind: str | None, params: dict, given: frozenset = frozenset()) -> TrainConfig:
+    """``cfg`` with the process ``kind`` (None: nm-periods, the paper's) and its parameters in seconds
+    (:func:`exploration_fields`) set as l and alpha; ValueError for a process the actor-critic cannot
+    use, a parameter it does not have, or one given twice (``--l`` and ``--period-s``, ``--alpha`` and
+    ``--corr-time-s``; ``--exploration white`` and an ``--l`` other than 1)."""
+    kind = kind or "nm-periods"
+    if kind not in EXPLORATIONS:
+        exploration_fields(kind, cfg.control_dt)  # raises: a process the learner cannot use
+    extra = sorted(k for k in params if k not in ("period_s", "corr_time_s"))
+    if extra:
+        raise ValueError(f"--{extra[0].replace('_', '-')}={params[extra[0]]!r} is not a parameter of "
+                         f"--exploration {kind} for the learner 'ac' (it takes --period-s and --corr-time-s)")
+    for field, param in (("l", "period_s"), ("alpha", "corr_time_s")):
+        if field in given and param in params:
+            raise ValueError(f"give either --{field} or --{param.replace('_', '-')}, not both (--{field} "
+                             f"{getattr(cfg, field)!r}, --{param.replace('_', '-')} {params[param]!r})")
+    if kind == "white" and "l" in given and cfg.l != 1:
+        raise ValueError(f"--exploration white is l = 1, but --l {cfg.l!r} is given")
+    return dataclasses.replace(cfg, **exploration_fields(kind, cfg.control_dt, **params))
 
 
 def policy(cfg: TrainConfig, env) -> Policy:
@@ -101,4 +122,7 @@ LEARNER = register(Learner(
     fill=_fill,
     check=check,
     describe=lambda c: {"l": int(c.l), "alpha": float(c.alpha), "sigma": float(c.sigma)},
+    explorations=EXPLORATIONS,
+    sweep_field="l",
+    exploration=exploration,
 ))

@@ -52,10 +52,14 @@ nothing else; the shape is Stoix's ``LearnerFn: state -> (state, metrics)`` and 
   ``act(params, obs, xi) -> action`` with ``params = {field: state.field for field in
   policy_fields}``: the action the learner sends to ``env.step`` (after its observation
   normalisation, squashing or clipping) for the exploration noise ``xi`` (zeros: the deterministic
-  policy), and the noise process of the exploring policy (:class:`Policy`).
+  policy), and the noise process of the exploring policy (:class:`Policy`). ``act``, ``noise_init``
+  and ``noise_step`` may depend only on config fields outside ``hyper_fields`` (evaluation compiles
+  one rollout per :func:`program_key`); ``noise_args`` on any.
 * ``restorable`` / ``fill``: top-level state fields a checkpoint written by an earlier version of the
   learner may lack, and ``fill(trainer, state) -> state`` that sets them (exactly what the older
   run would have had); ``check(config)``: checks made before ``config.validate()`` (default: none).
+* ``explorations`` / ``exploration``: the exploration processes of nmrl.explore the learner takes
+  and how ``--exploration KIND`` with its parameters in seconds/Hz sets its config (see the fields).
 
 A new learner provides these and registers itself at import: ``register(Learner(name="x", ...))``
 in its module, and its module path in :data:`BUILTIN` (or the caller imports it before use; a
@@ -130,6 +134,17 @@ class Learner:
     check: Callable[[Any], None] | None = None
     #: a few config fields that describe a run in one line (eval.json, progress); default: none
     describe: Callable[[Any], dict] | None = None
+    #: the exploration processes (nmrl.explore kinds) the learner can use, and
+    #: ``exploration(config, kind, params, given) -> config``: the config with the process ``kind``
+    #: (None: the learner's default process) and its parameters ``params`` (seconds/Hz, e.g.
+    #: ``{"period_s": 0.2}``) applied; ``given`` names the config fields the user set (a parameter that
+    #: contradicts one of them is refused). ValueError naming the value and what is allowed, also for a
+    #: process the learner cannot use. None: the learner takes no exploration options.
+    explorations: tuple[str, ...] = ()
+    #: the traced config field ``nmrl sweep`` varies by default (given as a list: ``--l 1 2 10``); None:
+    #: a sweep of this learner runs its seeds only
+    sweep_field: str | None = None
+    exploration: Callable[[Any, str | None, dict, frozenset], Any] | None = None
 
     def validate(self, config: Any) -> None:
         """``config.validate()`` and the learner's own checks (ValueError naming the value)."""

@@ -3,11 +3,12 @@
 A run directory (one ``nmrl train`` run, or one point of a sweep or study)::
 
     RUN_DIR/
-        config.json      the config the run was created with; a resume may change only its budget
+        config.json      the config the run was created with ({"learner": name, **fields}; no name: the
+                         actor-critic); a resume may change only its budget
         metrics.jsonl    one JSON object per chunk (append-only; a resume drops rows after its step)
         resumes.jsonl    one JSON object per resume: from which step/checkpoint, the budgets
         checkpoints/     orbax step directories (nmrl/runs/checkpoint.py)
-        compact.npz      the compact continuation state (nmrl/runs/checkpoint.py)
+        compact.npz      the compact continuation state (nmrl/runs/compact.py)
 
 Every file that is replaced (config.json, CSV tables, figures, compact states, JSON summaries) is
 written through :func:`atomic_path`: into a temporary file beside it, flushed to disk, then
