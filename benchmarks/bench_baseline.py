@@ -86,7 +86,7 @@ def ac_run(chunks: int, timeout: float, envs: int = AC_ENVS, chunk: int = AC_CHU
 
 
 def run(quick: bool = False, smoke: bool = False) -> dict:
-    from nmrl.paper import brax_env
+    from nmrl.adapters import brax_env
 
     if not brax_env.HAVE_BRAX:
         return {"benchmark": "baseline", "skipped": "Brax is not installed (pip install -e '.[brax]')"}

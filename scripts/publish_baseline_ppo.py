@@ -26,6 +26,9 @@ wall times of benchmarks/results.json's ``baseline`` section. Writes, atomically
   eval.json, strobe.png, gait.gif) and ``gaits.png``, its strobe above those of the
   actor-critic's best l = 1 and l = 10 seeds at 10^5 trials (results/fig3_paper/gaits/, written by
   scripts/publish_fig3_paper.py) where they exist.
+
+The numbers (which rows, which seeds, the intervals, the table) are nmrl/analysis/publish_ppo.py's;
+this script copies, draws and writes.
 """
 
 from __future__ import annotations
@@ -37,63 +40,10 @@ import pathlib
 import numpy as np
 
 from nmrl.analysis import stats
+from nmrl.analysis.publish_ppo import AC_LS, BUDGETS, ac_curves, ppo_runs, summary, table  # noqa: F401
 from nmrl.runs import store
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-BUDGETS = {"1e6": 1e6, "1e7": 1e7, "2.5e7": 2.5e7}
-AC_LS = (1, 10)
-
-
-def ppo_runs(src: pathlib.Path) -> dict[int, list[dict]]:
-    runs = {}
-    for d in sorted(src.glob("ppo_s*")):
-        rows = store.read_metrics(d)
-        if rows:
-            runs[int(d.name[len("ppo_s"):])] = rows
-    return runs
-
-
-def ac_curves(points: pathlib.Path) -> dict[int, dict[int, tuple[np.ndarray, np.ndarray]]]:
-    out: dict = {}
-    for l in AC_LS:
-        for d in sorted(points.glob(f"l{l}_s*")):
-            cfg = json.loads((d / store.CONFIG_FILE).read_text())
-            rows = store.read_metrics(d)
-            x = np.array([r["step"] * cfg["num_envs"] for r in rows], float)
-            y = np.array([r["avg_reward"] for r in rows], float)
-            out.setdefault(l, {})[int(d.name.rsplit("_s", 1)[1])] = (x, y)
-    return out
-
-
-def _nearest(rows: list[dict], budget: float) -> dict | None:
-    rows = [r for r in rows if r["step"] > 0]
-    if not rows or rows[-1]["step"] < 0.98 * budget:
-        return None  # not reached yet
-    return min(rows, key=lambda r: abs(r["step"] - budget))
-
-
-def summary(ppo: dict[int, list[dict]], ac: dict) -> dict:
-    out: dict = {"ppo": {}, **{f"ac_l{l}": {} for l in AC_LS}}
-    for name, budget in BUDGETS.items():
-        got = {s: _nearest(rows, budget) for s, rows in ppo.items()}
-        got = {s: r for s, r in got.items() if r is not None}
-        if got:
-            out["ppo"][name] = _entry({s: (r["step"], r["eval_avg_reward"], r["eval_forward_speed"])
-                                       for s, r in got.items()})
-        for l in AC_LS:
-            rows = [r for r in ac.get(name, {}).get("rows", []) if r["l"] == l]
-            if rows:
-                out[f"ac_l{l}"][name] = _entry({r["seed"]: (r["control_steps"], r["avg_reward"], r["forward_speed"])
-                                                for r in rows})
-    return out
-
-
-def _entry(by_seed: dict[int, tuple[int, float, float]]) -> dict:
-    steps, rew, spd = (np.array([v[i] for v in by_seed.values()], float) for i in range(3))
-    m, h = stats.mean_ci95(rew)
-    ms, hs = stats.mean_ci95(spd)
-    return {"seeds": sorted(by_seed), "control_steps": [int(s) for s in steps], "avg_reward": m, "avg_reward_ci95": h,
-            "per_seed": [float(x) for x in rew], "forward_speed": ms, "forward_speed_ci95": hs}
 
 
 def draw(ppo: dict, curves: dict, ac: dict, path: pathlib.Path) -> None:
@@ -212,23 +162,6 @@ def side_by_side(panels: list[tuple[str, pathlib.Path]], path: pathlib.Path) -> 
     with store.atomic_path(path) as tmp:
         fig.savefig(tmp, format="png")
     plt.close(fig)
-
-
-def table(summ: dict) -> str:
-    lines = ["| method | " + " | ".join(f"{k} steps" for k in BUDGETS) + " |", "|---|" + "---|" * len(BUDGETS)]
-    names = {"ppo": "Brax PPO", **{f"ac_l{l}": f"actor-critic, l = {l}" for l in AC_LS}}
-    for k, label in names.items():
-        cells = []
-        for b in BUDGETS:
-            e = summ[k].get(b)
-            if e is None:
-                cells.append("—")
-            elif len(e["seeds"]) < 2:  # no interval from one seed
-                cells.append(f"{e['avg_reward']:+.2f}, seed {e['seeds'][0]} only ({e['forward_speed']:.2f} m/s)")
-            else:
-                cells.append(f"{e['avg_reward']:+.2f} ± {e['avg_reward_ci95']:.2f} ({e['forward_speed']:.2f} m/s)")
-        lines.append(f"| {label} | " + " | ".join(cells) + " |")
-    return "\n".join(lines)
 
 
 def main() -> None:

@@ -1,4 +1,4 @@
-"""The paper's Half-Cheetah behind Brax's Env interface (nmrl.paper.brax_env), and the PPO baseline.
+"""The paper's Half-Cheetah behind Brax's Env interface (nmrl.adapters.brax_env), and the PPO baseline.
 
 Without Brax (the default install, CI) the adapter's contract is checked against the paper's
 environment itself; with Brax (``pip install -e '.[brax]'``) Brax's own training wrappers run over
@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nmrl.paper import brax_env
+from nmrl.adapters import brax_env
 from nmrl.paper.env import EnvConfig, HalfCheetah
 
 needs_brax = pytest.mark.skipif(not brax_env.HAVE_BRAX, reason="Brax is optional: pip install -e '.[brax]'")

@@ -1,7 +1,7 @@
 """The peer on the same robot: Brax's PPO on the paper's Half-Cheetah, at the paper's sample budget.
 
 ``run(PPOConfig(seed=s), out)`` trains ``brax.training.agents.ppo.train`` on
-:class:`nmrl.paper.brax_env.BraxHalfCheetah` (the paper's robot, state, reward (8)-(14) and stop
+:class:`nmrl.adapters.brax_env.BraxHalfCheetah` (the paper's robot, state, reward (8)-(14) and stop
 rule; Brax's wrappers do the auto-reset, the stop is a truncation) for ``num_timesteps`` control
 steps (default 2.5*10^7: the samples of 10^5 trials of ~250 steps, the paper's budget), in a run
 directory of the run store's layout (nmrl/runs/store.py)::
@@ -10,7 +10,7 @@ directory of the run store's layout (nmrl/runs/store.py)::
     OUT/metrics.jsonl   one row per PPO iteration (batch_size * num_minibatches * unroll_length
                         control steps): step, wall time, the learning's average reward and forward
                         speed per control step (the exploring policy, every step since the previous
-                        row, the paper's measure: nmrl.paper.brax_env.Tally), the trials ended, and
+                        row, the paper's measure: nmrl.adapters.brax_env.Tally), the trials ended, and
                         this policy evaluated deterministically for ``eval_seconds``
                         (nmrl.analysis.evaluate.rollout_policy)
     OUT/checkpoints/N   the normalizer, policy and value parameters after N control steps (orbax,
@@ -51,7 +51,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from nmrl.analysis import evaluate
-from nmrl.paper import brax_env
+from nmrl.adapters import brax_env
 from nmrl.paper.env import EnvConfig
 from nmrl.runs import checkpoint, driver, store
 
