@@ -1,0 +1,59 @@
+"""Command-line parsing that refuses a bad option in one line, without argparse's usage page.
+
+argparse answers ``--num-envs 1.5`` with the whole usage (15-18 lines) and then ``error: argument
+--num-envs: invalid int value: '1.5'``. The project's rule for bad input is one line naming the
+value and what is allowed, exit status 2 (nmrl/cli.py). :class:`OneLineParser` keeps argparse's
+parsing and rewrites only its error: ``nmrl train: error: --num-envs='1.5' is invalid: must be an
+integer`` (an unknown option: ``... unknown option(s) --trials -5; see nmrl train --help``).
+Subparsers made by ``add_subparsers`` are of the same class, so every command answers alike.
+:func:`integer` is a strict ``type=`` for integer options (``1e3``, ``nan``, ``1.0`` are refused by
+name; ``int()`` would refuse them too, this says what is allowed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+from typing import NoReturn
+
+_INVALID = re.compile(r"argument (\S+?)(?:/\S+)?: invalid (\w+) value: (.*)$")
+_TYPES = {"int": "an integer", "integer": "an integer", "float": "a number", "_bool": "true or false",
+          "_period": "seconds > 0 or 'stationary'"}
+
+
+def integer(text: str) -> int:
+    """An integer option's value: decimal digits with an optional sign, nothing else."""
+    s = text.strip()
+    if not re.fullmatch(r"[+-]?\d+", s):
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer")
+    return int(s)
+
+
+def one_line(message: str) -> str:
+    """argparse's error message as the project's one line (``--opt=VALUE is invalid: ...``)."""
+    m = _INVALID.match(message)
+    if m:
+        opt, kind, value = m.groups()
+        return f"{opt}={value} is invalid: must be {_TYPES.get(kind, kind)}"
+    m = re.match(r"argument (\S+?)(?:/\S+)?: ('.*') is not (an integer|a number)$", message)
+    if m:
+        opt, value, kind = m.groups()
+        return f"{opt}={value} is invalid: must be {kind}"
+    m = re.match(r"argument (\S+?)(?:/\S+)?: (.*)$", message)
+    if m:
+        opt, why = m.groups()
+        return f"{opt}: {why}"
+    m = re.match(r"unrecognized arguments: (.*)$", message)
+    if m:
+        return f"unknown option(s) {m.group(1)}"
+    return message.replace("\n", " ")
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """An ArgumentParser whose errors are one line on stderr (exit status 2), naming the option and
+    what it allows, with a pointer to ``--help`` instead of the usage."""
+
+    def error(self, message: str) -> NoReturn:
+        print(f"{self.prog}: error: {one_line(message)} (see {self.prog} --help)", file=sys.stderr, flush=True)
+        self.exit(2)
