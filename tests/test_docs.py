@@ -6,9 +6,10 @@
   ``results/...``, ...) exists; a path with a placeholder (``<point>``, ``{md,json}``, ``*``) is a
   pattern, not a name, and is not checked;
 * every ``nmrl ...`` command line in a fenced block parses with nmrl's own argparse parsers, without
-  running: ``train``, ``sweep`` and ``eval`` with ``nmrl.cli.build_parser()``, ``baseline`` and
-  ``study`` with the parser their ``main`` builds (caught before it parses); a command named in a
-  sentence (inline code, e.g. ``nmrl train --resume``) names only options that exist;
+  running: ``train``, ``sweep`` and ``eval`` with ``nmrl.cli.build_parser(learner)`` (the learner
+  ``--learner`` names, as ``nmrl.cli.main`` builds it), ``baseline`` and ``study`` with the parser
+  their ``main`` builds (caught before it parses); a command named in a sentence (inline code, e.g.
+  ``nmrl train --resume``) names only options that exist;
 * the README's "What is where" names exactly the files of ``nmrl/*/`` (``__init__.py`` aside) and
   ``nmrl/cli.py``; the README starts with the two set-up commands, and the second is what ``.ci/run``
   runs.
@@ -154,12 +155,13 @@ class _Parsed(Exception):
 
 
 def _top_parser(sub: str, argv: list[str]) -> argparse.ArgumentParser:
-    """The parser ``nmrl <sub>`` uses: ``nmrl.cli.build_parser()`` for train/sweep/eval, the one the
+    """The parser ``nmrl <sub>`` uses: ``nmrl.cli.build_parser`` for train/sweep/eval, the one the
     ``main`` of ``baseline``/``study`` builds (caught at its ``parse_args``, before it parses)."""
     if sub in ("train", "sweep", "eval"):
         from nmrl import cli
 
-        return cli.build_parser()
+        learner = cli._learner(cli.learner_name([sub, *argv])) if sub in ("train", "sweep") else None
+        return cli.build_parser(learner)  # as cli.main builds it: with the options of the learner named
     if sub not in ("baseline", "study"):
         pytest.fail(f"nmrl has no command {sub!r}")
     import importlib
@@ -236,7 +238,8 @@ def _section(text: str, title: str) -> str:
 
 
 def test_what_is_where_matches_the_tree():
-    named = set(re.findall(r"`(nmrl/[\w/.]+)`", _section(_text(README), "What is where")))
+    named = {n for n in re.findall(r"`(nmrl/[\w/.]+)`", _section(_text(README), "What is where"))
+             if not n.endswith("/")}  # a package's name; its files are the rows
     tree = {str(p.relative_to(ROOT)) for p in (ROOT / "nmrl").glob("*/*")
             if p.name not in ("__init__.py", "__pycache__")} | {"nmrl/cli.py"}
     assert sorted(tree - named) == [], "in the tree, not in the README's What is where"
