@@ -4,8 +4,9 @@ clipping by global norm, checked against independent computations.
 * parsing: canonical forms; every bad spec is a ValueError naming the bad value and listing the
   allowed elements; the CLI exits with 2 and writes nothing;
 * the default (the ``paper`` preset) is exactly the paper's rule: the chain ``sgd`` builds the same
-  optax transformation and state as before the vocabulary (so old checkpoints keep their layout;
-  tests/test_checkpoint.py restores the pre-optax fixture and reproduces the old code's chunk), and
+  optax transformation and state as a plain ``optax.sgd`` (so checkpoints of sgd runs keep their
+  layout; tests/test_checkpoint.py restores a checkpoint without optimizer state and reproduces the
+  chunk of the code that wrote it), and
   an unset spec gives bit for bit the chunk of an explicit ``sgd``;
 * ``clip:c,sgd`` moves theta (v) by beta * clip_c(sum_e d_e z_e) and ``sgd,clip:c`` by
   clip_c(beta sum_e d_e z_e), clip_c(g) = g min(1, c / |g|), recomputed here around every control
