@@ -15,15 +15,8 @@ screening sweeps), ``summary.json`` (per preset: points, collapsed, diverged; th
 curve over the points on a common trial grid and its mean up to ``fast``'s first collapse)
 and ``learning_curves.png`` (one panel per l: each seed's curve, ``fast`` against the candidates).
 
-Definitions (per point; rows = chunks in order):
-
-* ``avg_reward``: mean of the chunks' average reward per control step over the last tenth of the
-  chunks (as nmrl/experiments/sweep.py's results.csv);
-* ``peak``: the maximum of the 5-chunk running mean of the average reward;
-* ``collapsed``: the point diverged, or ``avg_reward`` ended more than half of |peak| below the
-  peak (for peak > 0: below 50% of the peak);
-* ``first_below_half``: the trials at which the 5-chunk running mean first fell below half of the
-  running peak, once that peak exceeded 0.3 (empty if never).
+The numbers per point (end value, peak, collapse, milestones, mean curves) are
+nmrl/analysis/publish_presets.py's, defined there; this script reads, writes and draws.
 
 Usage (the full command that wrote the published files: results/fast_preset/README.md):
     python scripts/publish_fast_preset.py --run fast_clip=runs/fast_preset/fast_clip \
@@ -39,6 +32,8 @@ import re
 
 import numpy as np
 
+from nmrl.analysis.publish_presets import (MILESTONES, SMOOTH, at_trials, mean_curve, point_summary,  # noqa: F401
+                                           running_mean)
 from nmrl.runs import store
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -46,32 +41,6 @@ BASELINE = ROOT / "results" / "fig3_fast" / "metrics"
 OUT = ROOT / "results" / "fast_preset"
 COLUMNS = ("l", "seed", "preset", "trials", "avg_reward", "peak", "collapsed", "diverged",
            "first_below_half", "chunks")
-SMOOTH = 5
-
-
-def running_mean(rows: list[dict]) -> tuple[list, np.ndarray]:
-    """(trials, the SMOOTH-chunk running mean of the average reward) of a point's chunks, the mean
-    over up to SMOOTH chunks ending at each (only full windows: the first SMOOTH - 1 chunks have none)."""
-    r = np.array([x["avg_reward"] for x in rows], float)
-    w = min(SMOOTH, len(r))
-    return [x["trials"] for x in rows][w - 1:], np.convolve(r, np.ones(w) / w, mode="valid")
-
-
-def point_summary(rows: list[dict]) -> dict:
-    r = np.array([x["avg_reward"] for x in rows], float)
-    t = np.array([x["trials"] for x in rows], float)
-    k = max(1, len(r) // 10)
-    end = float(np.mean(r[-k:]))
-    w = min(SMOOTH, len(r))
-    _, sm = running_mean(rows)
-    peak = float(np.max(sm))
-    diverged = any(bool(x["diverged"]) for x in rows) or not np.all(np.isfinite(r))
-    run_peak = np.maximum.accumulate(sm)
-    below = np.where((run_peak > 0.3) & (sm < 0.5 * run_peak))[0]
-    first = int(t[below[0] + w - 1]) if len(below) else ""
-    return {"trials": int(t[-1]), "avg_reward": end, "peak": peak,
-            "collapsed": bool(diverged or end < peak - 0.5 * abs(peak)), "diverged": bool(diverged),
-            "first_below_half": first, "chunks": len(rows)}
 
 
 def points_of(src: pathlib.Path, baseline: bool) -> dict[tuple[int, int], list[dict]]:
@@ -104,30 +73,6 @@ def screen_points(name: str, src: pathlib.Path) -> dict[str, dict[tuple[int, int
 def write_csv(path: pathlib.Path, table: list[dict]) -> None:
     store.write_csv(path, COLUMNS, [{k: (f"{row[k]:.4f}" if isinstance(row[k], float) else row[k]) for k in COLUMNS}
                                     for row in table])
-
-
-def mean_curve(points: dict, grid: np.ndarray) -> np.ndarray:
-    """Mean over the points of each point's average reward interpolated on the trial grid (NaN past
-    a point's last chunk)."""
-    ys = []
-    for rows in points.values():
-        t = np.array([x["trials"] for x in rows], float)
-        r = np.array([x["avg_reward"] for x in rows], float)
-        y = np.interp(grid, t, r, left=np.nan, right=np.nan)
-        ys.append(y)
-    return np.nanmean(np.array(ys), axis=0) if ys else np.full(grid.shape, np.nan)
-
-
-MILESTONES = (500, 1000, 1500, 2000, 2500, 3000, 3500)
-
-
-def at_trials(rows: list[dict], m: int) -> float | None:
-    """The 5-chunk running mean of the average reward at the last chunk with <= m trials (None if
-    the point has not reached m)."""
-    if not rows or rows[-1]["trials"] < m:
-        return None
-    i = max(j for j, x in enumerate(rows) if x["trials"] <= m)
-    return float(np.mean([x["avg_reward"] for x in rows[max(0, i - SMOOTH + 1):i + 1]]))
 
 
 def screening_table(screens: dict, old: dict) -> str:
