@@ -5,11 +5,22 @@ kill the process) after a long compile, with a traceback of dozens of lines. The
 size is known exactly without allocating it: ``jax.eval_shape`` of the learner's ``init``
 (nmrl/learners/contract.py; for the actor-critic the per-environment traces are as large as the
 networks, so the state grows as N x (M^A + M^C)). What a compiled chunk needs beyond the state was
-measured with XLA's own memory analysis (``Compiled.memory_analysis()``: arguments, outputs and
-temporaries) over N and the hidden sizes; :data:`FACTOR` and :data:`OVERHEAD_BYTES` are that
-fit's bounds (docs/runs.md gives the measurements). :func:`preflight` refuses, in one line naming
-the estimate and the machine's memory, a run whose estimate exceeds the machine's total memory
-(it cannot run here at all), and warns when it exceeds what is available now.
+measured with XLA's own memory analysis (``Compiled.memory_analysis()``; the actor-critic, CPU, one
+device, the state donated), with the process's peak resident memory:
+
+    N    M^A   M^C   state      temp (x state)   peak RSS
+    8    8     8     0.117 MB   0.062 MB (0.53)  1.27 GiB
+    256  8     8     3.67 MB    1.56 MB (0.43)   1.30 GiB
+    8    1024  8     2.74 MB    1.11 MB (0.40)   1.31 GiB
+    8    8     4096  4.97 MB    1.64 MB (0.33)   1.32 GiB
+    64   256   256   7.91 MB    2.42 MB (0.31)   1.35 GiB
+
+So a chunk holds at most 1.53 x the state; a save adds a host copy (1 x), the initial state or a
+restore another: :data:`FACTOR` = 4 bounds that with room to spare, :data:`OVERHEAD_BYTES` the
+1.3 GiB the process holds at any size (Python, JAX, XLA, MuJoCo, the compiled program).
+:func:`preflight` refuses, in one line naming the estimate and the machine's memory, a run whose
+estimate exceeds the machine's total memory (it cannot run here at all), and warns when it
+exceeds what is available now.
 """
 
 from __future__ import annotations
@@ -22,11 +33,10 @@ from typing import Any, Callable
 import jax
 import numpy as np
 
-#: bytes a compiled chunk holds per byte of training state (arguments + outputs + XLA temporaries,
-#: the input donated), an upper bound over the measured sizes
+#: bytes a run holds per byte of training state (the chunk's 1.53 at most, a host copy, a spare state)
 FACTOR = 4.0
-#: the process's own memory beside the run's arrays (Python, JAX, XLA, MuJoCo, the compiled program)
-OVERHEAD_BYTES = 1 << 30
+#: the process's own memory beside the run's arrays (measured 1.27-1.35 GiB peak resident)
+OVERHEAD_BYTES = 3 << 29
 GIB = float(1 << 30)
 
 

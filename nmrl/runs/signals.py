@@ -43,6 +43,15 @@ MOMENTS = {
 }
 
 
+_ACTIVE: list = [None]  # the installed Guard (the command's), else None
+
+
+def active() -> "Guard | None":
+    """The Guard installed now (a command installs one for its whole life; the driver's chunk loop
+    uses it, or installs its own when called as a library)."""
+    return _ACTIVE[0]
+
+
 class Interrupted(Exception):
     """A signal stopped the command at a safe point (``signum``; ``moment`` names where)."""
 
@@ -74,6 +83,9 @@ class Guard:
         self._old_fd = -1
         self._pipe: tuple[int, int] | None = None
         self._thread: threading.Thread | None = None
+        self._outer: Guard | None = None
+        #: called (best effort, from the watcher thread) just before a second signal's immediate exit
+        self.on_exit: list[Callable[[], None]] = []
 
     # ---------------------------------------------------------------- messages
     def _say(self, line: str) -> None:
@@ -114,6 +126,11 @@ class Guard:
             n = self.count
         if n >= 2:
             self._say(self.second_message(signum))
+            for fn in list(self.on_exit):  # e.g. remove a directory made for a run not yet written
+                try:
+                    fn()
+                except Exception:  # noqa: BLE001 - exiting anyway
+                    pass
             os._exit(128 + signum)
 
     def _handler(self, signum, _frame) -> None:
@@ -137,8 +154,11 @@ class Guard:
 
     # ---------------------------------------------------------------- install / restore
     def install(self) -> "Guard":
-        """Install the handlers and the watcher (main thread only)."""
+        """Install the handlers and the watcher (main thread only); :func:`active` returns it until
+        :meth:`restore`."""
         self._old = {s: signal.signal(s, self._handler) for s in SIGNALS}
+        self._outer = _ACTIVE[0]
+        _ACTIVE[0] = self
         try:
             r, w = os.pipe()
             os.set_blocking(w, False)
@@ -162,6 +182,8 @@ class Guard:
         for s, h in self._old.items():
             signal.signal(s, h)
         self._old = {}
+        if _ACTIVE[0] is self:
+            _ACTIVE[0] = self._outer
 
     def __enter__(self) -> "Guard":
         return self.install()
