@@ -407,3 +407,19 @@ def test_sharded_chunk_equals_unsharded():
         np.testing.assert_allclose(r["m2"][k], v, rtol=1e-5, atol=1e-6, err_msg=k)
     for a, b in zip(r["s1"], r["s2"]):
         np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-5, atol=1e-6)
+
+
+def test_divergence_undoes_the_update_and_freezes_the_point():
+    """A parameter norm above max_param_norm after an iteration: that iteration's update (parameters,
+    Adam, observation statistics) is undone, ``diverged`` is set and stays, the rollouts go on."""
+    cfg = ppo.PPOConfig(**{**TINY, "epochs": 1}, max_param_norm=1.0)  # the initial policy's norm is > 1
+    tr = ppo.make_ppo(cfg, TinyEnv())
+    st0 = tr.init(jax.random.PRNGKey(0))
+    chunk = jax.jit(tr.chunk)
+    st1, m1 = chunk(st0)
+    st2, m2 = chunk(st1)
+    assert bool(m1["diverged"]) and bool(m2["diverged"]) and int(m2["step"]) == 2 * cfg.resolved().chunk_steps
+    for a, b in zip(jax.tree.leaves((st0.policy, st0.value, st0.opt, st0.obs_stats)),
+                    jax.tree.leaves((st2.policy, st2.value, st2.opt, st2.obs_stats))):
+        np.testing.assert_array_equal(np.asarray(b), np.asarray(a))
+    assert not np.array_equal(np.asarray(st2.env.obs), np.asarray(st0.env.obs))
