@@ -36,13 +36,12 @@ import pathlib
 
 import numpy as np
 
-from nmrl.analysis import plots, stats
+from nmrl.analysis import plots, publish_fig3, stats
+from nmrl.analysis.publish_fig3 import MILESTONES, falls_md, progress_md  # noqa: F401
 from nmrl.experiments import sweep
 from nmrl.paper.learner import TrainConfig
 from nmrl.runs import store
 
-MILESTONES = (10_000, 20_000, 30_000, 50_000, 100_000)  # 2*10^4: an intermediate comparison; 5*10^4: half
-# the budget, where every l can be compared long before all reach 10^5
 
 
 def progress(src: pathlib.Path, spec: sweep.SweepSpec) -> dict:
@@ -104,97 +103,8 @@ def progress(src: pathlib.Path, spec: sweep.SweepSpec) -> dict:
 
 
 def answers(p: dict, spec: sweep.SweepSpec) -> dict:
-    """The plain answers at every milestone all the compared points have reached:
-    l = 10 against l = 1 (difference of the seed means with its 95% Welch interval, and the relative
-    difference; paper: 4.59 vs 3.28, +40%), the best l (highest seed mean, among the l whose seeds
-    all reached the milestone) and, for l = 30, divergences and collapses (a seed whose last
-    tenth lies below half its running peak)."""
-    out: dict = {"l10_vs_l1": {}, "best_l": {}}
-    by = p["by_l"]
-    for m in map(str, MILESTONES):
-        if "1" in by and "10" in by and by["1"][m]["mean"] is not None and by["10"][m]["mean"] is not None:
-            a, b = np.array(by["1"][m]["seeds"], float), np.array(by["10"][m]["seeds"], float)
-            d, h = stats.diff_ci95(a, b)
-            out["l10_vs_l1"][m] = {"l1": float(a.mean()), "l10": float(b.mean()), "diff": d, "diff_ci95": h,
-                                   "relative": float(b.mean() / a.mean() - 1) if a.mean() > 0 else None}
-        done = {l: e[m]["mean"] for l, e in by.items() if e[m]["mean"] is not None}
-        if done:
-            best = max(done, key=done.get)
-            out["best_l"][m] = {"l": int(best), "mean": done[best], "among": sorted(map(int, done))}
-    if 30 in spec.ls:
-        out["l30"] = {"diverged": [d for d in p["diverged"] if d["point"].startswith("l30_")],
-                      "collapsed": [n for n, q in p["points"].items() if n.startswith("l30_") and q.get("collapsed")]}
-    return out
-
-
-def progress_md(p: dict) -> str:
-    def f(x, nd=2):
-        return "–" if x is None else f"{x:+.{nd}f}"
-
-    lines = ["| l | " + " | ".join(f"{m:,} trials: mean ± 95% CI (seeds)" for m in p["milestones"]) +
-             " | trials per seed (share of 10⁵) |", "|---|" + "---|" * (len(p["milestones"]) + 1)]
-    for l, by in p["by_l"].items():
-        cells = []
-        for m in p["milestones"]:
-            e = by[str(m)]
-            seeds = ", ".join(f(v) for v in e["seeds"])
-            cells.append(f"{f(e['mean'])} ± {e['ci95']:.2f} ({seeds})" if e["mean"] is not None
-                         else f"– ({seeds})")
-        pts = [v for k, v in p["points"].items() if k.startswith(f"l{l}_")]
-        share = ", ".join(f"{v['trials']:,} ({100 * v['budget_share']:.1f}%)" for v in pts)
-        lines.append(f"| {l} | " + " | ".join(cells) + f" | {share} |")
-    lines.append("")
-    which = "the points still running" if p.get("remaining_ctrl_steps") else "the last points to run (all finished)"
-    lines.append(f"Rate (median of the last 10 chunks of {which}, whole machine): "
-                 f"{p['rate_ctrl_steps_per_s']:,.0f} control steps/s."
-                 if p["rate_ctrl_steps_per_s"] else "Rate: no chunks yet.")
-    if p.get("remaining_ctrl_steps"):
-        h = p["remaining_hours_at_rate"]
-        lines.append(f"Left: ~{p['remaining_ctrl_steps']:,.0f} control steps (every running point to 10⁵ trials at "
-                     f"its trials' mean length so far)" + (f", ~{h:.1f} h at that rate." if h is not None else "."))
-    lines.append("Diverged: " + (", ".join(f"{d['point']} at {d['trials']:,} trials" for d in p["diverged"])
-                                 or "none") + ".")
-    collapsed = [n for n, q in p["points"].items() if q.get("collapsed")]
-    lines.append("Collapsed (last tenth below half the running peak): " + (", ".join(collapsed) or "none") + ".")
-    lines += falls_md(p)
-    for l, g in (p.get("gaits") or {}).items():
-        lines.append(f"Gait of l = {l}: {g['point']} at {g['trials']:,} trials, deterministic "
-                     f"{f(g['deterministic']['avg_reward'])} per step ({g['deterministic']['forward_speed']:.2f} m/s), "
-                     f"exploring {f(g['exploring']['avg_reward'])}: {g['dir']}/strobe.png, gait.gif")
-    a = p.get("answers") or {}
-    if a.get("l10_vs_l1"):
-        lines += ["", "l = 10 against l = 1 (paper after 10⁵ trials: 4.59 vs 3.28, +40%):", ""]
-        for m, e in a["l10_vs_l1"].items():
-            rel = "–" if e["relative"] is None else f"{100 * e['relative']:+.0f}%"
-            lines.append(f"- {int(m):,} trials: {f(e['l10'])} vs {f(e['l1'])}, difference {f(e['diff'])} "
-                         f"± {e['diff_ci95']:.2f} (95% Welch interval over the seeds), {rel}")
-    if a.get("best_l"):
-        lines += ["", "Best l (highest mean over the seeds, among the l that reached the milestone):", ""]
-        lines += [f"- {int(m):,} trials: l = {e['l']} ({f(e['mean'])}; among l = {', '.join(map(str, e['among']))})"
-                  for m, e in a["best_l"].items()]
-    return "\n".join(lines) + "\n"
-
-
-def falls_md(p: dict) -> list[str]:
-    """Per l, each seed's largest fall below its running peak (stats.largest_fall: 5-chunk running
-    mean, from 10^4 trials on): how steady learning is, short of a divergence or a collapse."""
-    lines = ["", "Largest fall below the running peak (5-chunk running mean of the average reward per step, "
-             "from 10⁴ trials on; stats.largest_fall): per l the largest over the seeds, then each seed as "
-             "fall (share of the peak): peak at trials → trough at trials, end of the run:", "",
-             "| l | largest fall | each seed |", "|---|---|---|"]
-    for l in p["by_l"]:
-        falls = [(n, q["largest_fall"]) for n, q in p["points"].items()
-                 if n.startswith(f"l{l}_") and q.get("largest_fall")]
-        if not falls:
-            continue
-        worst = max(e["fall"] for _, e in falls)
-        cells = []
-        for n, e in falls:
-            share = "–" if e["share"] is None else f"{100 * e['share']:.0f}%"
-            cells.append(f"{n}: {e['fall']:.2f} ({share}): {e['peak']:+.2f} at {e['peak_trials']:,} → "
-                         f"{e['trough']:+.2f} at {e['trough_trials']:,}, end {e['end']:+.2f}")
-        lines.append(f"| {l} | {worst:.2f} | " + "; ".join(cells) + " |")
-    return lines
+    """The plain answers of the sweep ``spec`` (nmrl/analysis/publish_fig3.py)."""
+    return publish_fig3.answers(p, spec.ls)
 
 
 def learning_curves(src: pathlib.Path, spec: sweep.SweepSpec, path: pathlib.Path) -> None:
