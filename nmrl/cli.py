@@ -137,6 +137,8 @@ def _with_exploration(args: argparse.Namespace, learner, cfg, given: set[str]):
     """``cfg`` with the process of ``--exploration`` and its parameters applied by the learner
     (``Learner.exploration``); the config as it is when none is given. ValueError naming a bad
     process, one the learner cannot use, or a parameter that contradicts another option."""
+    if learner.exploration is None:  # its process is part of its own config (e.g. PPO's --exploration)
+        return cfg
     kind = getattr(args, "exploration", None)
     params = {k[2:]: v for k, v in vars(args).items() if k.startswith("x_") and v is not None}
     if kind is None and not params:
@@ -145,8 +147,6 @@ def _with_exploration(args: argparse.Namespace, learner, cfg, given: set[str]):
 
     if kind is not None and kind not in explore.KINDS:
         raise ValueError(f"--exploration={kind!r} is unknown: choose one of {', '.join(explore.KINDS)}")
-    if learner.exploration is None:
-        raise ValueError(f"the learner {learner.name!r} takes no --exploration (a process the learner cannot use)")
     return learner.exploration(cfg, kind, params, frozenset(given))
 
 

@@ -304,3 +304,21 @@ def test_exploration_in_seconds_sets_the_actor_critics_l_and_alpha():
     assert (c.l, c.alpha) == (20, pytest.approx(math.sqrt(0.8)))  # the paper's process at half the step
     assert _ac_config(["--exploration", "nm-periods"]) == base
     assert _ac_config(["--l", "3", "--alpha", "0.5"]) == dataclasses.replace(base, l=3, alpha=0.5)
+
+
+def test_cli_sweep_varies_any_traced_field(tmp_path, capsys):
+    out = tmp_path / "sw"
+    tiny = ["--num-envs", "2", "--chunk-steps", "5", "--steps", "5", "--quiet", "--devices", "1"]
+    assert cli.main(["sweep", "--learner", "toy", "--vary", "nope", "1", *tiny, "--out", str(out)]) == 2
+    assert "sigma" in capsys.readouterr().err  # names the fields that may vary
+    assert cli.main(["sweep", "--learner", "toy", "--vary", "sigma", "0.2", "0.4", "--seeds", "1", *tiny,
+                     "--out", str(out)]) == 0
+    assert sorted(p.name for p in (out / "points").iterdir()) == ["sigma0.2_s0", "sigma0.4_s0"]
+    rows = sweep.load_results(out)
+    assert [(r["sigma"], r["seed"], r["steps"]) for r in rows] == [(0.2, 0, 5), (0.4, 0, 5)]
+    for r in rows:
+        cfg = json.loads((out / "points" / f"sigma{r['sigma']:g}_s0" / store.CONFIG_FILE).read_text())
+        assert (cfg["learner"], cfg["sigma"]) == ("toy", r["sigma"])
+    # the saved spec resumes without --learner or --vary: a larger budget continues both points
+    assert cli.main(["sweep", "--resume", "--steps", "10", "--out", str(out), "--quiet", "--devices", "1"]) == 0
+    assert [r["steps"] for r in sweep.load_results(out)] == [10, 10]

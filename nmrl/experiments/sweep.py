@@ -201,7 +201,7 @@ def run_sweep(spec: SweepSpec, out: str | os.PathLike, *, resume: bool = False, 
             raise SweepError(f"--resume: {out / SPEC_FILE} not found; is {out} a sweep directory?")
         saved = load_spec(out)
         base = saved.base
-        if type(spec.base) is not type(base) and given is not None:
+        if type(spec.base) is not type(base):
             raise SweepError(f"--resume continues the sweep in {out} with its own learner {learners.of(base).name!r}; "
                              f"--learner {learners.of(spec.base).name} would change it")
         if given:

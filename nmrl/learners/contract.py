@@ -6,7 +6,8 @@ the sweep, evaluation and the command line take any registered learner through t
 nothing else; the shape is Stoix's ``LearnerFn: state -> (state, metrics)`` and rejax's one loop:
 
 * ``config`` -- a frozen dataclass (the run's identity: ``config.json`` is ``{"learner": name,
-  **dataclasses.asdict(config)}``, and ``type(**json)`` must give it back). Every learner's config has
+  **dataclasses.asdict(config)}``, and the class called with the other keys must give it back; no
+  field may be named ``learner``). Every learner's config has
   the fields ``seed: int``, ``num_envs: int``, ``chunk_steps: int`` (control steps per environment
   in one chunk), ``steps: int | None`` (budget in control steps per environment), ``trials: int |
   None`` (budget in trials summed over the environments; at most one of the two), ``control_dt:
@@ -14,13 +15,15 @@ nothing else; the shape is Stoix's ``LearnerFn: state -> (state, metrics)`` and 
   ``validate()`` (ValueError naming the value and what is allowed), ``resolved()`` (validated, every
   default filled in, e.g. a default budget: what the run records) and ``env_config()`` (the
   ``nmrl.paper.env.EnvConfig`` of its Half-Cheetah, ``auto_reset=True``); ``config()`` (every field
-  at its default) is valid. Field types are written as
-  ``int``, ``float``, ``str``, ``bool`` or ``X | None`` (the command line makes one option of each,
-  its help from the ``#:`` comment is not read: give :attr:`Learner.help`).
+  at its default) is valid, and a resolved config has ``chunk_steps`` and a budget set. Field types
+  are written as ``int``, ``float``, ``str``, ``bool`` or ``X | None`` (the command line makes one
+  option of each; its help comes from :attr:`Learner.help`, the ``#:`` comments are not read).
 * ``hyper(config)`` -- the traced hyperparameters, a pytree of arrays (e.g. a NamedTuple whose
   ``from_config`` reads the config fields of the same names). ``hyper_fields`` names those config
   fields: the points of one sweep may differ only in them and in the seed (one compiled program,
-  ``jax.vmap``/``lax.map`` over the stacked states).
+  ``jax.vmap``/``lax.map`` over the stacked states), so a point equals the same run alone up to
+  float rounding. ``sweep_field``: the one ``nmrl sweep`` varies by default (the actor-critic's l;
+  None: seeds only; ``--vary FIELD V...`` picks any of ``hyper_fields``).
 * ``make(config, env=None, *, axis_name=None, num_shards=1) -> Trainer`` -- the pure functions of a
   run (``env`` default: ``HalfCheetah(config.env_config())``). With ``num_shards`` > 1 ``chunk`` is
   written for ``jax.shard_map`` over the environment axis of the state's ``env_fields`` (``psum``

@@ -74,8 +74,8 @@ from nmrl.runs.checkpoint_files import *  # noqa: F401,F403  (the public names o
 from nmrl.runs.checkpoint_files import (FORMAT, SCHEMA_VERSION, CheckpointError, Config, CorruptCheckpoint,
                                         Params, State, Trainer, _SEP, _abstract, _digest, _err, _flatten,
                                         _fsync_tree, _git_commit, _layout, _learner_of_meta, _manager, _nest, _ocp,
-                                        _quiet_absl, _restore_items, _sha256_file, _to_device, _versions,
-                                        checkpoint_dir, load_metadata)
+                                        _quiet_absl, _restore_items, _as_state_trees, _sha256_file, _to_device,
+                                        _versions, checkpoint_dir, load_metadata)
 from nmrl.runs.compact import *  # noqa: F401,F403
 from nmrl.runs.compact import restore_compact_params, uses_compact
 from nmrl.runs.identity import *  # noqa: F401,F403
@@ -372,7 +372,7 @@ def restore_params(run_dir: str | os.PathLike, step: int | None = None, *, check
     if _digest(host) != meta["policy_digest"]:
         raise CorruptCheckpoint(f"{path}: the policy data does not match its digest (corrupted checkpoint)")
     to_dev = lambda t: jax.tree.map(_to_device, jax.tree.map(np.asarray, t))  # noqa: E731
-    return meta, config, {h: to_dev(restored[h]) for h in heads}
+    return meta, config, _as_state_trees(path, config, {h: to_dev(restored[h]) for h in heads})
 
 
 if __name__ == "__main__":  # pragma: no cover - `python -m nmrl.runs.checkpoint RUN` prints the metadata

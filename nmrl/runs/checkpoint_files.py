@@ -246,6 +246,24 @@ def _learner_of_meta(meta: dict) -> "learners.Learner":
         raise CheckpointError(f"{meta.get('path', '?')}: {e}") from e
 
 
+def _as_state_trees(path: Any, config: Config, params: dict[str, Any]) -> dict[str, Any]:
+    """``params`` ({field: nested dict by leaf name}, as read back) in the structure the learner's state
+    gives those fields (its NamedTuples and dataclasses, e.g. observation statistics), read from
+    ``jax.eval_shape`` of its ``init`` (nothing is computed); a field whose leaf names differ from the
+    learner's raises CorruptCheckpoint."""
+    learner = learners.of(config)
+    template = jax.eval_shape(learner.make(config).init, jax.random.PRNGKey(0))
+    out = {}
+    for f, tree in params.items():
+        names, _, treedef = _flatten(getattr(template, f))
+        have_names, have, _ = _flatten(tree)
+        got = dict(zip(have_names, have))
+        if sorted(got) != sorted(names):
+            raise CorruptCheckpoint(f"{path}: the saved {f} does not fit the learner {learner.name!r}'s state")
+        out[f] = jax.tree_util.tree_unflatten(treedef, [got[n] for n in names])
+    return out
+
+
 def _nest(flat: dict[str, Any], heads: tuple[str, ...]) -> dict[str, Any]:
     """``{head: tree}`` from flat names ``head.a.b`` (a name equal to ``head`` is a bare array)."""
     tree: dict = {}

@@ -25,7 +25,8 @@ from nmrl.paper.env import MODEL_PATH
 from nmrl.runs import store
 from nmrl.runs.store import COMPACT_FILE
 from nmrl.runs.checkpoint_files import (CheckpointError, Config, CorruptCheckpoint, Params, State, Trainer, _SEP,
-                                        _digest, _err, _flatten, _learner_of_meta, _nest, _sha256_file, _to_device,
+                                        _as_state_trees, _digest, _err, _flatten, _learner_of_meta, _nest,
+                                        _sha256_file, _to_device,
                                         _versions, checkpoint_dir)
 from nmrl.runs.identity import _check_config, _check_model, _config_from_meta
 
@@ -211,7 +212,7 @@ def restore_compact_params(run_dir: str | os.PathLike, step: int | None = None, 
     if set(params) != set(heads):
         raise CorruptCheckpoint(f"{meta['path']}: the compact state has no policy parameters ({', '.join(heads)})")
     meta.update(step=saved, trials=int(arrays["trials"]))
-    return meta, config, {h: params[h] for h in heads}
+    return meta, config, _as_state_trees(meta["path"], config, {h: params[h] for h in heads})
 
 
 def restore_compact_policy(run_dir: str | os.PathLike, step: int | None = None, *, check_model: bool = True

@@ -339,7 +339,7 @@ def _resume(cfg: Config, out: pathlib.Path, given: dict | None, step: int | None
         new_budget = _budget(cfg)
     if all(v is None for v in new_budget.values()):
         new_budget = None
-    if type(cfg) is not type(run_cfg) and given is not None:
+    if type(cfg) is not type(run_cfg):
         raise RunError(f"--resume continues the run in {out} with its own learner {learners.of(run_cfg).name!r}; "
                        f"--learner {learners.of(cfg).name} would change it")
     trainer = learners.of(run_cfg).make(run_cfg, env=env)
