@@ -2,9 +2,10 @@
 
 A row is appended as one ``write`` of the JSON object and its newline, then flushed to disk
 (nmrl/runs/store.py), so a process killed while appending leaves at most one partial row: the
-last line, without its newline. That row belongs to a chunk whose checkpoint was never written
-(the driver checkpoints after it appends), so a resume would drop it anyway: :func:`read` drops it
-with one warning naming the file and the size of the fragment. Anything else that is not a JSON
+last line, without its newline. Its chunk's checkpoint is written after the row (the driver), so
+it was never written, and a resume runs that chunk again from the checkpoint before (the driver
+resumes from the newest checkpoint the complete rows reach): :func:`read` drops the fragment
+with one warning naming the file and its size. Anything else that is not a JSON
 object per line -- a bad line in the middle, or a last line that ends with its newline and still
 does not parse -- is not the trace of an interrupted append: :class:`Corrupt`, one line naming the
 file and the line.
@@ -43,8 +44,8 @@ def parse(text: str, name: str = "<text>", warn: Callable[[str], None] | None = 
         text = text[: len(text) - len(tail)]
         if warn is not None:
             n = text.count("\n") + 1
-            warn(f"{name}: dropped the unfinished last line {n} ({len(tail)} bytes without a newline, "
-                 f"written by a process that stopped while appending; its chunk has no checkpoint)")
+            warn(f"{name}: dropped the unfinished last line {n} ({len(tail)} bytes without a newline: the "
+                 f"process stopped while appending it); a resume runs its chunk again")
     rows = []
     for i, line in enumerate(text.split("\n"), 1):
         if not line.strip():
