@@ -257,3 +257,12 @@ def test_readme_starts_with_the_two_commands_and_ci_runs_the_second():
 
 def test_readme_is_a_front_page():
     assert len(_text(README).splitlines()) <= 200
+
+
+def test_runs_page_lists_every_exit_status_as_the_code_does():
+    from nmrl.runs import exits
+
+    text = _text(ROOT / "docs" / "runs.md")
+    table = text[text.index("| status | meaning |"):]
+    rows = dict(re.findall(r"^\| (\d+) \| (.*) \|$", table, re.M))
+    assert {int(k): v for k, v in rows.items()} == exits.TABLE
