@@ -1,0 +1,93 @@
+"""Publish the native PPO's validation against the Brax PPO peer under results/ppo/.
+
+    .venv/bin/python scripts/publish_ppo_validation.py [--src runs/ppo_validation] [--dest results/ppo]
+
+Reads the sweep SRC (scripts/ppo_validation.sh: nmrl's PPO, white noise, the Brax settings, 3
+seeds) and the Brax seeds' metrics (results/baseline_ppo/ppo_s*/metrics.jsonl). Writes, atomically:
+
+* ``validation/{sweep.json, points/s{seed}/{config.json, metrics.jsonl, compact.npz}}``: what a
+  fresh clone needs to continue the sweep (scripts/ppo_validation.sh seeds runs/ from it);
+* ``learning_curves.png``: average reward per control step during learning against control steps,
+  each native seed and their mean over the band (min..max) of the Brax seeds;
+* ``summary.json``: per iteration both seed sets reached, the native mean, the Brax band and whether
+  the mean lies within it; the Brax deterministic policies at the native run's last step.
+
+The numbers are nmrl/analysis/ppo_validation.py's; this script copies, draws and writes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+
+import numpy as np
+
+from nmrl.analysis import ppo_validation as pv
+from nmrl.analysis.publish_ppo import ppo_runs
+from nmrl.runs import store
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+
+
+def draw(native: dict, peer: dict, path: pathlib.Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 4.8), dpi=110)
+    steps, lo, hi = pv.band(peer)
+    ax.fill_between(steps, lo, hi, color="C3", alpha=0.25, label=f"Brax PPO, {len(peer)} seeds (min..max)")
+    for i, (s, (x, y)) in enumerate(sorted(native.items())):
+        ax.plot(x, y, color="C0", lw=0.8, alpha=0.5, label="native PPO, each seed" if i == 0 else None)
+    if native:
+        common = sorted(set.intersection(*(set(x.tolist()) for x, _ in native.values())))
+        mean = [np.mean([y[list(x).index(c)] for x, y in native.values()]) for c in common]
+        ax.plot(common, mean, color="C0", lw=2, label=f"native PPO, mean of {len(native)} seeds")
+    xmax = max([x.max() for x, _ in native.values()], default=steps.max())
+    ax.set_xlim(0, max(xmax * 1.05, 1))
+    ax.set_xlabel("control steps (all environments)")
+    ax.set_ylabel("average reward per control step during learning")
+    ax.set_title("Native PPO (white noise) vs Brax PPO, the same robot and settings")
+    ax.legend(loc="lower right")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp.png")
+    fig.savefig(tmp)
+    plt.close(fig)
+    tmp.replace(path)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--src", default="runs/ppo_validation")
+    ap.add_argument("--dest", default="results/ppo")
+    ap.add_argument("--peer", default="results/baseline_ppo")
+    a = ap.parse_args()
+    src, dest, peer_dir = (ROOT / p for p in (a.src, a.dest, a.peer))
+    if (src / "sweep.json").is_file():
+        store.atomic_copy(src / "sweep.json", dest / "validation" / "sweep.json")
+        for p in sorted((src / "points").glob("s*")):
+            for name in ("config.json", "metrics.jsonl", "compact.npz"):
+                if (p / name).is_file():
+                    store.atomic_copy(p / name, dest / "validation" / "points" / p.name / name)
+    native = pv.native_curves(dest / "validation" / "points")
+    runs = ppo_runs(peer_dir)
+    peer = pv.peer_curves(runs)
+    draw(native, peer, dest / "learning_curves.png")
+    rows = pv.band_check(native, pv.band(peer))
+    last = min((x.max() for x, _ in native.values()), default=0.0)
+    out = {"iterations": rows, "within_band": sum(r["within"] for r in rows), "of": len(rows),
+           "native_seeds": sorted(native), "native_last_steps": {str(s): int(x.max()) for s, (x, _) in native.items()},
+           "brax_deterministic_at_native_last": pv.deterministic_at(runs, last) if last else None}
+    store.atomic_write_json(dest / "summary.json", out)
+    print(json.dumps({k: out[k] for k in ("within_band", "of", "native_last_steps")}))
+    for r in rows:
+        print(f"{r['control_steps']:>9d}  native {r['native_mean']:+.3f}  Brax [{r['peer_lo']:+.3f}, {r['peer_hi']:+.3f}]"
+              f"  {'within' if r['within'] else 'OUTSIDE'}")
+
+
+if __name__ == "__main__":
+    main()
