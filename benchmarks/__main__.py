@@ -20,6 +20,8 @@ Benchmarks (each a module ``benchmarks/bench_<name>.py`` with ``run(quick, smoke
                  2 devices, end to end through the CLI (bench_distributed.py);
 * ``baseline``   wall time per 10^7 control steps, Brax PPO (``nmrl baseline ppo``) vs the
                  nm-period actor-critic (``nmrl train``), both on 2 devices (bench_baseline.py; needs Brax).
+* ``ppo``        native PPO vs Brax PPO at the Brax settings, control steps/s with learning, and the
+                 native iteration's profile (bench_ppo.py; the Brax half needs Brax).
 
 Every comparison is a ratio measured within one run, the contenders interleaved, so that a
 background load affects both alike; absolute numbers are reported beside the machine description
@@ -55,7 +57,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # see benchmarks/bench_likel
 HERE = pathlib.Path(__file__).resolve().parent
 ROOT = HERE.parent
 
-SECTIONS = ("env", "learning", "likelihood", "sweep", "scaling", "distributed", "baseline", "explore")
+SECTIONS = ("env", "learning", "likelihood", "sweep", "scaling", "distributed", "baseline", "explore", "ppo")
 SIZES = ("full", "quick", "smoke")
 TOP_KEYS = ("meta", "machine", *SECTIONS, "summary")
 
@@ -217,6 +219,10 @@ def summary(res: dict) -> dict:
     if ba and "runs" in ba:
         s["baseline_ppo_over_ac_speed"] = ba.get("ppo_over_actor_critic_speed")
         s["baseline_hours_per_1e7_steps"] = ba.get("hours_per_1e7_steps")
+    pp = res.get("ppo")
+    if pp and "runs" in pp:
+        s["ppo_native_over_brax"] = pp.get("native_over_brax")
+        s["ppo_native_share_of_iteration"] = _get(pp, "profile", "share_of_iteration")
     li = res.get("likelihood")
     if li and "results" in li:
         by = {(r["method"], r["l"]): r["median_s"] for r in li["results"]}
