@@ -317,6 +317,16 @@ def table(res: dict) -> str:
                      _f(med(a, "control_steps_per_s")), _f(med(b, "control_steps_per_s")),
                      _f(di["two_processes_over_one_process"], 2, "×"),
                      f"{_f(med(a, 'compile_s'), 1)} / {_f(med(b, 'compile_s'), 1)}"))
+    pp = res.get("ppo")
+    if pp and "runs" in pp:
+        c = pp["config"]
+        bc = [r["compile_s"] for r in pp["runs"]["brax"] if "compile_s" in r]
+        rows.append(("PPO ctrl steps/s with learning",
+                     f"native vs Brax PPO, N={c['num_envs']}, T={c['unroll_length']}, {c['num_minibatches']}×"
+                     f"{c['batch_size']}, {c['epochs']} epochs, 1 dev each",
+                     _f(pp["native_control_steps_per_s"]), _f(pp.get("brax_control_steps_per_s")),
+                     _f(pp.get("native_over_brax"), 2, "×"),
+                     f"{_f(pp['native_compile_s'], 1)} / {_f(statistics.median(bc) if bc else None, 1)}"))
     widths = [max(len(str(r[i])) for r in rows) for i in range(len(rows[0]))]
     line = lambda r: "| " + " | ".join(str(x).ljust(w) for x, w in zip(r, widths)) + " |"  # noqa: E731
     out = [line(rows[0]), "|" + "|".join("-" * (w + 2) for w in widths) + "|"]
