@@ -78,7 +78,7 @@ CHANGES = (
      "a checkpoint per iteration; the deterministic policy is rolled out for 10 s like nmrl eval"),
     ("num_envs", "2048", "64",
      "this machine is 2 CPU cores: MJX's step cost per environment grows with the batch per "
-     "device (README, 'Known facts'); the samples per update (batch_size x num_minibatches x "
+     "device (docs/performance.md); the samples per update (batch_size x num_minibatches x "
      "unroll_length = 327,680) are Brax's"),
 )
 

@@ -1,4 +1,4 @@
-"""Beyond the paper: does learning survive a finer time discretization? (issue 9)
+"""Beyond the paper: does learning survive a finer time discretization?
 
 The paper's thesis (Sec. III, eq. (1)): as the control step delta shrinks, a stationary policy
 (white exploration noise, l = 1) learns worse, and nm-periods of a fixed *duration* do not. Its

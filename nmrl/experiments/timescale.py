@@ -1,4 +1,4 @@
-"""The same learning problem at another control step delta (groundwork for the finer-delta study).
+"""The same learning problem at another control step delta (the finer-delta study's scaling).
 
 The paper runs one control step, delta_0 = 0.02 s. To compare delta in {0.02, 0.01, 0.005} s on
 the same problem in continuous time, every per-step constant is converted so that its meaning per

@@ -26,7 +26,7 @@ import jax.numpy as jnp
 
 #: the paper's action a = ACTION_SCALE * u for a squashed u in [-1, 1]: a^0 = 0.1 a = 2u spans the
 #: full torque range min{max{-1, tau^0 + a^0}, 1} for every tau^0 in (-1, 1) (Sec. V-A), and
-#: nothing beyond it (the value of nmrl.paper.brax_env.ACTION_SCALE, the Brax baseline's)
+#: nothing beyond it (the value of nmrl.adapters.brax_env.ACTION_SCALE, the Brax baseline's)
 ACTION_SCALE = 20.0
 #: Brax's running_statistics bounds of the observation std
 STD_MIN, STD_MAX = 1e-6, 1e6

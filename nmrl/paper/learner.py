@@ -49,19 +49,19 @@ period); at other steps the parameters and the optimizer states stay as they are
 changes nothing (the summed update is zero there); a stateful optimizer does not see zero
 gradients in between.
 
-Other update rules (issue 16, part 2). ``actor_opt`` and ``critic_opt`` name an optax chain per
+Other update rules. ``actor_opt`` and ``critic_opt`` name an optax chain per
 network from a small vocabulary (:data:`OPT_VOCAB`: ``sgd``, ``adam``, ``clip`` = clip by global
 norm; :func:`parse_opt`), e.g. ``"clip:1000,sgd"`` or ``"sgd,clip:1"`` or ``"adam:b1=0.8"``;
 exactly one element (sgd or adam) takes the traced step size. The chain is compiled into the
 program (a sweep's points share it) and recorded in canonical form in the config, so it is part
 of the run's identity; its state (e.g. Adam's moments) is in ``opt_theta`` / ``opt_v``. The
 presets name ``sgd`` for both networks, and a chain of one ``sgd`` is ``optax.sgd`` itself (no
-``optax.chain`` around it): the same program and optimizer state as before the vocabulary.
+``optax.chain`` around it).
 
-Bit identity with the hand-written update ``theta + beta * sum_e d_e z_e`` of the code before
-issue 16 (measured by scripts/check_optax_update.py: Half-Cheetah, the paper's networks and
-preset, N = 1 and 8, and the tiny test environment): the parameters after every chunk are equal
-bit for bit. (The float operations are the same: -beta * -S == beta * S exactly.)
+The sgd chain is bit-identical to the paper's update written by hand, ``theta + beta * sum_e d_e
+z_e`` (scripts/check_optax_update.py compares the two: Half-Cheetah, the paper's networks and
+preset, N = 1 and 8, and the tiny test environment; the parameters after every chunk are equal bit
+for bit, since -beta * -S == beta * S exactly in floating point).
 """
 
 from __future__ import annotations
@@ -82,8 +82,8 @@ from nmrl.paper.env import EnvConfig, HalfCheetah, State
 Params = Any
 OptState = Any
 
-#: The TrainState fields that hold the optimizer states (a checkpoint written before issue 16 lacks
-#: them; nmrl/runs/checkpoint.py restores it with fresh ones, see :func:`make_train`'s ``init_opt``).
+#: The TrainState fields that hold the optimizer states (a checkpoint of the layout without an
+#: optimizer lacks them; nmrl/runs/checkpoint.py restores it with fresh ones, see :func:`make_train`'s ``init_opt``).
 OPT_FIELDS = ("opt_theta", "opt_v")
 
 #: Named step-size presets. "paper" is Sec. V-C. "fast" is for the budgets this 2-core machine
@@ -102,7 +102,7 @@ DEFAULT_STEPS = 4000
 PRESETS: dict[str, dict[str, Any]] = {
     "paper": {"beta_theta": 2e-6, "beta_v": 1e-5, "actor_opt": "sgd", "critic_opt": "sgd"},
     "fast": {"beta_theta": 1e-5, "beta_v": 5e-4, "actor_opt": "sgd", "critic_opt": "sgd"},
-    #: the fast step sizes with every update clipped by global norm (issue 16, results/fast_preset/):
+    #: the fast step sizes with every update clipped by global norm (results/fast_preset/):
     #: in the fast preset's collapses the critic blows up first (|v| 90 -> 58,000 within one chunk,
     #: TD errors x10^4, the actor then takes one huge step). The bounds are in parameter units (after
     #: sgd): the actor's summed update had a mean norm of ~0.01 per control step, the critic's ~0.3-1.5

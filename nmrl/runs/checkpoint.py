@@ -35,8 +35,8 @@ when complete (local file systems); unfinished tmp directories are ignored by re
 synchronous (async checkpointing off) and fsyncs the files before returning. The checkout's git
 commit and the library versions recorded in the metadata are looked up once per process.
 
-Checkpoints written before the update went through optax (issue 16) have the same schema but
-their state lacks the optimizer states ``opt_theta.*`` and ``opt_v.*``. ``restore`` accepts such a
+Checkpoints of the layout without optimizer states (the update written by hand, not through
+optax) have the same schema but their state lacks the optimizer states ``opt_theta.*`` and ``opt_v.*``. ``restore`` accepts such a
 checkpoint when nothing else is missing or different and gives it fresh optimizer states
 (``trainer.init_opt`` of the restored theta, v and hyperparameters). That is exact: those runs used
 the paper's rule theta += beta^theta sum_e d_e z_e (Table II), now ``optax.sgd`` under

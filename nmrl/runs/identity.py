@@ -80,10 +80,9 @@ def _check_config(meta: dict, config: Config) -> None:
 
 
 
-#: Identity fields added after checkpoints with an identity digest were written, with the value
-#: every earlier run had: a field at that value is left out of the identity, so the digests (and
-#: identity comparisons) of those runs stay what they were (the optimizer chains of issue 16: every
-#: run before them used the paper's rule, plain sgd).
+#: Identity fields that runs with an older identity digest do not record, with the value those runs
+#: had: a field at that value is left out of the identity, so their digests (and identity
+#: comparisons) stay what they are (such runs used the paper's rule, plain sgd, and the actor-critic).
 LATER_FIELDS: dict[str, object] = {"actor_opt": "sgd", "critic_opt": "sgd", learners.KEY: learners.DEFAULT}
 
 
