@@ -54,6 +54,7 @@ from nmrl.learners import ppo_losses as L
 from nmrl.learners import ppo_networks as nn_
 from nmrl.learners.contract import Learner, Policy, register
 from nmrl.paper.env import EnvConfig, HalfCheetah
+from nmrl.paper.learner import check_shards
 
 NAME = "ppo"
 #: the horizon (s) of Brax's discounting 0.95 (and GAE lambda 0.95) at the baseline's 0.02 s step
@@ -302,10 +303,7 @@ def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None
     for ``jax.shard_map`` over the environment axis of ``env`` and ``noise``: every draw is made per
     environment from the shared key, the minibatches take the same unrolls, and the sums behind the
     losses, gradients and statistics are ``psum``-ed over ``axis_name``."""
-    if num_shards < 1 or config.num_envs % num_shards:
-        raise ValueError(f"num_envs={config.num_envs} must be divisible by num_shards={num_shards}")
-    if num_shards > 1 and axis_name is None:
-        raise ValueError("num_shards > 1 needs an axis_name")
+    check_shards(config.num_envs, num_shards, axis_name)
     cfg = config.resolved()
     env = env or HalfCheetah(cfg.env_config())
     OBS, ACT = env.obs_dim, env.act_dim

@@ -406,6 +406,15 @@ def _tree_where(c, a, b):
     return jax.tree.map(lambda x, y: jnp.where(c, x, y), a, b)
 
 
+def check_shards(num_envs: int, num_shards: int, axis_name: str | None) -> None:
+    """The environment axis splits evenly over ``num_shards`` shards of a ``jax.shard_map`` named
+    ``axis_name`` (every learner's ``make`` takes these arguments; ValueError otherwise)."""
+    if num_shards < 1 or num_envs % num_shards:
+        raise ValueError(f"num_envs={num_envs} must be divisible by num_shards={num_shards}")
+    if num_shards > 1 and axis_name is None:
+        raise ValueError("num_shards > 1 needs an axis_name")
+
+
 def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = None,
                num_shards: int = 1) -> Trainer:
     """Build the pure functions of a training run (see the module docstring).
@@ -420,10 +429,7 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
     over ``axis_name``. The noise of all N environments is drawn from the shared key and each shard
     takes its slice, so the draws equal the unsharded program's.
     """
-    if num_shards < 1 or config.num_envs % num_shards:
-        raise ValueError(f"num_envs={config.num_envs} must be divisible by num_shards={num_shards}")
-    if num_shards > 1 and axis_name is None:
-        raise ValueError("num_shards > 1 needs an axis_name")
+    check_shards(config.num_envs, num_shards, axis_name)
     cfg = config.resolved()
     env = env or HalfCheetah(cfg.env_config())
     OBS_DIM, ACT_DIM = env.obs_dim, env.act_dim
