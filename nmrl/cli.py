@@ -10,11 +10,13 @@ l = round(period_s / control_dt) and alpha = exp(-control_dt / corr_time_s); its
 paper's nm-periods, ``--l``/``--alpha``). Bad values exit with status 2 and a message that names the
 value, before anything is written.
 
-Exit status: 0 done, 2 bad input (one line ``nmrl: error: ...`` on stderr, nothing written),
-3 diverged (the last good checkpoint is kept), 4 another process of a distributed run failed
-(nmrl/runs/distributed.py; the newest checkpoint is kept), 128 + the signal when SIGINT (130) or
-SIGTERM (143) stopped ``train`` or ``sweep`` (after the chunk in flight was saved; ``--resume``
-continues it).
+Exit status (nmrl/runs/exits.py): 0 done, 2 bad input (one line ``nmrl: error: ...`` on stderr,
+nothing written), 3 diverged (the last good checkpoint is kept), 4 another process of a distributed
+run failed (nmrl/runs/distributed.py; the newest checkpoint is kept), 5 the disk or file system
+refused a write (full, read-only, permission, immutable; one line naming the path and the cause),
+6 another nmrl process is writing the same directory (named), 7 out of memory allocating the run,
+128 + the signal when SIGINT (130) or SIGTERM (143) stopped the command (after the chunk in flight
+was saved, ``--resume`` continues it; or before the first chunk, nothing of the run written).
 
 Several processes (``--coordinator HOST:PORT --num-processes P --process-id I``, or
 ``--coordinator auto`` under SLURM/Open MPI): every process runs the same command; each is watched
@@ -37,7 +39,10 @@ import typing
 from collections.abc import Callable
 
 from nmrl.runs import devices as _devices
+from nmrl.runs import exits as _exits
 from nmrl.runs import launch as _launch
+from nmrl.runs import parser as _parser
+from nmrl.runs import signals as _signals
 
 # nmrl.paper.learner (and with it JAX) is imported only after nmrl.runs.devices.configure has set the host
 # device count (main()). The budget of a run given none is TrainConfig's (nmrl.paper.learner.DEFAULT_STEPS).
@@ -150,9 +155,43 @@ def _with_exploration(args: argparse.Namespace, learner, cfg, given: set[str]):
     return learner.exploration(cfg, kind, params, frozenset(given))
 
 
-def _fail(msg: str) -> int:
-    print(f"nmrl: error: {msg}", file=sys.stderr)
-    return 2
+def _fail(msg: str, status: int = _exits.BAD_INPUT) -> int:
+    print(f"nmrl: error: {msg}", file=sys.stderr, flush=True)
+    return status
+
+
+def _failure(e: BaseException) -> int | None:
+    """The one line and exit status of a failure that is not a bug (nmrl/runs/exits.py): another
+    writer (6), the disk or file system (5), memory (7), a damaged metrics file (2); None: other."""
+    from nmrl.runs import io_errors, jsonl, lock
+
+    if isinstance(e, lock.Locked):
+        return _fail(str(e), _exits.LOCKED)
+    if isinstance(e, io_errors.IOFailure):
+        return _fail(str(e), _exits.IO_FAILED)
+    if isinstance(e, jsonl.Corrupt):
+        return _fail(str(e))
+    if "nmrl.runs.driver" in sys.modules:
+        from nmrl.runs import driver
+
+        if isinstance(e, driver.OutOfMemory):
+            return _fail(str(e), _exits.OUT_OF_MEMORY)
+    f = io_errors.find(e)
+    if f is not None and (isinstance(e, OSError) or type(e).__name__ in ("CheckpointError", "CorruptCheckpoint")):
+        return _fail(f"{f.line()}; what was saved before is intact: run the same command again once the cause "
+                     f"is gone", _exits.IO_FAILED)
+    return None
+
+
+def _guard(what: str, out: str | None) -> "_signals.Guard":
+    """The command's signal handling for its whole life (nmrl/runs/signals.py); a second signal
+    exits at once naming what is intact."""
+    def second(signum: int, moment: str) -> str:
+        where = f" in {out}" if out else ""
+        return (f"nmrl: stopped at once by a second signal {signum} while {moment}; the newest checkpoint{where} is "
+                f"intact (saves are atomic); continue with: nmrl {what} --resume --out {out}")
+
+    return _signals.Guard(on_second=second).install()
 
 
 def add_distributed_options(p: argparse.ArgumentParser) -> None:
@@ -223,6 +262,19 @@ def _is_process_zero(args: argparse.Namespace) -> bool:
     return jax.process_index() == 0
 
 
+def _not_a_bug(args: argparse.Namespace, e: Exception) -> int:
+    """The exit status of an unexpected exception that is not a bug: another writer, the disk,
+    memory, a damaged metrics file (:func:`_failure`) or, in a distributed run, a process gone
+    (:func:`_peer_failure`); anything else is re-raised."""
+    failed = _failure(e)
+    if failed is not None:
+        return failed
+    peer = _peer_failure(args, e)
+    if peer is None:
+        raise e
+    return peer
+
+
 def _peer_failure(args: argparse.Namespace, e: BaseException) -> int | None:
     """The exit status for an exception that means another process of the run is gone (else None)."""
     if getattr(args, "coordinator", None) is None:
@@ -254,23 +306,20 @@ def cmd_train(args: argparse.Namespace) -> int:
     try:
         run.train(cfg, args.out, resume=args.resume, progress=not args.quiet, devices=n_dev,
                   given=given if args.resume else None, step=args.step)
-    except (run.RunError, checkpoint.CheckpointError) as e:
-        return _fail(str(e))
     except run.Diverged as e:
         print(f"nmrl: {e}", file=sys.stderr)
-        return 3
+        return _exits.DIVERGED
     except run.Stopped as e:
         status = e.exit_status
-    except KeyboardInterrupt:  # a second signal: stopped at once, inside a chunk or a save
-        print(f"nmrl: stopped at once; the newest checkpoint in {args.out} is intact (saves are atomic); "
-              f"continue with: nmrl train --resume --out {args.out}", file=sys.stderr)
-        return 130
-    except Exception as e:  # noqa: BLE001 - several processes: a peer that is gone
-        peer = _peer_failure(args, e)
-        if peer is None:
-            raise
-        return peer
-    rows = store.read_metrics(args.out)  # the run's, not only this session's
+    except (run.RunError, checkpoint.CheckpointError) as e:
+        failed = _failure(e)
+        return failed if failed is not None else _fail(str(e))
+    except Exception as e:  # noqa: BLE001 - the disk, another writer, memory; several processes: a peer gone
+        return _not_a_bug(args, e)
+    try:
+        rows = store.read_metrics(args.out)  # the run's, not only this session's
+    except Exception:  # noqa: BLE001 - nothing of the run was written (stopped before its first chunk)
+        rows = []
     if rows and _is_process_zero(args):
         first, last = rows[0], rows[-1]
         print(json.dumps({"out": args.out, "step": last["step"], "trials": last["trials"],
@@ -290,15 +339,32 @@ def cmd_eval(args: argparse.Namespace) -> int:
         return _fail(f"--step={args.step} is invalid: a checkpoint step is >= 0")
     if args.out is not None and os.path.exists(args.out) and not os.path.isdir(args.out):
         return _fail(f"--out={args.out!r} is invalid: it exists and is not a directory")
-    from nmrl.runs import checkpoint
+    from nmrl.runs import checkpoint, io_errors, lock
     from nmrl.analysis import evaluate
 
+    out_dir = args.out if args.out is not None else os.path.join(args.run, evaluate.EVAL_DIR)
+    held = None
     try:
+        if os.path.isdir(args.run) or args.out is not None:
+            io_errors.check_writable(out_dir)  # before the rollouts: the pictures and eval.json must fit
+            try:
+                held = lock.hold(out_dir)  # one writer of the eval's outputs
+            except OSError as e:
+                raise io_errors.IOFailure(io_errors.find(e, out_dir) or io_errors.Failure(
+                    e.errno or 0, out_dir, (e.strerror or str(e)).lower())) from None
         result = evaluate.evaluate(args.run, step=args.step, seconds=args.seconds, seed=args.seed,
                                    render=not args.no_render, out_dir=args.out,
                                    warn=lambda m: print(f"nmrl: warning: {m}", file=sys.stderr, flush=True))
-    except checkpoint.CheckpointError as e:
-        return _fail(str(e))
+    except Exception as e:  # noqa: BLE001
+        failed = _failure(e)
+        if failed is not None:
+            return failed
+        if isinstance(e, checkpoint.CheckpointError):
+            return _fail(str(e))
+        raise
+    finally:
+        if held is not None:
+            held.release(remove_if_empty=True)
     print(json.dumps(result, indent=2))
     return 0
 
@@ -340,17 +406,16 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         sweep.run_sweep(spec, args.out, resume=args.resume, progress=not args.quiet,
                         checkpoint_every=args.checkpoint_every, group=args.group, devices=n_dev,
                         given=given_options(args, skip=_sweep_skip(learner)) if args.resume else None)
-    except (sweep.SweepError, driver.RunError, checkpoint.CheckpointError, ValueError) as e:
-        return _fail(str(e))
     except driver.Stopped as e:
-        print(f"nmrl: sweep stopped by signal {e.signum}; every active point was saved. Continue with: nmrl sweep "
-              f"--resume --out {args.out}", file=sys.stderr)
+        if e.rows or args.resume:
+            print(f"nmrl: sweep stopped by signal {e.signum}; every active point was saved. Continue with: nmrl "
+                  f"sweep --resume --out {args.out}", file=sys.stderr)
         return e.exit_status
-    except Exception as e:  # noqa: BLE001 - several processes: a peer that is gone
-        peer = _peer_failure(args, e)
-        if peer is None:
-            raise
-        return peer
+    except (sweep.SweepError, driver.RunError, checkpoint.CheckpointError, ValueError) as e:
+        failed = _failure(e)
+        return failed if failed is not None else _fail(str(e))
+    except Exception as e:  # noqa: BLE001 - the disk, another writer, memory; several processes: a peer gone
+        return _not_a_bug(args, e)
     return 0
 
 
@@ -403,8 +468,8 @@ def _varied_spec(args: argparse.Namespace, learner, base):
 def build_parser(learner=None) -> argparse.ArgumentParser:
     """The command line; ``train`` and ``sweep`` take the options of ``learner`` (default: ac)."""
     learner = learner or _learner()
-    ap = argparse.ArgumentParser(prog="nmrl", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = _parser.OneLineParser(prog="nmrl", description=__doc__,
+                               formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
 
     p = sub.add_parser("train", help="train one run of a learner (default: the paper's actor-critic, Table II)")
@@ -534,9 +599,18 @@ def main(argv: list[str] | None = None) -> int:
         watched = _watch(argv)
         if watched is not None:
             return watched
-    args = build_parser(learner).parse_args(argv)
-    args.argv = argv
-    status = args.func(args)
+    # this process runs the command (a distributed one's watcher forwards signals instead): from here
+    # on a signal never raises inside JAX (nmrl/runs/signals.py)
+    guard = _guard(argv[0], _flag(argv, "--out")) if argv[:1] in (["train"], ["sweep"]) else None
+    try:
+        args = build_parser(learner).parse_args(argv)
+        args.argv = argv
+        status = args.func(args)
+    except _signals.Interrupted as e:
+        status = e.exit_status
+    finally:
+        if guard is not None:
+            guard.restore()
     if getattr(args, "coordinator", None) is not None and "jax" in sys.modules:
         from nmrl.runs import distributed
 

@@ -38,7 +38,7 @@ import numpy as np
 from nmrl import learners
 from nmrl.paper import geometry as g
 from nmrl.paper.env import REWARD_TERMS, EnvConfig, HalfCheetah, forward_kinematics
-from nmrl.runs import checkpoint
+from nmrl.runs import checkpoint, io_errors
 from nmrl.runs.store import atomic_path, atomic_write_text
 
 __all__ = ["evaluate", "rollout", "rollout_params", "rollout_policy", "summarize", "plot_strobe", "write_gif", "GROUND_KEYS"]
@@ -235,7 +235,8 @@ def evaluate(
     ``nonfinite`` (steps whose physics failed). With ``render`` also ``files`` {strobe, gif}.
     The JSON is also written to ``OUT_DIR/eval.json`` (``OUT_DIR`` = ``RUN_DIR/eval``).
     Raises CheckpointError for a missing/bad checkpoint or one of another run (ForeignCheckpoint),
-    ValueError for bad ``seconds``. A corrupted newest checkpoint skipped (``step`` None) is
+    ValueError for bad ``seconds``, :class:`nmrl.runs.io_errors.IOFailure` (before the rollouts)
+    when ``OUT_DIR`` cannot be written. A corrupted newest checkpoint skipped (``step`` None) is
     reported through ``warn`` (default: a line on stderr), one call per checkpoint naming its path.
     """
     run = pathlib.Path(run_dir)
@@ -247,9 +248,10 @@ def evaluate(
         warn(f"{e}; evaluating the newest good checkpoint, step {step}, instead")
     n_steps = _num_steps(seconds, config.control_dt)
     learner = learners.of(config)
+    out_dir = pathlib.Path(out_dir) if out_dir is not None else run / EVAL_DIR
+    io_errors.check_writable(out_dir)  # before the rollouts: IOFailure naming the directory and the cause
     det = rollout_params(config, params, seconds=seconds, seed=seed, exploring=False)
     exp = rollout_params(config, params, seconds=seconds, seed=seed, exploring=True)
-    out_dir = pathlib.Path(out_dir) if out_dir is not None else run / EVAL_DIR
     result: dict[str, Any] = {
         "run_dir": str(run),
         "step": step,

@@ -49,7 +49,7 @@ from nmrl.analysis import stats
 from nmrl.experiments import gradvar
 from nmrl.experiments.timescale import DELTA_0, at_control_step
 from nmrl import learners
-from nmrl.runs import checkpoint, driver, store
+from nmrl.runs import checkpoint, driver, exits, io_errors, lock, parser, signals, store
 from nmrl.runs.store import read_csv, read_metrics, write_csv
 
 #: the study's learner: the paper's actor-critic (its arms are period lengths l, its grid the step sizes)
@@ -194,6 +194,7 @@ def _run_phase(out: pathlib.Path, phase: str, dt: float, names: list[str], cfgs:
                spec: StudySpec, progress: bool) -> None:
     d = _dt_dir(out, phase, dt)
     steps = cfgs[0].steps
+    phase_names = list(names)  # every point of this phase: the finished ones are the phase's, too
     todo = [i for i, n in enumerate(names) if not _point_done(d / "points" / n, steps)]
     if not todo:
         return
@@ -221,7 +222,7 @@ def _run_phase(out: pathlib.Path, phase: str, dt: float, names: list[str], cfgs:
     if progress:
         print(f"[{phase} dt={dt:g}] {'resuming' if resume else 'starting'} {len(names)} points "
               f"x {cfgs[0].num_envs} environments", file=sys.stderr, flush=True)
-    driver.run_points(d, names, cfgs, resume=resume, progress=progress, table=False,
+    driver.run_points(d, names, cfgs, resume=resume, progress=progress, table=False, known=phase_names,
                      checkpoint_every=spec.checkpoint_every, on_chunk=on_chunk)
 
 
@@ -346,6 +347,16 @@ def run_study(spec: StudySpec, out: str | pathlib.Path, *, phases: Sequence[str]
     if bad:
         raise ValueError(f"unknown phase(s) {bad}: choose from {list(PHASES)}")
     out = pathlib.Path(out).absolute()
+    if out.exists() and not out.is_dir():
+        raise StudyError(f"--out={str(out)!r} is invalid: it exists and is not a directory")
+    held = lock.hold(out)  # one writer of the study for its whole run (nmrl/runs/lock.py)
+    try:
+        return _run_study(spec, out, phases, progress)
+    finally:
+        held.release(remove_if_empty=True)
+
+
+def _run_study(spec: StudySpec, out: pathlib.Path, phases: Sequence[str], progress: bool) -> dict:
     spec_path = out / SPEC_FILE
     if spec_path.exists():
         saved = StudySpec.from_json(json.loads(spec_path.read_text()))
@@ -418,7 +429,7 @@ def _period(s: str) -> float | None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="nmrl study", description=__doc__.split("\n\n")[0])
+    ap = parser.OneLineParser(prog="nmrl study", description=__doc__.split("\n\n")[0])
     d = StudySpec()
     ap.add_argument("--out", required=True, help="study directory (continued if it exists)")
     ap.add_argument("--dt", type=float, nargs="+", default=list(d.dts), help="control steps [s]")
@@ -444,15 +455,29 @@ def main(argv: Sequence[str] | None = None) -> int:
                      chunk_seconds=a.chunk_seconds, seeds=a.seeds, num_envs=a.num_envs,
                      checkpoint_every=a.checkpoint_every, gradvar_envs=a.gradvar_envs,
                      gradvar_batches=a.gradvar_batches, beta_theta_cap=a.beta_theta_cap)
+    guard = signals.Guard().install()  # a signal never raises inside JAX (nmrl/runs/signals.py)
     try:
         run_study(spec, a.out, phases=a.phases, progress=not a.quiet)
-    except (ValueError, StudyError, driver.RunError, checkpoint.CheckpointError) as e:
-        print(f"nmrl study: error: {e}", file=sys.stderr)
-        return 2
     except driver.Stopped as e:
         print(f"nmrl study: {e}; every active point was saved; run the same command again to continue",
               file=sys.stderr)
         return e.exit_status
+    except signals.Interrupted as e:
+        return e.exit_status
+    except lock.Locked as e:
+        print(f"nmrl study: error: {e}", file=sys.stderr)
+        return exits.LOCKED
+    except Exception as e:  # noqa: BLE001 - the disk or file system; else bad input or a bug
+        f = io_errors.find(e) if isinstance(e, (OSError, checkpoint.CheckpointError, io_errors.IOFailure)) else None
+        if isinstance(e, io_errors.IOFailure) or f is not None:
+            print(f"nmrl study: error: {e if isinstance(e, io_errors.IOFailure) else f.line()}", file=sys.stderr)
+            return exits.IO_FAILED
+        if isinstance(e, (ValueError, StudyError, driver.RunError, checkpoint.CheckpointError)):
+            print(f"nmrl study: error: {e}", file=sys.stderr)
+            return exits.BAD_INPUT
+        raise
+    finally:
+        guard.restore()
     return 0
 
 

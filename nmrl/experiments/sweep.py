@@ -45,7 +45,7 @@ from typing import Sequence
 
 from nmrl import learners
 from nmrl.analysis import plots, stats
-from nmrl.runs import distributed as dist, driver, store
+from nmrl.runs import distributed as dist, driver, lock, store
 from nmrl.runs.driver import Stopped  # noqa: F401  (raised by run_sweep after a signal)
 from nmrl.runs.points import slot_order, stack_trees  # noqa: F401  (the sweep's layout, nmrl/runs/points.py)
 
@@ -193,9 +193,22 @@ def run_sweep(spec: SweepSpec, out: str | os.PathLike, *, resume: bool = False, 
 
     ``given`` (the config options given on the command line with a resume) may change only the
     budget: any other that differs from the saved base config (e.g. another ``actor_opt`` chain) is
-    refused (SweepError naming them), before anything is written."""
+    refused (SweepError naming them), before anything is written. A fresh sweep refuses a directory
+    whose ``points/`` holds any run (no ``sweep.json`` accounts for it); a resume refuses a point
+    that is not one of the saved spec's (nmrl.runs.driver.run_points). The sweep's directory is
+    locked for the call (nmrl/runs/lock.py): a second writer is refused naming the first."""
     spec.validate()
     out = pathlib.Path(out)
+    held = lock.hold(out, create=False) if out.is_dir() and dist.is_writer() else None
+    try:
+        return _run_sweep(spec, out, resume, progress, keep, max_chunks, plot, checkpoint_every, group, devices,
+                          given)
+    finally:
+        if held is not None:
+            held.release()
+
+
+def _run_sweep(spec, out, resume, progress, keep, max_chunks, plot, checkpoint_every, group, devices, given):
     if resume:
         if not (out / SPEC_FILE).exists():
             raise SweepError(f"--resume: {out / SPEC_FILE} not found; is {out} a sweep directory?")
@@ -215,6 +228,12 @@ def run_sweep(spec: SweepSpec, out: str | os.PathLike, *, resume: bool = False, 
         spec.validate()
     elif (out / SPEC_FILE).exists():
         raise SweepError(f"{out} already holds a sweep; continue it with --resume or choose another --out")
+    elif (out / "points").is_dir():
+        for d in sorted((out / "points").iterdir()):
+            held = [n for n in store.RUN_FILES if (d / n).exists()] if d.is_dir() else []
+            if held:
+                raise SweepError(f"{d} holds a run ({', '.join(held)}) but {out} has no {SPEC_FILE}, so no sweep "
+                                 f"accounts for it; move it away or choose another --out (nothing was written)")
     base = spec.base.resolved()
     new_spec = not resume or base != saved.base
     spec = dataclasses.replace(spec, base=base)

@@ -68,7 +68,7 @@ import numpy as np
 import nmrl
 from nmrl import learners
 from nmrl.paper.env import MODEL_PATH
-from nmrl.runs import store
+from nmrl.runs import io_errors, store
 from nmrl.runs.store import CHECKPOINTS, COMPACT_FILE
 from nmrl.runs.checkpoint_files import *  # noqa: F401,F403  (the public names of each part, see __all__)
 from nmrl.runs.checkpoint_files import (FORMAT, SCHEMA_VERSION, CheckpointError, Config, CorruptCheckpoint,
@@ -227,9 +227,14 @@ class Checkpointer:
                     force=True,
                 )
                 m.wait_until_finished()
-        except CheckpointError:
-            raise
         except Exception as e:  # noqa: BLE001
+            io_errors.remove_partial_saves(d)  # orbax's unfinished <step>.orbax-checkpoint-tmp*
+            f = io_errors.find(e, d / str(step))
+            if f is not None:  # the disk or file system: one line naming the path and the cause
+                raise io_errors.IOFailure(f, hint="the checkpoints saved before are intact; continue with --resume "
+                                                  "once the cause is gone") from None
+            if isinstance(e, CheckpointError):
+                raise
             raise _err(d / str(step), "saving the checkpoint failed", e) from e
         path = d / str(step)
         if not path.is_dir():

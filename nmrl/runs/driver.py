@@ -19,9 +19,17 @@ Several processes (nmrl/runs/distributed.py) run the same loop in lockstep: each
 a barrier, after it they agree on the signal and on process 0's checkpoint decisions, and only
 process 0 writes; every process reads the run directory before that (a barrier in between).
 
-SIGINT/SIGTERM stop either after the chunk in flight, every active point saved (:class:`Stopped`;
-a second signal stops at once; the last checkpoints are intact because checkpoints are written
-atomically).
+SIGINT/SIGTERM at any moment go through one :class:`nmrl.runs.signals.Guard` (the command's, else
+the driver's own): during the compile the run stops when the compile returns, before anything of
+it is written; during the chunk loop after the chunk in flight, every active point saved
+(:class:`Stopped`); a second signal stops at once (the last checkpoints are intact because
+checkpoints are written atomically).
+
+One process writes a run directory at a time (:mod:`nmrl.runs.lock`, held from before the run is
+read until the command ends; a second writer is refused naming the holder). Nothing is written
+before every check, the memory estimate (:mod:`nmrl.runs.memory`) and the first allocation have
+passed and the chunk has compiled: a start that fails or is stopped before its first chunk leaves
+no directory that blocks the next attempt.
 
 A run directory has one identity, the config it was created with (``config.json``; see
 nmrl/runs/checkpoint.py and nmrl/runs/store.py). A fresh run never starts in a directory that
@@ -50,7 +58,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from nmrl import learners
-from nmrl.runs import checkpoint, distributed as dist, sharding, store
+from nmrl.runs import bounds, checkpoint, distributed as dist, io_errors, lock, memory, sharding, signals, store
 from nmrl.runs import points as pts
 from nmrl.runs.store import (CONFIG_FILE, METRICS_FILE, RESUMES_FILE, RUN_FILES, append_metrics,  # noqa: F401
                              is_diverged, read_metrics, to_python, truncate_metrics)
@@ -70,6 +78,11 @@ class RunError(Exception):
 
 class Diverged(Exception):
     """Training diverged; the last good checkpoint is kept."""
+
+
+class OutOfMemory(Exception):
+    """The machine ran out of memory allocating the run (its sizes passed the estimate); nothing of
+    the run is left."""
 
 
 class Stopped(Exception):
@@ -104,6 +117,7 @@ def check_config(cfg: Config) -> None:
     except TypeError as e:
         raise ValueError(str(e)) from e
     learner.validate(cfg)
+    bounds.check(cfg)  # float32-finite floats, int32 integers, the ranges of shared fields
     if not (isinstance(cfg.seed, int) and not isinstance(cfg.seed, bool) and 0 <= cfg.seed <= SEED_MAX):
         raise ValueError(f"seed={cfg.seed!r} is invalid: must be an integer in [0, {SEED_MAX}] "
                          f"(JAX's PRNG seeds are 32-bit; others wrap around to another seed)")
@@ -136,6 +150,52 @@ def _fresh_out(out: pathlib.Path) -> None:
         raise RunError(f"--out={str(out)!r} is invalid: {p} is not a directory")
     if not os.access(p, os.W_OK | os.X_OK):
         raise RunError(f"--out={str(out)!r} is invalid: {p} is not writable")
+
+
+def _hold(out: pathlib.Path, create: bool = True) -> "lock.Hold | None":
+    """The one-writer lock of ``out`` (process 0 only: the others never write); a directory that
+    cannot take the lock file is a disk or file system failure naming ``out``."""
+    if not dist.is_writer():
+        return None
+    try:
+        return lock.hold(out, create=create)
+    except OSError as e:
+        f = io_errors.find(e, out)
+        if f is None:  # not the disk or file system refusing: a path that cannot be a directory
+            raise RunError(f"--out={str(out)!r} is invalid: cannot create the directory ({e.strerror or e})") from None
+        raise io_errors.IOFailure(dataclasses.replace(f, path=str(out))) from None
+
+
+def _sizes(cfg: Config) -> str:
+    """The sizes that set a run's memory, as the command line gives them."""
+    names = [f.name for f in dataclasses.fields(cfg) if f.name == "num_envs" or f.name.startswith("hidden")]
+    return ", ".join(f"{n}={getattr(cfg, n)}" for n in names)
+
+
+def _preflight(cfg: Config, trainer, points: int = 1) -> None:
+    """Refuse sizes whose memory estimate exceeds the machine's (RunError naming both)."""
+    try:
+        est = memory.estimate(trainer.init, jax.random.PRNGKey(0), points=points)
+        memory.preflight(est, _sizes(cfg) + (f" for {points} points" if points > 1 else ""),
+                         warn=lambda m: print(f"nmrl: warning: {m}", file=sys.stderr, flush=True))
+    except memory.TooLarge as e:
+        raise RunError(str(e)) from None
+
+
+def _out_of_memory(e: BaseException) -> bool:
+    text = str(e)
+    return isinstance(e, MemoryError) or "RESOURCE_EXHAUSTED" in text or "Out of memory" in text
+
+
+def _allocate(fn: Callable, what: str, cfg: Config):
+    """``fn()`` with its result computed (an allocation that fails raises :class:`OutOfMemory`)."""
+    try:
+        return jax.block_until_ready(fn())
+    except Exception as e:  # noqa: BLE001 - XlaRuntimeError, MemoryError
+        if _out_of_memory(e):
+            raise OutOfMemory(f"out of memory {what} ({_sizes(cfg)}): {str(e).strip().splitlines()[0][:200]}; "
+                              f"choose smaller sizes") from None
+        raise
 
 
 def _create_dir(out: pathlib.Path) -> None:
@@ -343,6 +403,7 @@ def _resume(cfg: Config, out: pathlib.Path, given: dict | None, step: int | None
         raise RunError(f"--resume continues the run in {out} with its own learner {learners.of(run_cfg).name!r}; "
                        f"--learner {learners.of(cfg).name} would change it")
     trainer = learners.of(run_cfg).make(run_cfg, env=env)
+    _preflight(run_cfg, trainer)  # before the state is restored or made: sizes beyond the machine
 
     def load(s: int):
         meta = checkpoint.load_metadata(out, s)
@@ -357,8 +418,14 @@ def _resume(cfg: Config, out: pathlib.Path, given: dict | None, step: int | None
         meta, ts = None, jax.jit(trainer.init)(jax.random.PRNGKey(run_cfg.seed))
         old_budget = _budget(run_cfg)
     else:
+        start = steps[-1]
+        rows = read_metrics(out) if step is None else []
+        if rows and rows[-1]["step"] < steps[-1] and any(s <= rows[-1]["step"] for s in steps):
+            # the newest chunk's row was lost (a partial line dropped): run that chunk again from the newest
+            # checkpoint its rows reach, so metrics.jsonl stays whole
+            start = max(s for s in steps if s <= rows[-1]["step"])
         try:  # the newest checkpoint or the one asked for (newest_good with a step: no fallback)
-            s, (meta, ts), _ = checkpoint.newest_good(out, load, step if step is not None else steps[-1])
+            s, (meta, ts), _ = checkpoint.newest_good(out, load, step if step is not None else start)
         except checkpoint.CorruptCheckpoint as e:
             if step is not None:
                 raise
@@ -374,8 +441,26 @@ def _resume(cfg: Config, out: pathlib.Path, given: dict | None, step: int | None
                     else "no older checkpoint is readable either")
             raise RunError(f"{e}; {hint} (nothing was changed)") from e
         except checkpoint.ForeignCheckpoint as e:
-            others = [s for s in steps if s != (step if step is not None else steps[-1])]
-            raise RunError(f"{e}" + (f" (other checkpoints: --step {others})" if others else "")) from e
+            asked = step if step is not None else start
+            fits = []  # only checkpoints without the mismatch are worth naming
+            for s in steps:
+                if s == asked:
+                    continue
+                try:
+                    checkpoint.check_identity(checkpoint.load_metadata(out, s), run_cfg, source)
+                except checkpoint.CheckpointError:
+                    continue
+                fits.append(s)
+            if fits:
+                hint = f" (checkpoints of this run: --step {fits})"
+            elif has_config and len(steps) > 1:
+                hint = (f"; every checkpoint in {out} differs from its {CONFIG_FILE} the same way: if it was "
+                        f"edited, restore it (nothing was changed)")
+            elif has_config:
+                hint = f"; if {CONFIG_FILE} was edited, restore it (nothing was changed)"
+            else:
+                hint = ""
+            raise RunError(f"{e}{hint}") from e
         old_budget = {k: meta["config"].get(k) for k in BUDGET_FIELDS}
     new = dataclasses.replace(run_cfg, **(new_budget or old_budget))
     try:
@@ -419,7 +504,7 @@ def _begin_resumed(p: _Point) -> None:
     are dropped (not for a frozen point: its last rows say why it stopped), a changed budget is
     written to config.json, and the resume is recorded in resumes.jsonl."""
     if not p.frozen:
-        truncate_metrics(p.dir, int(p.ts.step))
+        truncate_metrics(p.dir, p.record["from_step"])
     if p.record["config_json_updated"]:
         store.write_config(p.dir, p.cfg)
     store.append_resume(p.dir, p.record)
@@ -525,14 +610,21 @@ def _drive(ps: Sequence[_Point], layout, *, stages: list[list[int]], checkpoint_
     n_chunks = 0
 
     def save(i: int) -> None:
+        guard.at("saving")
         one = layout.state(i)  # every process (a gather when there are several)
         if writer:
             ckpts[i].save(one, ps[i].cfg)
             if compact:
                 checkpoint.save_compact(ps[i].dir, one, ps[i].cfg)
         unsaved.discard(i)
+        guard.at("training")
 
-    stop, restore_signals = stop_on_signals()
+    guard = signals.active()
+    own_guard = guard is None  # a library call: the loop's own (a command installs one for its whole life)
+    if own_guard:
+        guard = signals.Guard().install()
+    stop = guard  # ``stop.signal``: the first signal received (or agreed on by every process)
+    guard.at("training")
     try:
         while not done.all():
             # several processes: start every chunk together (their compiles and process 0's saves take
@@ -542,7 +634,7 @@ def _drive(ps: Sequence[_Point], layout, *, stages: list[list[int]], checkpoint_
             active = np.zeros(len(ps), bool)
             active[[i for i in stage if not done[i]]] = True
             t0 = time.time()
-            ms = layout.run(active)
+            ms = _allocate(lambda: layout.run(active), "running a chunk", ps[0].cfg)
             wall = time.time() - t0
             n_active = int(active.sum())
             new: dict[int, dict] = {}
@@ -561,18 +653,19 @@ def _drive(ps: Sequence[_Point], layout, *, stages: list[list[int]], checkpoint_
                         last = ckpts[i].latest_step() if writer else "the newest"
                         norms = ", ".join(f"{k.removesuffix('_norm')} norm {row[k]:.3g}"
                                           for k in learners.norm_keys(row))
+                        kept = (f"the last good checkpoint (step {last}) is kept in {p.dir}" if last is not None
+                                else "no checkpoint was kept (it diverged in its first chunk)")
                         raise Diverged(
                             f"training diverged at step {row['step']} ({norms}, limit {p.cfg.max_param_norm:g}); "
-                            f"the last good checkpoint "
-                            f"(step {last}) is kept in {p.dir}. Try smaller step sizes.")
+                            f"{kept}. Try smaller step sizes.")
                     continue
                 finished = budget_done(p.cfg, row["step"], row["trials"])
-                want[i] = (finished or checkpoint_every == 1 or stop["signal"] is not None
+                want[i] = (finished or checkpoint_every == 1 or stop.signal is not None
                            or (writer and ckpts[i].should_save(row["step"])))
                 if finished:
                     done[i] = True
             # several processes: process 0's checkpoint decisions, and a signal that reached any of them
-            signum, want = _agreed(stop["signal"], want)
+            signum, want = _agreed(stop.signal, want)
             for i, row in new.items():
                 if is_diverged(row):
                     continue
@@ -584,18 +677,20 @@ def _drive(ps: Sequence[_Point], layout, *, stages: list[list[int]], checkpoint_
                 on_chunk(new)
             n_chunks += 1
             if not dist.active():  # one process: a signal during on_chunk stops now, too
-                signum = stop["signal"]
+                signum = stop.signal
             if signum is not None:
-                stop["signal"] = signum
+                stop.signal = signum
                 for i in sorted(unsaved):  # the signal came after this chunk's saves
                     save(i)
                 step = max(r["step"] for r in new.values()) if new else 0
-                print(stop_message(stop["signal"], step), file=sys.stderr, flush=True)
-                raise Stopped(stop["signal"], step, rows)
+                print(stop_message(stop.signal, step), file=sys.stderr, flush=True)
+                raise Stopped(stop.signal, step, rows)
             if max_chunks is not None and n_chunks >= max_chunks:
                 break
     finally:
-        restore_signals()
+        guard.at("finishing")
+        if own_guard:
+            guard.restore()
         for c in ckpts:
             if c is not None:
                 c.close()
@@ -641,53 +736,81 @@ def train(cfg: Config, out: str | os.PathLike, *, resume: bool = False, progress
     if step is not None and not resume:
         raise RunError(f"--step={step} picks the checkpoint to resume from and needs --resume "
                        f"(the budget is --steps)")
-    if resume:
-        cfg, trainer, ts, record = _resume(cfg, out, given, step)
-        _num_shards(cfg, devices)  # a bad device count is refused before anything is written
-        if budget_done(cfg, int(ts.step), int(ts.trials)):
-            print(f"{out}: nothing to do: the run is at step {int(ts.step)} ({int(ts.trials)} trials), its budget "
-                  f"is {budget_text(cfg)}; give a larger "
-                  f"--steps or --trials to continue", file=sys.stderr, flush=True)
-            return []
-        p = _Point(out.name, out, cfg, trainer, ts, record=record)
-        dist.barrier("train-checked")  # several processes: all have read the run before process 0 writes
-        if dist.is_writer():
-            _begin_resumed(p)
-    else:
-        check_config(cfg)
-        cfg = cfg.resolved()
-        _fresh_out(out)
-        trainer = learners.of(cfg).make(cfg)
-        _num_shards(cfg, devices)
-        dist.barrier("train-checked")
-        if dist.is_writer():
-            _create_dir(out)
-            store.write_config(out, cfg)
-        p = _Point(out.name, out, cfg, trainer, jax.jit(trainer.init)(jax.random.PRNGKey(cfg.seed)))
-    if cfg.steps is not None and cfg.steps % cfg.chunk_steps:
-        end = math.ceil(cfg.steps / cfg.chunk_steps) * cfg.chunk_steps
-        print(f"note: the budget of {cfg.steps} steps is not a whole number of chunks of {cfg.chunk_steps}: "
-              f"the run stops after whole chunks, at step {end}", file=sys.stderr, flush=True)
-    layout = _OneRun(p, devices)
-    n_dev = layout.n_dev
-    progress = progress and dist.is_writer()
-    if progress:
-        procs = f", {jax.process_count()} processes" if dist.active() else ""
-        print(f"train: {cfg.num_envs} environments on {n_dev} device(s), {cfg.num_envs // n_dev} per device "
-              f"({len(jax.local_devices())} local {jax.local_devices()[0].platform} device(s){procs})",
-              file=sys.stderr, flush=True)
-    compile_s = layout.compile()
-    if progress:
-        print(f"compiled the training chunk ({cfg.num_envs} environments on {n_dev} device(s)) in "
-              f"{compile_s:.1f} s", file=sys.stderr, flush=True)
-    bar = _Progress(cfg, progress, int(p.ts.step) if cfg.steps is not None else int(p.ts.trials))
+    guard = signals.active()
+    own_guard = guard is None
+    if own_guard:
+        guard = signals.Guard().install()
+    held = None
+    started = False  # whether anything of the run was written in this call
     try:
-        return _drive([p], layout, stages=[[0]], checkpoint_every=1, keep=keep, freeze_diverged=False,
-                      compact=False, on_chunk=lambda new: bar.update(new[0]), max_chunks=max_chunks,
-                      stop_message=lambda sig, st: (f"stopped by signal {sig} at step {st} (saved); continue "
-                                                    f"with: nmrl train --resume --out {out}"))
+        guard.at("starting")
+        if resume:
+            held = _hold(out, create=False) if out.is_dir() else None  # before the run is read
+            cfg, trainer, ts, record = _resume(cfg, out, given, step)
+            _num_shards(cfg, devices)  # a bad device count is refused before anything is written
+            if budget_done(cfg, int(ts.step), int(ts.trials)):
+                print(f"{out}: nothing to do: the run is at step {int(ts.step)} ({int(ts.trials)} trials), its "
+                      f"budget is {budget_text(cfg)}; give a larger "
+                      f"--steps or --trials to continue", file=sys.stderr, flush=True)
+                return []
+            p = _Point(out.name, out, cfg, trainer, ts, record=record)
+        else:
+            check_config(cfg)
+            cfg = cfg.resolved()
+            _fresh_out(out)
+            trainer = learners.of(cfg).make(cfg)
+            _num_shards(cfg, devices)
+            _preflight(cfg, trainer)
+            held = _hold(out)  # creates the directory (removed again if nothing is written)
+            if held is not None:  # a second signal's immediate exit before the first write leaves nothing
+                guard.on_exit.append(lambda: None if started else held.release(remove_if_empty=True))
+            _fresh_out(out)  # again under the lock: another writer may have finished meanwhile
+            ts = _allocate(lambda: jax.jit(trainer.init)(jax.random.PRNGKey(cfg.seed)), "allocating the state", cfg)
+            p = _Point(out.name, out, cfg, trainer, ts)
+        dist.barrier("train-checked")  # several processes: all have read the run before process 0 writes
+        if cfg.steps is not None and cfg.steps % cfg.chunk_steps:
+            end = math.ceil(cfg.steps / cfg.chunk_steps) * cfg.chunk_steps
+            print(f"note: the budget of {cfg.steps} steps is not a whole number of chunks of {cfg.chunk_steps}: "
+                  f"the run stops after whole chunks, at step {end}", file=sys.stderr, flush=True)
+        layout = _OneRun(p, devices)
+        n_dev = layout.n_dev
+        progress = progress and dist.is_writer()
+        if progress:
+            procs = f", {jax.process_count()} processes" if dist.active() else ""
+            print(f"train: {cfg.num_envs} environments on {n_dev} device(s), {cfg.num_envs // n_dev} per device "
+                  f"({len(jax.local_devices())} local {jax.local_devices()[0].platform} device(s){procs})",
+                  file=sys.stderr, flush=True)
+        guard.at("compiling")
+        compile_s = _allocate(layout.compile, "compiling the chunk", cfg)
+        if progress:
+            print(f"compiled the training chunk ({cfg.num_envs} environments on {n_dev} device(s)) in "
+                  f"{compile_s:.1f} s", file=sys.stderr, flush=True)
+        signum, _ = _agreed(guard.signal, np.zeros(0, bool))
+        if signum is not None:  # stopped before the first chunk: nothing of this session is written
+            what = ("nothing of the run was written" if not resume else
+                    f"the run in {out} is as it was; continue with: nmrl train --resume --out {out}")
+            print(f"stopped by signal {signum} before the first chunk; {what}", file=sys.stderr, flush=True)
+            raise Stopped(signum, int(p.ts.step), [])
+        guard.at("starting")
+        if dist.is_writer():  # every check passed and the chunk compiled: now the run's files
+            started = True
+            if resume:
+                _begin_resumed(p)
+            else:
+                store.write_config(out, cfg)
+        bar = _Progress(cfg, progress, int(p.ts.step) if cfg.steps is not None else int(p.ts.trials))
+        try:
+            return _drive([p], layout, stages=[[0]], checkpoint_every=1, keep=keep, freeze_diverged=False,
+                          compact=False, on_chunk=lambda new: bar.update(new[0]), max_chunks=max_chunks,
+                          stop_message=lambda sig, st: (f"stopped by signal {sig} at step {st} (saved); continue "
+                                                        f"with: nmrl train --resume --out {out}"))
+        finally:
+            bar.close()
     finally:
-        bar.close()
+        if held is not None:
+            held.release(remove_if_empty=not started)
+        if own_guard:
+            guard.restore()
 
 
 # ----------------------------------------------------------------------------- P runs as one program
@@ -710,7 +833,8 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[C
                resume: bool = False, progress: bool = True, keep: int = 2, max_chunks: int | None = None,
                checkpoint_every: int = 1, on_chunk: Callable[[], None] | None = None,
                table: bool = True, priority: Sequence[Sequence[int]] | None = None, group: int = 1,
-               devices: int | None = None, before_start: Callable[[], None] | None = None) -> list[dict]:
+               devices: int | None = None, before_start: Callable[[], None] | None = None,
+               known: Sequence[str] = ()) -> list[dict]:
     """Train every config as one compiled program; point ``names[i]`` lives in ``out/points/<name>/``.
 
     The configs are of one learner and may differ only in its traced ``hyper_fields`` and the seed
@@ -731,7 +855,11 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[C
     checkpoint. ``on_chunk()`` runs after every chunk; ``progress`` prints the layout, the compile
     time and (with ``table``) every point's latest metrics. SIGINT/SIGTERM stop the sweep after the
     chunk in flight, every active point saved, with :class:`Stopped`. Returns the rows written.
-    ``before_start()`` runs once every check has passed, before the points' files are written.
+    ``before_start()`` runs once every check has passed and the chunk has compiled, before the
+    points' files are written. ``out/points/`` may hold only these points and those named in
+    ``known`` (points of the same experiment not run in this call, e.g. finished ones): any other
+    run there is refused, as is (a fresh start) a point holding a saved run or another config.
+    ``out`` and every point are locked (nmrl/runs/lock.py) for the call.
     """
     if not (isinstance(checkpoint_every, int) and checkpoint_every >= 1):
         raise ValueError(f"checkpoint_every={checkpoint_every!r} is invalid: must be an integer >= 1")
@@ -753,68 +881,134 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[C
     else:
         n_dev = min(n_dev, P_)
     dirs = [out / "points" / n for n in names]
-
-    env = None
-    ps: list[_Point] = []
-    if resume:
-        for n, d, c in zip(names, dirs, configs):
-            # a diverged point stopped saving at its last good step and stays frozen there
-            frozen = any(is_diverged(r) for r in read_metrics(d))
-            cfg, tr, ts, record = _resume(c, d, dataclasses.asdict(c), None, env=env)
-            env = env or tr.env
-            ps.append(_Point(n, d, cfg, tr, ts, frozen=frozen, record=record))
-        pts.check_one_program(names, [p.cfg for p in ps])
-        if all(p.frozen or budget_done(p.cfg, int(p.ts.step), int(p.ts.trials)) for p in ps):
-            # nothing to continue: no compile, nothing written (no resume records), as train() does
-            if progress and dist.is_writer():
-                print(f"{out}: nothing to do: every point has reached its budget ({budget_text(ps[0].cfg)}) "
-                      f"or diverged; give a larger --steps or --trials to continue", file=sys.stderr, flush=True)
-            return []
+    writer = dist.is_writer()
+    guard = signals.active()
+    own_guard = guard is None
+    if own_guard:
+        guard = signals.Guard().install()
+    holds: list = []
+    started = False  # whether anything was written in this call
+    try:
+        guard.at("starting")
+        if out.is_dir():
+            holds.append(_hold(out, create=False))  # the sweep's directory, before any of it is read
+        _foreign_points(out, names, dirs, configs, resume, known)
+        holds += [_hold(d, create=False) for d in dirs if d.is_dir()]  # each existing point, too
+        env = None
+        ps: list[_Point] = []
+        if resume:
+            for n, d, c in zip(names, dirs, configs):
+                # a diverged point stopped saving at its last good step and stays frozen there
+                frozen = any(is_diverged(r) for r in read_metrics(d))
+                cfg, tr, ts, record = _resume(c, d, dataclasses.asdict(c), None, env=env)
+                env = env or tr.env
+                ps.append(_Point(n, d, cfg, tr, ts, frozen=frozen, record=record))
+            pts.check_one_program(names, [p.cfg for p in ps])
+            if all(p.frozen or budget_done(p.cfg, int(p.ts.step), int(p.ts.trials)) for p in ps):
+                # nothing to continue: no compile, nothing written (no resume records), as train() does
+                if progress and writer:
+                    print(f"{out}: nothing to do: every point has reached its budget ({budget_text(ps[0].cfg)}) "
+                          f"or diverged; give a larger --steps or --trials to continue", file=sys.stderr, flush=True)
+                return []
+            _preflight(ps[0].cfg, ps[0].trainer, points=P_)
+        else:
+            learner = learners.of(configs[0])
+            trainers = [learner.make(configs[0])]
+            trainers += [learner.make(c, env=trainers[0].env) for c in configs[1:]]
+            _preflight(configs[0], trainers[0], points=P_)
+            init = jax.jit(jax.vmap(trainers[0].init))
+            keys = jnp.stack([jax.random.PRNGKey(c.seed) for c in configs])
+            ts = _allocate(lambda: init(keys, pts.stack_trees([learner.hyper(c) for c in configs])),
+                           "allocating the states", configs[0])
+            ps = [_Point(n, d, c, tr, pts.unstack(ts, i))
+                  for i, (n, d, c, tr) in enumerate(zip(names, dirs, configs, trainers))]
+            del ts
         dist.barrier("points-checked")  # several processes: all have read the points before process 0 writes
+        layout = _Points(ps, n_dev, group, [i for st in stages for i in st], devices=mesh_devices)
+        for p in ps:
+            p.ts = None  # the layout holds the states now
+        progress = progress and writer
+        if progress:
+            print(f"sweep: {P_} points x {configs[0].num_envs} environments on {n_dev} "
+                  f"{jax.local_devices()[0].platform} device(s), {layout.per_dev} point(s) per device stepped "
+                  f"{'one at a time' if group == 1 else f'in vmapped groups of {group}'} "
+                  f"({configs[0].num_envs * min(group, layout.per_dev)} environments per device at a time)",
+                  file=sys.stderr, flush=True)
+        guard.at("compiling")
+        compile_s = _allocate(layout.compile, "compiling the chunk", configs[0])
+        if progress:
+            print(f"compiled the sweep chunk in {compile_s:.1f} s", file=sys.stderr, flush=True)
+        signum, _ = _agreed(guard.signal, np.zeros(0, bool))
+        if signum is not None:  # stopped before the first chunk: nothing of this session is written
+            what = "nothing was written" if not resume else f"{out} is as it was; continue with --resume"
+            print(f"stopped by signal {signum} before the first chunk; {what}", file=sys.stderr, flush=True)
+            raise Stopped(signum, 0, [])
+        guard.at("starting")
+        if writer:  # every check passed and the chunk compiled: lock what is new, check again, then write
+            for d in [out, *dirs]:
+                if not lock.held(d):
+                    holds.append(_hold(d))
+            _foreign_points(out, names, dirs, configs, resume, known)  # another writer may have been faster
+        started = True
         if before_start is not None:
             before_start()
-        if dist.is_writer():
-            for p in ps:  # every point's checks passed: now write
-                _begin_resumed(p)
-    else:
-        learner = learners.of(configs[0])
-        trainers = [learner.make(configs[0])]
-        trainers += [learner.make(c, env=trainers[0].env) for c in configs[1:]]
-        init = jax.jit(jax.vmap(trainers[0].init))
-        keys = jnp.stack([jax.random.PRNGKey(c.seed) for c in configs])
-        ts = init(keys, pts.stack_trees([learner.hyper(c) for c in configs]))
-        ps = [_Point(n, d, c, tr, pts.unstack(ts, i)) for i, (n, d, c, tr) in enumerate(zip(names, dirs, configs, trainers))]
-        del ts
-        dist.barrier("points-checked")
-        if before_start is not None:
-            before_start()
-        if dist.is_writer():
+        if writer:
             for p in ps:
-                _begin_fresh(p)
-    layout = _Points(ps, n_dev, group, [i for st in stages for i in st], devices=mesh_devices)
-    for p in ps:
-        p.ts = None  # the layout holds the states now
-    progress = progress and dist.is_writer()
-    if progress:
-        print(f"sweep: {P_} points x {configs[0].num_envs} environments on {n_dev} "
-              f"{jax.local_devices()[0].platform} device(s), {layout.per_dev} point(s) per device stepped "
-              f"{'one at a time' if group == 1 else f'in vmapped groups of {group}'} "
-              f"({configs[0].num_envs * min(group, layout.per_dev)} environments per device at a time)",
-              file=sys.stderr, flush=True)
-    compile_s = layout.compile()
-    if progress:
-        print(f"compiled the sweep chunk in {compile_s:.1f} s", file=sys.stderr, flush=True)
-    last_rows: dict = {}
-    t_start = time.time()
+                if resume:
+                    _begin_resumed(p)
+                else:
+                    _begin_fresh(p)
+        last_rows: dict = {}
+        t_start = time.time()
 
-    def chunk_done(new: dict[int, dict]) -> None:
-        last_rows.update({names[i]: r for i, r in new.items()})
-        if on_chunk is not None:
-            on_chunk()
-        if progress and table:
-            print(_progress_table(names, last_rows, time.time() - t_start), file=sys.stderr, flush=True)
+        def chunk_done(new: dict[int, dict]) -> None:
+            last_rows.update({names[i]: r for i, r in new.items()})
+            if on_chunk is not None:
+                on_chunk()
+            if progress and table:
+                print(_progress_table(names, last_rows, time.time() - t_start), file=sys.stderr, flush=True)
 
-    return _drive(ps, layout, stages=stages, checkpoint_every=checkpoint_every, keep=keep, freeze_diverged=True,
-                  compact=True, on_chunk=chunk_done, max_chunks=max_chunks,
-                  stop_message=lambda sig, st: (f"stopped by signal {sig} after saving every active point; "
-                                                f"continue with --resume"))
+        return _drive(ps, layout, stages=stages, checkpoint_every=checkpoint_every, keep=keep,
+                      freeze_diverged=True, compact=True, on_chunk=chunk_done, max_chunks=max_chunks,
+                      stop_message=lambda sig, st: (f"stopped by signal {sig} after saving every active point; "
+                                                    f"continue with --resume"))
+    finally:
+        for h in reversed(holds):
+            if h is not None:
+                h.release(remove_if_empty=not started)
+        if own_guard:
+            guard.restore()
+
+
+def _foreign_points(out: pathlib.Path, names: Sequence[str], dirs: Sequence[pathlib.Path],
+                    configs: Sequence[Config], resume: bool, known: Sequence[str] = ()) -> None:
+    """Refuse a points directory holding a run this session does not account for: a point not among
+    ``names``, or (a fresh start) a point that holds checkpoints, a compact state or another config
+    (only an unsaved start of the same point may be started again). Nothing is written."""
+    pdir = out / "points"
+    if not pdir.is_dir():
+        return
+    index = {n: i for i, n in enumerate(names)}
+    for d in sorted(pdir.iterdir()):
+        held = [n for n in RUN_FILES if (d / n).exists()] if d.is_dir() else []
+        if not held:
+            continue
+        if d.name in known and d.name not in index:
+            continue
+        if d.name not in index:
+            raise RunError(f"{d} holds a run ({', '.join(held)}) that is none of this session's {len(names)} "
+                           f"points ({', '.join(names[:4])}{', ...' if len(names) > 4 else ''}); move it away "
+                           f"or choose another --out")
+        if resume:
+            continue
+        cfg = configs[index[d.name]]
+        saved = existing_step(d) is not None or checkpoint.has_compact(d)
+        try:
+            own = checkpoint.load_run_config(d)
+        except checkpoint.CheckpointError:
+            own = None
+        same = own is not None and {k: v for k, v in dataclasses.asdict(own).items() if k not in BUDGET_FIELDS} \
+            == {k: v for k, v in dataclasses.asdict(cfg).items() if k not in BUDGET_FIELDS}
+        if saved or not same:
+            raise RunError(f"{d} already holds a run ({', '.join(held)}) that a fresh start would overwrite; "
+                           f"continue it with --resume, or move it away or choose another --out")

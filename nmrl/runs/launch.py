@@ -6,8 +6,10 @@ when another process dies: it aborts the process (SIGABRT) with a C++ log line a
 comes, within seconds when a peer dies. So ``nmrl train --coordinator ...`` runs the real command
 in a child process (same arguments, ``NMRL_DIST_CHILD=1``) and watches it:
 
-* its stdout and stderr are passed through, without the stack-trace lines of an abort and gloo's
-  "connected" line;
+* its stdout and stderr are passed through, without the stack-trace lines of an abort, gloo's
+  "connected" line and the C++ runtime's log lines (``E1203 10:35:01.123456 12 file.cc:12] ...``:
+  the coordination service's heartbeats and errors); those are kept and printed only when the child
+  ends by a signal other than an abort (a crash they may explain);
 * SIGINT/SIGTERM/SIGHUP are passed on once (the child is in its own session, so a terminal's
   Ctrl-C does not reach it twice), and the child gets SIGTERM if this process dies;
 * an abort before the child printed :data:`CONNECTED` becomes "could not join the run" (exit 2,
@@ -37,6 +39,8 @@ PEER_FAILED = 4
 #: stderr lines not passed on: an abort's stack trace, gloo's "Rank 0 is connected to 1 peer ranks"
 _STACK = re.compile(r"^\s+@\s+0x[0-9a-f]+|^\*\*\* Check failure stack trace|^\[Gloo\] Rank \d+ is connected")
 _FATAL = re.compile(r"^F\d{4} [\d:.]+\s+\d+ [^\]]+\] (.*)")
+#: a line of the C++ runtime's log (absl/glog: severity, date, time, thread, file:line]) or absl's preamble
+_NATIVE = re.compile(r"^[IWEF]\d{4} [\d:.]+\s+\d+ [^\]]+\] |^WARNING: All log messages before absl::InitializeLog")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -115,7 +119,7 @@ def supervise(argv: list[str], cluster: Cluster, out: str | None = None) -> int:
             pass
 
     old = {s: signal.signal(s, forward) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
-    connected, fatal = False, []
+    connected, fatal, native = False, [], []
     try:
         assert child.stderr is not None
         for line in child.stderr:
@@ -128,6 +132,9 @@ def supervise(argv: list[str], cluster: Cluster, out: str | None = None) -> int:
                 fatal.append(m.group(1).strip())
             elif fatal and len(fatal) < 4 and line.strip():
                 fatal.append(line.strip())  # the status lines after the fatal one (RPC, absl::Status)
+            if _NATIVE.match(line) or fatal:  # the runtime's log and what follows an abort: kept back
+                native.append(line)
+                continue
             sys.stderr.write(line)
             sys.stderr.flush()
         rc = child.wait()
@@ -138,6 +145,9 @@ def supervise(argv: list[str], cluster: Cluster, out: str | None = None) -> int:
     if rc >= 0:
         return rc
     sig = -rc
+    if sig != signal.SIGABRT and native:  # a crash: what the runtime said may explain it
+        sys.stderr.writelines(native[-40:])
+        sys.stderr.flush()
     reason = " ".join(fatal)[:600] or f"killed by signal {sig}"
     if sig == signal.SIGABRT and not connected:
         n = cluster.num_processes

@@ -28,11 +28,13 @@ import os
 import pathlib
 import re
 import shutil
+import sys
 from typing import Any, Iterator, Sequence
 
 import numpy as np
 
 from nmrl import learners
+from nmrl.runs import jsonl
 
 CONFIG_FILE = "config.json"
 METRICS_FILE = "metrics.jsonl"
@@ -116,6 +118,16 @@ def append_resume(run_dir: str | os.PathLike, record: dict) -> None:
 
 
 def _append_line(path: pathlib.Path, line: str) -> None:
+    """Append one line (one ``write``, flushed to disk); a file that does not end with a whole line
+    (a crash while appending) is completed first (:func:`nmrl.runs.jsonl.complete_tail`)."""
+    try:
+        with open(path, "rb") as f:
+            f.seek(-1, os.SEEK_END)
+            whole = f.read(1) == b"\n"
+    except (FileNotFoundError, OSError):
+        whole = True  # no file, or an empty one
+    if not whole:
+        jsonl.complete_tail(path)
     with open(path, "a") as f:
         f.write(line + "\n")
         f.flush()
@@ -131,12 +143,22 @@ def to_python(m: dict) -> dict:
     return out
 
 
+_WARNED: set[str] = set()
+
+
+def _warn_once(message: str) -> None:
+    """A partial last row is reported once per file and process (it is read many times)."""
+    key = message.split(": ", 1)[0]
+    if key not in _WARNED:
+        _WARNED.add(key)
+        print(f"nmrl: warning: {message}", file=sys.stderr, flush=True)
+
+
 def read_jsonl(path: str | os.PathLike) -> list[dict]:
-    """The JSON objects of a JSON-lines file, one per non-empty line ([] if there is no file)."""
-    p = pathlib.Path(path)
-    if not p.exists():
-        return []
-    return [json.loads(line) for line in p.read_text().splitlines() if line.strip()]
+    """The JSON objects of a JSON-lines file, one per non-empty line ([] if there is no file). An
+    unfinished last line (a crash while appending) is dropped with one warning; any other damage
+    raises :class:`nmrl.runs.jsonl.Corrupt` naming the file and line (nmrl/runs/jsonl.py)."""
+    return jsonl.read(path, _warn_once)
 
 
 def read_metrics(run_dir: str | os.PathLike) -> list[dict]:
@@ -153,7 +175,8 @@ def truncate_metrics(run_dir: str | os.PathLike, step: int) -> None:
     run_dir = pathlib.Path(run_dir)
     rows = read_metrics(run_dir)
     keep = [r for r in rows if r["step"] <= step]
-    if len(keep) == len(rows) and (run_dir / METRICS_FILE).exists():
+    path = run_dir / METRICS_FILE
+    if len(keep) == len(rows) and path.exists() and not jsonl.has_partial_tail(path):
         return
     atomic_write_text(run_dir / METRICS_FILE, "".join(json.dumps(r) + "\n" for r in keep))
 
