@@ -10,7 +10,9 @@ seeds) and the Brax seeds' metrics (results/baseline_ppo/ppo_s*/metrics.jsonl). 
 * ``learning_curves.png``: average reward per control step during learning against control steps,
   each native seed and their mean over the band (min..max) of the Brax seeds;
 * ``summary.json``: per iteration both seed sets reached, the native mean, the Brax band and whether
-  the mean lies within it; the Brax deterministic policies at the native run's last step.
+  the mean lies within it; the Brax deterministic policies at the native run's last step and, where
+  every native point has been evaluated (``nmrl eval SRC/points/s{seed} --seconds 10``: the same 10 s
+  rollout from seed 0 as the Brax evaluations), the native ones and the difference (Welch interval).
 
 The numbers are nmrl/analysis/ppo_validation.py's; this script copies, draws and writes.
 """
@@ -23,7 +25,7 @@ import pathlib
 
 import numpy as np
 
-from nmrl.analysis import ppo_validation as pv
+from nmrl.analysis import ppo_validation as pv, stats
 from nmrl.analysis.publish_ppo import ppo_runs
 from nmrl.runs import store
 
@@ -73,6 +75,8 @@ def main() -> None:
             for name in ("config.json", "metrics.jsonl", "compact.npz"):
                 if (p / name).is_file():
                     store.atomic_copy(p / name, dest / "validation" / "points" / p.name / name)
+            if (p / "eval" / "eval.json").is_file():
+                store.atomic_copy(p / "eval" / "eval.json", dest / "validation" / "points" / p.name / "eval.json")
     native = pv.native_curves(dest / "validation" / "points")
     runs = ppo_runs(peer_dir)
     peer = pv.peer_curves(runs)
@@ -82,6 +86,15 @@ def main() -> None:
     out = {"iterations": rows, "within_band": sum(r["within"] for r in rows), "of": len(rows),
            "native_seeds": sorted(native), "native_last_steps": {str(s): int(x.max()) for s, (x, _) in native.items()},
            "brax_deterministic_at_native_last": pv.deterministic_at(runs, last) if last else None}
+    evals = {int(p.name[1:]): json.loads((p / "eval.json").read_text())
+             for p in sorted((dest / "validation" / "points").glob("s*")) if (p / "eval.json").is_file()}
+    if native and sorted(evals) == sorted(native):
+        out["native_deterministic"] = pv.native_deterministic(evals)
+        brax = out["brax_deterministic_at_native_last"]
+        if brax:
+            d, h = stats.diff_ci95(np.array(list(brax["per_seed"].values())),
+                                   np.array([e["avg_reward"] for e in evals.values()]))
+            out["native_minus_brax_deterministic"] = {"diff": d, "ci95": h}
     store.atomic_write_json(dest / "summary.json", out)
     print(json.dumps({k: out[k] for k in ("within_band", "of", "native_last_steps")}))
     for r in rows:

@@ -41,3 +41,15 @@ def test_band_check_against_brute_force(tmp_path):
     det = pv.deterministic_at(peer_runs, 3 * it)
     assert det["per_seed"] == {"0": 3.0, "1": 4.0, "2": 5.0}
     assert np.isclose(det["mean"], 4.0) and np.isclose(det["ci95"], 4.302652729911275 * 1.0 / np.sqrt(3))
+
+
+def test_native_deterministic_interval_against_scipy():
+    from scipy import stats as st
+
+    evals = {0: {"avg_reward": 7.9, "step": 81920}, 1: {"avg_reward": 8.4, "step": 81920},
+             2: {"avg_reward": 8.1, "step": 81920}}
+    d = pv.native_deterministic(evals)
+    x = np.array([7.9, 8.4, 8.1])
+    lo, hi = st.t.interval(0.95, 2, loc=x.mean(), scale=st.sem(x))
+    assert np.isclose(d["mean"], x.mean()) and np.isclose(d["ci95"], (hi - lo) / 2)
+    assert d["per_seed"] == {"0": 7.9, "1": 8.4, "2": 8.1} and d["steps"]["2"] == 81920

@@ -84,3 +84,12 @@ def deterministic_at(runs: dict[int, list[dict]], steps: float, key: str = "eval
     m, h = stats.mean_ci95(vals)
     return {"mean": m, "ci95": h, "per_seed": {str(s): v for s, (_, v) in got.items()},
             "steps": {str(s): int(st) for s, (st, _) in got.items()}}
+
+
+def native_deterministic(evals: dict[int, dict]) -> dict:
+    """The native points' deterministic evaluations (``nmrl eval``'s ``eval.json`` per seed): mean
+    +/- 95% interval of ``avg_reward``, each seed's value and the step it was taken at."""
+    vals = np.array([e["avg_reward"] for e in evals.values()], float)
+    m, h = stats.mean_ci95(vals)
+    return {"mean": m, "ci95": h, "per_seed": {str(s): float(e["avg_reward"]) for s, e in evals.items()},
+            "steps": {str(s): e.get("step") for s, e in evals.items()}}
