@@ -93,7 +93,7 @@ def main() -> None:
         brax = out["brax_deterministic_at_native_last"]
         if brax:
             d, h = stats.diff_ci95(np.array(list(brax["per_seed"].values())),
-                                   np.array([e["avg_reward"] for e in evals.values()]))
+                                   np.array(list(out["native_deterministic"]["per_seed"].values())))
             out["native_minus_brax_deterministic"] = {"diff": d, "ci95": h}
     store.atomic_write_json(dest / "summary.json", out)
     print(json.dumps({k: out[k] for k in ("within_band", "of", "native_last_steps")}))

@@ -46,8 +46,8 @@ def test_band_check_against_brute_force(tmp_path):
 def test_native_deterministic_interval_against_scipy():
     from scipy import stats as st
 
-    evals = {0: {"avg_reward": 7.9, "step": 81920}, 1: {"avg_reward": 8.4, "step": 81920},
-             2: {"avg_reward": 8.1, "step": 81920}}
+    evals = {s: {"step": 81920, "deterministic": {"avg_reward": v}, "exploring": {"avg_reward": v - 5.0}}
+             for s, v in enumerate([7.9, 8.4, 8.1])}
     d = pv.native_deterministic(evals)
     x = np.array([7.9, 8.4, 8.1])
     lo, hi = st.t.interval(0.95, 2, loc=x.mean(), scale=st.sem(x))

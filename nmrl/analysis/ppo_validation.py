@@ -87,9 +87,10 @@ def deterministic_at(runs: dict[int, list[dict]], steps: float, key: str = "eval
 
 
 def native_deterministic(evals: dict[int, dict]) -> dict:
-    """The native points' deterministic evaluations (``nmrl eval``'s ``eval.json`` per seed): mean
-    +/- 95% interval of ``avg_reward``, each seed's value and the step it was taken at."""
-    vals = np.array([e["avg_reward"] for e in evals.values()], float)
-    m, h = stats.mean_ci95(vals)
-    return {"mean": m, "ci95": h, "per_seed": {str(s): float(e["avg_reward"]) for s, e in evals.items()},
+    """The native points' deterministic evaluations (``nmrl eval``'s ``eval.json`` per seed, whose
+    ``deterministic`` part holds the policy's mode): mean +/- 95% interval of ``avg_reward``, each
+    seed's value and the step it was taken at."""
+    per = {s: float(e["deterministic"]["avg_reward"]) for s, e in evals.items()}
+    m, h = stats.mean_ci95(np.array(list(per.values()), float))
+    return {"mean": m, "ci95": h, "per_seed": {str(s): v for s, v in per.items()},
             "steps": {str(s): e.get("step") for s, e in evals.items()}}
