@@ -162,11 +162,12 @@ def _top_parser(sub: str, argv: list[str]) -> argparse.ArgumentParser:
 
         learner = cli._learner(cli.learner_name([sub, *argv])) if sub in ("train", "sweep") else None
         return cli.build_parser(learner)  # as cli.main builds it: with the options of the learner named
-    if sub not in ("baseline", "study"):
+    own = {"baseline": "baseline_ppo", "study": "study", "explore-study": "exploration_study"}
+    if sub not in own:
         pytest.fail(f"nmrl has no command {sub!r}")
     import importlib
 
-    mod = importlib.import_module("nmrl.experiments." + ("baseline_ppo" if sub == "baseline" else "study"))
+    mod = importlib.import_module("nmrl.experiments." + own[sub])
     original = argparse.ArgumentParser.parse_args
 
     def stop(self, args=None, namespace=None):

@@ -1,0 +1,224 @@
+"""The exploration x control-step study's numbers: the screen's choice, one row per run, the answers.
+
+Everything here reads run directories (``metrics.jsonl``, ``eval/eval.json``) and rows; nothing
+trains. The study itself is nmrl/experiments/exploration_study.py, its page docs/exploration-study.md.
+
+* The screen's rule (:func:`choose`): per process, the setting whose seeds have the highest mean
+  *score*, the average reward per control step over the second half of the screen run's chunks
+  (one chunk = one PPO iteration); a diverged run is never chosen (its setting scores -inf).
+* A run's row (:func:`run_row`): ``avg_reward`` is the exploring policy's average reward per
+  control step over the last tenth of its chunks (nmrl.analysis.stats.final_avg; at the study's 16
+  iterations: the last one), ``det_reward`` the deterministic policy's over a 10 s evaluation
+  (``nmrl eval``'s ``deterministic.avg_reward``). The rewards (8)-(14) are rates, so the average
+  reward per second is ``mean(r_t) / 0.02 s`` at every control step (nmrl/experiments/timescale.py):
+  ``avg_reward_per_s``, ``det_reward_per_s``.
+* The answers (:func:`answers`): per (control step, process) the mean and 95% t-interval over seeds;
+  differences of two cells with Welch's interval (nmrl.analysis.stats).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import pathlib
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from nmrl.analysis import stats
+from nmrl.runs import store
+
+#: the control step the paper's rewards are per-step values of (reward per second = mean r_t / DELTA_0)
+DELTA_0 = 0.02
+RESULT_COLUMNS = ("learner", "exploration", "setting", "control_dt", "seed", "control_steps", "simulated_s",
+                  "iterations", "avg_reward", "avg_reward_per_s", "det_reward", "det_reward_per_s",
+                  "forward_speed", "det_forward_speed", "diverged")
+SCREEN_COLUMNS = ("exploration", "field", "value", "seed", "iterations", "score", "diverged", "chosen")
+
+
+def score(rows: Sequence[dict]) -> float:
+    """The screen's score of one run: mean ``avg_reward`` over the second half of its chunks
+    (the later half when the count is odd); -inf for a diverged run or one without chunks."""
+    if not rows or any(store.is_diverged(r) for r in rows):
+        return -math.inf
+    half = rows[len(rows) // 2:]
+    return float(np.mean([r["avg_reward"] for r in half]))
+
+
+def choose(screen_rows: Sequence[dict]) -> dict[str, tuple[str, float]]:
+    """``{process: (field, value)}``: per process, the value whose runs have the highest mean
+    score (ties: the first value listed); a value with a diverged run scores -inf."""
+    by: dict[str, dict[float, list[float]]] = {}
+    fields: dict[str, str] = {}
+    for r in screen_rows:
+        by.setdefault(r["exploration"], {}).setdefault(float(r["value"]), []).append(float(r["score"]))
+        fields[r["exploration"]] = r["field"]
+    out = {}
+    for proc, vals in by.items():
+        best = max(vals, key=lambda v: (np.mean(vals[v]) if all(math.isfinite(s) for s in vals[v]) else -math.inf))
+        out[proc] = (fields[proc], best)
+    return out
+
+
+def eval_summary(point: pathlib.Path) -> dict | None:
+    """The deterministic policy's part of a point's ``eval/eval.json`` (None if not evaluated)."""
+    f = point / "eval" / "eval.json"
+    if not f.is_file():
+        return None
+    d = json.loads(f.read_text())
+    return {"step": d.get("step"), **d["deterministic"]}
+
+
+def run_row(point: pathlib.Path, *, exploration: str, setting: str, control_dt: float, seed: int,
+            num_envs: int, iteration_steps: int) -> dict | None:
+    """One row of results.csv for the run in ``point`` (None if it has no metrics)."""
+    m = store.read_metrics(point)
+    if not m:
+        return None
+    step = int(m[-1]["step"])
+    ev = eval_summary(point)
+    det = ev["avg_reward"] if ev is not None and ev.get("step") == step else float("nan")
+    det_speed = ev["forward_speed"] if ev is not None and ev.get("step") == step else float("nan")
+    avg = stats.final_avg(m, "avg_reward")
+    return {"learner": "ppo", "exploration": exploration, "setting": setting, "control_dt": control_dt,
+            "seed": seed, "control_steps": step * num_envs, "simulated_s": step * num_envs * control_dt,
+            "iterations": step // iteration_steps, "avg_reward": avg, "avg_reward_per_s": avg / DELTA_0,
+            "det_reward": det, "det_reward_per_s": det / DELTA_0,
+            "forward_speed": stats.final_avg(m, "forward_speed"), "det_forward_speed": det_speed,
+            "diverged": bool(any(store.is_diverged(r) for r in m))}
+
+
+def cells(rows: Iterable[dict], key: str) -> dict[tuple[float, str], np.ndarray]:
+    """``{(control_dt, exploration): values of key over seeds}`` (NaN values dropped)."""
+    out: dict[tuple[float, str], list[float]] = {}
+    for r in rows:
+        v = float(r[key])
+        if math.isfinite(v):
+            out.setdefault((float(r["control_dt"]), r["exploration"]), []).append(v)
+    return {k: np.array(v) for k, v in out.items()}
+
+
+def cell_table(rows: Sequence[dict], key: str) -> list[dict]:
+    """Per (control step, process): seeds, mean and 95% t half-width of ``key``."""
+    out = []
+    for (dt, proc), v in sorted(cells(rows, key).items()):
+        m, h = stats.mean_ci95(v) if len(v) > 1 else (float(v.mean()), float("nan"))
+        out.append({"control_dt": dt, "exploration": proc, "n": len(v), "mean": m, "ci95": h})
+    return out
+
+
+def diff(rows: Sequence[dict], key: str, a: tuple[float, str], b: tuple[float, str]) -> dict | None:
+    """Cell ``a`` minus cell ``b`` of ``key``: difference of the means and Welch's 95% half-width
+    (None if either cell has fewer than 2 values)."""
+    c = cells(rows, key)
+    if a not in c or b not in c or len(c[a]) < 2 or len(c[b]) < 2:
+        return None
+    d, h = stats.diff_ci95(c[b], c[a])  # mean(a) - mean(b)
+    return {"a": list(a), "b": list(b), "diff": d, "ci95": h, "significant": bool(abs(d) > h)}
+
+
+def answers(rows: Sequence[dict], dts: Sequence[float], processes: Sequence[str],
+            key: str = "avg_reward_per_s") -> dict:
+    """The study's questions as numbers (docs/exploration-study.md): white's change from the
+    coarsest to the finest control step; every process against white at each control step; the
+    best process per control step; nm-periods against each stationary correlated process."""
+    coarse, fine = max(dts), min(dts)
+    out: dict = {"key": key, "cells": cell_table(rows, key)}
+    out["white_fine_minus_coarse"] = diff(rows, key, (fine, "white"), (coarse, "white"))
+    out["process_minus_white"] = [d for dt in dts for p in processes if p != "white"
+                                  for d in [diff(rows, key, (dt, p), (dt, "white"))] if d]
+    out["process_fine_minus_coarse"] = [d for p in processes for d in [diff(rows, key, (fine, p), (coarse, p))] if d]
+    best = {}
+    for dt in dts:
+        have = [t for t in out["cells"] if t["control_dt"] == dt]
+        if have:
+            b = max(have, key=lambda t: t["mean"])
+            best[f"{dt:g}"] = b["exploration"]
+    out["best"] = best
+    out["nm_periods_minus_stationary"] = [d for dt in dts for p in ("ou", "colored") if p in processes
+                                          for d in [diff(rows, key, (dt, "nm-periods"), (dt, p))] if d]
+    return out
+
+
+
+
+# ------------------------------------------------------------------------------------ publishing
+#: what a fresh clone needs of every cell to continue it, and what the answers are made of
+PUBLISHED_FILES = ("sweep.json", "config.json", "metrics.jsonl", "compact.npz", "eval.json")
+TOP_FILES = ("study.json", "results.csv", "screen.csv", "snr.csv", "summary.json")
+
+
+def publish(src: pathlib.Path, dest: pathlib.Path) -> list[pathlib.Path]:
+    """Copy the study ``src``'s tables and every cell's continuation files (sweep.json; per point
+    config, metrics, compact state, the mid-training state under ``mid/``, ``eval/eval.json``) to
+    ``dest`` (tables at the top, cells under ``dest/runs/``), each file atomically; returns the
+    files written. Checkpoints stay behind (the compact states continue a run)."""
+    src, dest = pathlib.Path(src), pathlib.Path(dest)
+    written = []
+    for name in TOP_FILES:
+        if (src / name).is_file():
+            store.atomic_copy(src / name, dest / name)
+            written.append(dest / name)
+    if (src / "study.json").is_file():
+        store.atomic_copy(src / "study.json", dest / "runs" / "study.json")
+    for phase in ("grid", "screen"):
+        for f in sorted((src / phase).rglob("*")) if (src / phase).is_dir() else []:
+            rel = f.relative_to(src)
+            if f.is_file() and f.name in PUBLISHED_FILES and "checkpoints" not in rel.parts:
+                store.atomic_copy(f, dest / "runs" / rel)
+                written.append(dest / "runs" / rel)
+    return written
+
+
+def curves(src: pathlib.Path, rows: Sequence[dict]) -> dict[tuple[float, str], list[tuple[np.ndarray, np.ndarray]]]:
+    """``{(control_dt, exploration): [(simulated s summed over environments, avg reward per s)]}``,
+    one pair per run of ``rows`` (the grid's points: ``grid/dt{dt}/{exploration}/points/s{seed}``)."""
+    out: dict = {}
+    for r in rows:
+        dt = float(r["control_dt"])
+        p = pathlib.Path(src) / "grid" / f"dt{dt:g}" / r["exploration"] / "points" / f"s{int(r['seed'])}"
+        m = store.read_metrics(p)
+        if not m:
+            continue
+        n = int(r["control_steps"]) / max(1, int(m[-1]["step"]))  # environments
+        x = np.array([q["step"] for q in m], float) * n * dt
+        y = np.array([q["avg_reward"] for q in m], float) / DELTA_0
+        out.setdefault((dt, r["exploration"]), []).append((x, y))
+    return out
+
+
+def draw(src: pathlib.Path, rows: Sequence[dict], dts: Sequence[float], processes: Sequence[str],
+         path: pathlib.Path) -> pathlib.Path:
+    """Learning curves, one panel per control step: every process's mean over seeds (thin lines:
+    each seed), average reward per second of the exploring policy against simulated seconds."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    cv = curves(src, rows)
+    dts = sorted(dts, reverse=True)
+    fig, axes = plt.subplots(1, len(dts), figsize=(5 * len(dts), 4.2), dpi=110, sharey=True, squeeze=False)
+    for ax, dt in zip(axes[0], dts):
+        for i, p in enumerate(processes):
+            runs = cv.get((dt, p), [])
+            for x, y in runs:
+                ax.plot(x, y, color=f"C{i}", lw=0.6, alpha=0.35)
+            if runs:
+                k = min(len(x) for x, _ in runs)
+                ax.plot(runs[0][0][:k], np.mean([y[:k] for _, y in runs], 0), color=f"C{i}", lw=2,
+                        label=f"{p} ({len(runs)} seeds)")
+        ax.set_title(f"δ = {dt * 1000:g} ms")
+        ax.set_xlabel("simulated seconds (all environments)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="lower right")
+    axes[0][0].set_ylabel("average reward per second (exploring)")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+__all__: Sequence[str] = ("RESULT_COLUMNS", "SCREEN_COLUMNS", "score", "choose", "eval_summary", "run_row", "cells",
+                          "cell_table", "diff", "answers", "publish", "curves", "draw")

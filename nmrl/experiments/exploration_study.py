@@ -1,0 +1,511 @@
+"""The paper's thesis with a modern learner: exploration process x control step, native PPO.
+
+The paper (abstract, Sec. III, eq. (1)) claims that a stationary policy loses its exploration power
+as the control step delta shrinks and that nm-periods of a fixed duration keep it. This study
+runs the native PPO (docs/ppo.md, settings in seconds) with every process of nmrl.explore at
+delta in ``dts`` on the same physics, at an equal budget of PPO iterations (one iteration holds
+102.4 s of experience per environment at every delta), and measures the learning, the
+deterministic policies and the gradient's signal-to-noise ratio (nmrl/experiments/ppo_gradsnr.py).
+docs/exploration-study.md gives the design, the sizing and the answers.
+
+Order of work (each step a cell: an ``nmrl sweep`` directory, resumable on its own):
+
+1. ``grid/dt{dts[0]}/white``: the white-noise cell at the coarsest delta, the check of the study's
+   network sizes against the Brax-sized validation (results/ppo/).
+2. ``screen/dt{screen_dt}/{process}``: per correlated process, its settings (``SCREEN``) x
+   ``screen_seeds`` for ``screen_iterations``; the rule (nmrl.analysis.exploration_results.choose)
+   fixes one setting per process, written to ``screen.csv``.
+3. ``grid/dt{dt}/{process}`` for every delta in ``dts`` order (the stages) and process: ``seeds``
+   seeds at the chosen setting for ``iterations``. Every grid cell runs to half its budget, keeps
+   each point's compact state there (``points/<p>/mid/``, for the mid-training SNR), then finishes.
+   Every finished point is evaluated (deterministic policy, ``eval_seconds`` from seed 0).
+4. ``snr.csv``: the gradient's SNR per (delta, process) at the initial policy and at mid-training
+   (seed 0), once every grid cell of that delta has its mid-training state.
+
+``results.csv`` (one row per grid run) and ``summary.json`` (the answers) are rewritten after every
+cell. Everything resumes where it stopped: run the same command again; on a fresh clone
+``--published`` seeds the cells from their committed compact states.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import pathlib
+import shutil
+import sys
+import time
+from typing import Sequence
+
+from nmrl import learners
+from nmrl.analysis import exploration_results as xr
+from nmrl.experiments import sweep
+from nmrl.runs import checkpoint, driver, exits, io_errors, lock, parser, signals, store
+
+PPOConfig = learners.get("ppo").config
+SPEC_FILE = "study.json"
+PROCESSES = ("white", "nm-periods", "ou", "colored")
+#: the paper's alpha = 0.8 per 20 ms step as a correlation time: -0.02 s / ln 0.8
+NM_CORR_TIME_S = 0.08963
+#: per correlated process: the field the screen varies and its values (seconds; colored: beta)
+SCREEN = {"nm-periods": ("period_s", (0.1, 0.2, 0.4)),
+          "ou": ("corr_time_s", (0.045, 0.09, 0.18)),
+          "colored": ("beta", (0.5, 1.0, 2.0))}
+PHASES = ("grid", "screen", "eval", "snr")
+SNR_COLUMNS = ("control_dt", "exploration", "setting", "policy", "step", "estimates", "batches",
+               "seconds_per_estimate", "trcov", "trcov_ci", "mean_sq", "mean_sq_ci", "snr_per_s")
+
+
+class StudyError(Exception):
+    """The study cannot start or continue (the message says why)."""
+
+
+def physics_timestep() -> float:
+    """The reference physics' timestep [s] (the MJCF's, read with MuJoCo C: no MJX, no compile)."""
+    import mujoco
+
+    from nmrl.paper.env import MODEL_PATH
+
+    return float(mujoco.MjModel.from_xml_path(str(MODEL_PATH)).opt.timestep)
+
+
+@dataclasses.dataclass(frozen=True)
+class StudySpec:
+    dts: tuple[float, ...] = (0.02, 0.005, 0.01)  #: control steps [s], in the order they run
+    seeds: int = 4
+    iterations: int = 16  #: PPO iterations per grid run (102.4 s of experience per environment each)
+    screen_dt: float = 0.005
+    screen_seeds: int = 2
+    screen_iterations: int = 4
+    num_envs: int = 64
+    value_layers: int = 2
+    value_width: int = 64
+    batch_size: int = 512  #: unrolls per minibatch (PPO's defaults: docs/ppo.md)
+    num_minibatches: int = 32
+    epochs: int = 8
+    checkpoint_every: int = 1
+    eval_seconds: float = 10.0
+    snr_batches: int = 4
+
+    def validate(self) -> None:
+        def bad(name, allowed):
+            return ValueError(f"{name}={getattr(self, name)!r} is invalid: {allowed}")
+
+        if not self.dts or any(not (isinstance(d, (int, float)) and d > 0) for d in self.dts):
+            raise bad("dts", "give control steps > 0 s, e.g. 0.02 0.005 0.01")
+        if len(set(self.dts)) != len(self.dts):
+            raise bad("dts", "each control step may appear once")
+        for name in ("seeds", "iterations", "screen_seeds", "screen_iterations", "num_envs", "value_layers",
+                     "value_width", "batch_size", "num_minibatches", "epochs", "checkpoint_every"):
+            v = getattr(self, name)
+            if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
+                raise bad(name, "must be an integer >= 1")
+        if self.iterations < 2:
+            raise bad("iterations", "must be >= 2 (the mid-training state is taken at half)")
+        if not (isinstance(self.snr_batches, int) and self.snr_batches >= 2):
+            raise bad("snr_batches", "must be an integer >= 2 (an interval needs 2 batches)")
+        if not (isinstance(self.eval_seconds, (int, float)) and self.eval_seconds > 0):
+            raise bad("eval_seconds", "must be > 0 s")
+        step = physics_timestep()
+        for dt in self.dts + (self.screen_dt,):
+            n = dt / step
+            if abs(n - round(n)) > 1e-6 or round(n) < 1:
+                raise ValueError(f"control step {dt:g} s is invalid: must be a positive multiple of the physics "
+                                 f"timestep {step:g} s")
+            for proc in PROCESSES:
+                learners.get("ppo").validate(self.config(dt, proc, **self.default_setting(proc)))
+
+    @staticmethod
+    def default_setting(process: str) -> dict:
+        """The setting a process runs at before the screen has chosen (the screen's middle value)."""
+        if process not in SCREEN:
+            return {}
+        f, vals = SCREEN[process]
+        return {f: vals[len(vals) // 2]}
+
+    def config(self, dt: float, process: str, **setting) -> PPOConfig:
+        """A run's config: the native PPO with its settings in seconds, the study's networks, reward
+        scale delta / 0.02 s (the value's scale kept, docs/ppo.md), nm-periods with the paper's
+        correlation time unless given."""
+        extra = {"corr_time_s": NM_CORR_TIME_S} if process == "nm-periods" and "corr_time_s" not in setting else {}
+        return PPOConfig(exploration=process, control_dt=dt, reward_scale=dt / xr.DELTA_0, num_envs=self.num_envs,
+                         value_layers=self.value_layers, value_width=self.value_width, batch_size=self.batch_size,
+                         num_minibatches=self.num_minibatches, epochs=self.epochs, **extra, **setting)
+
+    def iteration_steps(self, dt: float) -> int:
+        return self.config(dt, "white").resolved().iteration_steps
+
+    def to_json(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["dts"] = list(self.dts)
+        return d
+
+    @staticmethod
+    def from_json(d: dict) -> "StudySpec":
+        d = dict(d)
+        d["dts"] = tuple(d["dts"])
+        return StudySpec(**d)
+
+
+@dataclasses.dataclass(frozen=True)
+class Cell:
+    """One sweep of the study: ``field`` (None: seeds only) over ``values`` x ``seeds``."""
+
+    phase: str  #: "screen" or "grid"
+    dt: float
+    process: str
+    field: str | None
+    values: tuple
+    seeds: int
+    iterations: int
+    setting: tuple = ()  #: the fixed (field, value) pairs of the process
+
+    def dir(self, out: pathlib.Path) -> pathlib.Path:
+        return out / self.phase / f"dt{self.dt:g}" / self.process
+
+    def sweep_spec(self, spec: StudySpec, iterations: int | None = None) -> sweep.SweepSpec:
+        steps = (iterations or self.iterations) * spec.iteration_steps(self.dt)
+        base = dataclasses.replace(spec.config(self.dt, self.process, **dict(self.setting)), steps=steps)
+        return sweep.SweepSpec(ls=self.values, seeds=self.seeds, base=base, field=self.field)
+
+    def points(self) -> list[str]:
+        return [sweep.point_name(v, s, self.field) for v, s in
+                [(v, s) for v in self.values for s in range(self.seeds)]]
+
+
+def screen_cells(spec: StudySpec) -> list[Cell]:
+    out = []
+    for proc, (f, vals) in SCREEN.items():
+        setting = (("corr_time_s", NM_CORR_TIME_S),) if proc == "nm-periods" else ()
+        out.append(Cell("screen", spec.screen_dt, proc, f, tuple(vals), spec.screen_seeds, spec.screen_iterations,
+                        setting))
+    return out
+
+
+def grid_cell(spec: StudySpec, dt: float, process: str, chosen: dict[str, tuple[str, float]]) -> Cell:
+    setting: tuple = ()
+    if process in SCREEN:
+        f, v = chosen[process]
+        setting = ((f, v),) + ((("corr_time_s", NM_CORR_TIME_S),) if process == "nm-periods" else ())
+    return Cell("grid", dt, process, None, (None,), spec.seeds, spec.iterations, setting)
+
+
+def setting_label(cell: Cell) -> str:
+    return ",".join(f"{k}={v:g}" for k, v in cell.setting) or "-"
+
+
+# ------------------------------------------------------------------------------------------ cells
+def _steps_done(point: pathlib.Path) -> tuple[int, bool]:
+    m = store.read_metrics(point)
+    return (int(m[-1]["step"]) if m else 0), any(store.is_diverged(r) for r in m)
+
+
+def _comparable(cfg) -> object:
+    return dataclasses.replace(cfg.resolved(), steps=None, trials=None, seed=0)
+
+
+def run_cell(out: pathlib.Path, cell: Cell, spec: StudySpec, *, iterations: int | None = None,
+             progress: bool = True) -> bool:
+    """Run ``cell`` to ``iterations`` (default: its budget); False if every point was already there.
+    A cell directory holding a sweep of other settings is refused (StudyError)."""
+    d = cell.dir(out)
+    target = cell.sweep_spec(spec, iterations)
+    steps = target.base.steps
+    if (d / sweep.SPEC_FILE).exists():
+        saved = sweep.load_spec(d)
+        if (_comparable(saved.base) != _comparable(target.base) or tuple(saved.ls) != tuple(target.ls)
+                or saved.seeds != target.seeds or saved.field != target.field):
+            raise StudyError(f"{d} holds a sweep with other settings than the study's {cell.phase} cell "
+                             f"({cell.process} at {cell.dt:g} s); move it away or choose another --out")
+        done = [_steps_done(d / "points" / p) for p in cell.points()]
+        if all(s >= steps or div for s, div in done):
+            return False
+        resume = True
+    else:
+        resume = False
+    if progress:
+        print(f"[{cell.phase} dt={cell.dt:g} {cell.process} {setting_label(cell)}] "
+              f"{'resuming' if resume else 'starting'} to {steps:,} control steps per environment",
+              file=sys.stderr, flush=True)
+    sweep.run_sweep(target, d, resume=resume, progress=progress, checkpoint_every=spec.checkpoint_every,
+                    plot=False)
+    return True
+
+
+def keep_mid(out: pathlib.Path, cell: Cell, spec: StudySpec) -> None:
+    """Copy each point's compact state at half the budget to ``points/<p>/mid/`` (once)."""
+    half = (cell.iterations // 2) * spec.iteration_steps(cell.dt)
+    for p in cell.points():
+        src = cell.dir(out) / "points" / p
+        dst = src / "mid"
+        if (dst / checkpoint.COMPACT_FILE).exists():
+            continue
+        step, diverged = _steps_done(src)
+        if step != half or not checkpoint.has_compact(src):
+            continue
+        _, arrays = checkpoint.load_compact(src)
+        if int(arrays["step"]) != half:
+            continue
+        dst.mkdir(exist_ok=True)
+        for f in (checkpoint.RUN_CONFIG, checkpoint.COMPACT_FILE):
+            store.atomic_copy(src / f, dst / f)
+
+
+def evaluate_points(out: pathlib.Path, cell: Cell, spec: StudySpec, progress: bool = True) -> None:
+    """Evaluate every finished point's deterministic policy once (``points/<p>/eval/eval.json``)."""
+    from nmrl.analysis import evaluate
+
+    steps = cell.iterations * spec.iteration_steps(cell.dt)
+    for p in cell.points():
+        d = cell.dir(out) / "points" / p
+        step, diverged = _steps_done(d)
+        if step < steps and not diverged:
+            continue
+        ev = xr.eval_summary(d)
+        if ev is not None and ev.get("step") == step:
+            continue
+        r = evaluate.evaluate(d, seconds=spec.eval_seconds, seed=0, render=False)
+        if progress:
+            print(f"[eval dt={cell.dt:g} {cell.process} {p}] deterministic avg reward "
+                  f"{r['deterministic']['avg_reward']:+.3f}", file=sys.stderr, flush=True)
+
+
+# ------------------------------------------------------------------------------------------ study
+def _check_spec(out: pathlib.Path, spec: StudySpec) -> None:
+    path = out / SPEC_FILE
+    if path.exists():
+        saved = StudySpec.from_json(json.loads(path.read_text()))
+        diff = [f.name for f in dataclasses.fields(spec) if getattr(saved, f.name) != getattr(spec, f.name)]
+        longer = {"iterations"} if spec.iterations > saved.iterations else set()
+        if set(diff) - longer:
+            raise StudyError(f"{out} holds a study with other settings ({', '.join(diff)}); continue it with the "
+                             f"same options (a larger --iterations may be given) or choose another --out")
+        if diff:
+            store.atomic_write_json(path, spec.to_json())
+    else:
+        out.mkdir(parents=True, exist_ok=True)
+        store.atomic_write_json(path, spec.to_json())
+
+
+def screen_rows(out: pathlib.Path, spec: StudySpec) -> list[dict]:
+    rows = []
+    for c in screen_cells(spec):
+        for v in c.values:
+            for s in range(c.seeds):
+                m = store.read_metrics(c.dir(out) / "points" / sweep.point_name(v, s, c.field))
+                rows.append({"exploration": c.process, "field": c.field, "value": v, "seed": s,
+                             "iterations": (int(m[-1]["step"]) if m else 0) // spec.iteration_steps(c.dt),
+                             "score": xr.score(m), "diverged": any(store.is_diverged(r) for r in m)})
+    return rows
+
+
+def chosen_settings(out: pathlib.Path, spec: StudySpec) -> dict[str, tuple[str, float]] | None:
+    """The screen's choice per correlated process, None until every screen run has its budget."""
+    rows = screen_rows(out, spec)
+    if any(r["iterations"] < spec.screen_iterations and not r["diverged"] for r in rows):
+        return None
+    chosen = xr.choose(rows)
+    for r in rows:
+        r["chosen"] = chosen[r["exploration"]][1] == r["value"]
+    store.write_csv(out / "screen.csv", xr.SCREEN_COLUMNS, rows)
+    return chosen
+
+
+def grid_cells(spec: StudySpec, chosen: dict | None) -> list[Cell]:
+    """Every grid cell in run order; those of correlated processes only once ``chosen`` exists."""
+    return [grid_cell(spec, dt, p, chosen or {}) for dt in spec.dts for p in PROCESSES
+            if p == "white" or chosen is not None]
+
+
+def result_rows(out: pathlib.Path, spec: StudySpec, chosen: dict | None) -> list[dict]:
+    rows = []
+    for c in grid_cells(spec, chosen):
+        for s in range(c.seeds):
+            r = xr.run_row(c.dir(out) / "points" / sweep.point_name(None, s, None), exploration=c.process,
+                           setting=setting_label(c), control_dt=c.dt, seed=s, num_envs=spec.num_envs,
+                           iteration_steps=spec.iteration_steps(c.dt))
+            if r is not None:
+                rows.append(r)
+    return rows
+
+
+def write_results(out: pathlib.Path, spec: StudySpec, chosen: dict | None) -> list[dict]:
+    rows = result_rows(out, spec, chosen)
+    store.write_csv(out / "results.csv", xr.RESULT_COLUMNS, rows)
+    summary = {"answers": xr.answers(rows, spec.dts, PROCESSES),
+               "answers_deterministic": xr.answers(rows, spec.dts, PROCESSES, key="det_reward_per_s"),
+               "chosen": {k: {"field": f, "value": v} for k, (f, v) in (chosen or {}).items()}}
+    store.atomic_write_json(out / "summary.json", summary)
+    return rows
+
+
+def _snr(out: pathlib.Path, spec: StudySpec, chosen: dict, progress: bool) -> list[dict]:
+    from nmrl.experiments import ppo_gradsnr
+    from nmrl.learners.ppo import make_ppo
+
+    path = out / "snr.csv"
+    rows = store.read_csv(path) if path.exists() else []
+    have = {(float(r["control_dt"]), r["exploration"], r["policy"]) for r in rows}
+    for dt in spec.dts:
+        cells = [grid_cell(spec, dt, p, chosen) for p in PROCESSES]
+        mids = [c.dir(out) / "points" / "s0" / "mid" for c in cells]
+        if not all(checkpoint.has_compact(m) for m in mids):
+            continue
+        for c, mid in zip(cells, mids):
+            cfg = dataclasses.replace(c.sweep_spec(spec).base, seed=0)
+            for policy in ("initial", "mid"):
+                if (dt, c.process, policy) in have:
+                    continue
+                t0 = time.time()
+                if policy == "initial":
+                    st = ppo_gradsnr.initial_state(cfg, 0)
+                else:
+                    st = checkpoint.restore_compact(mid, make_ppo(cfg.resolved()))
+                r = ppo_gradsnr.measure(cfg, st, batches=spec.snr_batches, seed=1)
+                rows.append({"control_dt": dt, "exploration": c.process, "setting": setting_label(c),
+                             "policy": policy, "step": int(st.step), "estimates": r["periods"],
+                             "batches": r["batches"], "seconds_per_estimate": r["seconds_per_estimate"],
+                             **{k: r[k] for k in ("trcov", "trcov_ci", "mean_sq", "mean_sq_ci", "snr_per_s")}})
+                store.write_csv(path, SNR_COLUMNS, rows)
+                if progress:
+                    print(f"[snr dt={dt:g} {c.process} {policy}] snr per s {r['snr_per_s']:.3e} "
+                          f"({time.time() - t0:,.0f} s)", file=sys.stderr, flush=True)
+    return rows
+
+
+def seed_from(published: pathlib.Path, out: pathlib.Path) -> list[pathlib.Path]:
+    """Copy every published cell (sweep.json; per point config, metrics, compact state, mid-training
+    state, evaluation) into ``out`` where ``out`` holds no sweep of that cell yet; returns them."""
+    seeded = []
+    for spec_file in sorted(published.glob("*/dt*/*/" + sweep.SPEC_FILE)):
+        src = spec_file.parent
+        dst = out / src.relative_to(published)
+        if (dst / sweep.SPEC_FILE).exists():
+            continue
+        for f in src.rglob("*"):
+            if f.is_file() and (f.name in ("sweep.json", "config.json", "metrics.jsonl", "compact.npz",
+                                           "eval.json")):
+                (dst / f.relative_to(src)).parent.mkdir(parents=True, exist_ok=True)
+                shutil.copy2(f, dst / f.relative_to(src))
+        seeded.append(dst)
+    if (published / SPEC_FILE).exists() and not (out / SPEC_FILE).exists():
+        out.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(published / SPEC_FILE, out / SPEC_FILE)
+    return seeded
+
+
+def run_study(spec: StudySpec, out: str | pathlib.Path, *, phases: Sequence[str] = PHASES,
+              published: str | pathlib.Path | None = None, progress: bool = True) -> list[dict]:
+    """Run (or continue) the study into ``out`` (module docstring); returns results.csv's rows."""
+    spec.validate()
+    bad = [p for p in phases if p not in PHASES]
+    if bad:
+        raise ValueError(f"unknown phase(s) {bad}: choose from {list(PHASES)}")
+    out = pathlib.Path(out).absolute()
+    if out.exists() and not out.is_dir():
+        raise StudyError(f"--out={str(out)!r} is invalid: it exists and is not a directory")
+    if published is not None and not pathlib.Path(published).is_dir():
+        raise ValueError(f"--published={str(published)!r} is invalid: not a directory")
+    out.mkdir(parents=True, exist_ok=True)
+    held = lock.hold(out)
+    try:
+        if published is not None:
+            for d in seed_from(pathlib.Path(published), out):
+                if progress:
+                    print(f"seeded {d} from the published compact states", file=sys.stderr, flush=True)
+        _check_spec(out, spec)
+        return _run(spec, out, phases, progress)
+    finally:
+        held.release(remove_if_empty=True)
+
+
+def _grid_step(out: pathlib.Path, cell: Cell, spec: StudySpec, phases: Sequence[str], progress: bool) -> None:
+    if "grid" in phases:
+        run_cell(out, cell, spec, iterations=cell.iterations // 2, progress=progress)
+        keep_mid(out, cell, spec)
+        run_cell(out, cell, spec, progress=progress)
+    if "eval" in phases:
+        evaluate_points(out, cell, spec, progress)
+
+
+def _run(spec: StudySpec, out: pathlib.Path, phases: Sequence[str], progress: bool) -> list[dict]:
+    first = grid_cell(spec, spec.dts[0], "white", {})
+    _grid_step(out, first, spec, phases, progress)
+    write_results(out, spec, None)
+    if "screen" in phases:
+        for c in screen_cells(spec):
+            run_cell(out, c, spec, progress=progress)
+    chosen = chosen_settings(out, spec)
+    if chosen is None:
+        if progress:
+            print("the screen has not finished: the grid's correlated processes wait for it", file=sys.stderr)
+        return write_results(out, spec, None)
+    for c in grid_cells(spec, chosen):
+        _grid_step(out, c, spec, phases, progress)
+        write_results(out, spec, chosen)
+    if "snr" in phases:
+        _snr(out, spec, chosen, progress)
+    return write_results(out, spec, chosen)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = parser.OneLineParser(prog="nmrl explore-study", description=__doc__.split("\n\n")[0])
+    d = StudySpec()
+    ap.add_argument("--out", required=True, help="study directory (continued if it exists)")
+    ap.add_argument("--published", default=None,
+                    help="a published copy of the study (results/exploration/runs): cells missing in --out "
+                         "start from its compact states")
+    ap.add_argument("--dt", type=float, nargs="+", default=list(d.dts), help="control steps [s], in run order")
+    ap.add_argument("--seeds", type=int, default=d.seeds)
+    ap.add_argument("--iterations", type=int, default=d.iterations, help="PPO iterations per grid run")
+    ap.add_argument("--screen-dt", type=float, default=d.screen_dt)
+    ap.add_argument("--screen-seeds", type=int, default=d.screen_seeds)
+    ap.add_argument("--screen-iterations", type=int, default=d.screen_iterations)
+    ap.add_argument("--num-envs", type=int, default=d.num_envs)
+    ap.add_argument("--value-layers", type=int, default=d.value_layers)
+    ap.add_argument("--value-width", type=int, default=d.value_width)
+    ap.add_argument("--batch-size", type=int, default=d.batch_size, help="unrolls per minibatch")
+    ap.add_argument("--num-minibatches", type=int, default=d.num_minibatches)
+    ap.add_argument("--epochs", type=int, default=d.epochs)
+    ap.add_argument("--checkpoint-every", type=int, default=d.checkpoint_every)
+    ap.add_argument("--eval-seconds", type=float, default=d.eval_seconds)
+    ap.add_argument("--snr-batches", type=int, default=d.snr_batches)
+    ap.add_argument("--phases", nargs="+", default=list(PHASES), help=f"any of {list(PHASES)}")
+    ap.add_argument("--quiet", action="store_true")
+    a = ap.parse_args(argv)
+    guard = signals.Guard().install()
+    try:
+        spec = StudySpec(dts=tuple(a.dt), seeds=a.seeds, iterations=a.iterations, screen_dt=a.screen_dt,
+                         screen_seeds=a.screen_seeds, screen_iterations=a.screen_iterations, num_envs=a.num_envs,
+                         value_layers=a.value_layers, value_width=a.value_width, batch_size=a.batch_size,
+                         num_minibatches=a.num_minibatches, epochs=a.epochs, checkpoint_every=a.checkpoint_every, eval_seconds=a.eval_seconds,
+                         snr_batches=a.snr_batches)
+        run_study(spec, a.out, phases=a.phases, published=a.published, progress=not a.quiet)
+    except driver.Stopped as e:
+        print(f"nmrl explore-study: {e}; every active point was saved; run the same command again to continue",
+              file=sys.stderr)
+        return e.exit_status
+    except signals.Interrupted as e:
+        return e.exit_status
+    except lock.Locked as e:
+        print(f"nmrl explore-study: error: {e}", file=sys.stderr)
+        return exits.LOCKED
+    except Exception as e:  # noqa: BLE001 - the disk or file system; else bad input or a bug
+        f = io_errors.find(e) if isinstance(e, (OSError, checkpoint.CheckpointError, io_errors.IOFailure)) else None
+        if isinstance(e, io_errors.IOFailure) or f is not None:
+            print(f"nmrl explore-study: error: {e if isinstance(e, io_errors.IOFailure) else f.line()}",
+                  file=sys.stderr)
+            return exits.IO_FAILED
+        if isinstance(e, (ValueError, StudyError, sweep.SweepError, driver.RunError, checkpoint.CheckpointError)):
+            print(f"nmrl explore-study: error: {e}", file=sys.stderr)
+            return exits.BAD_INPUT
+        raise
+    finally:
+        guard.restore()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,262 @@
+"""The exploration x control-step study: its rules, its rows and answers, its SNR estimate, its command.
+
+The numbers are checked against independent computations: NumPy means, scipy's t and Welch
+intervals, a plain-NumPy GAE and the normal density of ``jax.scipy.stats`` for the gradient
+estimate; the command's bad input against the house rule (one line, exit 2, nothing written).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import pathlib
+import subprocess
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.stats
+
+from nmrl.analysis import exploration_results as xr
+from nmrl.experiments import exploration_study as es
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+
+
+def _metrics(point: pathlib.Path, rows: list[dict]) -> None:
+    point.mkdir(parents=True, exist_ok=True)
+    with open(point / "metrics.jsonl", "w") as f:
+        for r in rows:
+            f.write(json.dumps(r) + "\n")
+
+
+def _rows(rewards, diverged_at=None, step0=5120):
+    return [{"step": step0 * (i + 1), "trials": 10 * (i + 1), "avg_reward": r, "forward_speed": r / 2,
+             "diverged": diverged_at is not None and i >= diverged_at} for i, r in enumerate(rewards)]
+
+
+def test_score_is_the_mean_of_the_second_half_and_diverged_scores_minus_inf():
+    assert math.isclose(xr.score(_rows([-5.0, -3.0, -1.0, 2.0])), np.mean([-1.0, 2.0]))
+    assert math.isclose(xr.score(_rows([-5.0, -3.0, -1.0])), np.mean([-3.0, -1.0]))  # odd: the later half
+    assert xr.score(_rows([1.0, 2.0, 3.0, 4.0], diverged_at=3)) == -math.inf
+    assert xr.score([]) == -math.inf
+
+
+def test_choose_takes_the_best_mean_over_seeds_and_never_a_diverged_setting():
+    rows = [
+        {"exploration": "ou", "field": "corr_time_s", "value": 0.045, "score": 1.0},
+        {"exploration": "ou", "field": "corr_time_s", "value": 0.045, "score": 3.0},  # mean 2.0
+        {"exploration": "ou", "field": "corr_time_s", "value": 0.09, "score": 2.5},
+        {"exploration": "ou", "field": "corr_time_s", "value": 0.09, "score": 2.0},  # mean 2.25: chosen
+        {"exploration": "ou", "field": "corr_time_s", "value": 0.18, "score": 9.0},
+        {"exploration": "ou", "field": "corr_time_s", "value": 0.18, "score": -math.inf},  # a diverged seed
+        {"exploration": "colored", "field": "beta", "value": 0.5, "score": 1.0},
+        {"exploration": "colored", "field": "beta", "value": 1.0, "score": 1.0},  # tie: the first listed
+    ]
+    assert xr.choose(rows) == {"ou": ("corr_time_s", 0.09), "colored": ("beta", 0.5)}
+
+
+def test_run_row_converts_to_reward_per_second_and_reads_the_deterministic_evaluation(tmp_path):
+    p = tmp_path / "s1"
+    rewards = [float(x) for x in np.linspace(-3, 2, 16)]
+    _metrics(p, _rows(rewards, step0=20480))
+    (p / "eval").mkdir()
+    (p / "eval" / "eval.json").write_text(json.dumps(
+        {"step": 16 * 20480, "deterministic": {"avg_reward": 3.1, "forward_speed": 3.3},
+         "exploring": {"avg_reward": 2.0, "forward_speed": 2.2}}))
+    r = xr.run_row(p, exploration="ou", setting="corr_time_s=0.09", control_dt=0.005, seed=1, num_envs=64,
+                   iteration_steps=20480)
+    assert r["control_steps"] == 16 * 20480 * 64 and math.isclose(r["simulated_s"], 16 * 20480 * 64 * 0.005)
+    assert r["iterations"] == 16 and r["diverged"] is False
+    assert math.isclose(r["avg_reward"], rewards[-1])  # the last tenth of 16 chunks: the last one
+    assert math.isclose(r["avg_reward_per_s"], rewards[-1] / 0.02)
+    assert math.isclose(r["det_reward_per_s"], 3.1 / 0.02) and r["det_forward_speed"] == 3.3
+    # an evaluation of an earlier step is not this run's
+    (p / "eval" / "eval.json").write_text(json.dumps({"step": 8 * 20480, "deterministic": {
+        "avg_reward": 1.0, "forward_speed": 1.0}}))
+    r = xr.run_row(p, exploration="ou", setting="-", control_dt=0.005, seed=1, num_envs=64, iteration_steps=20480)
+    assert math.isnan(r["det_reward"])
+
+
+def test_answers_match_scipy_t_and_welch_intervals():
+    rng = np.random.default_rng(3)
+    rows = []
+    vals = {}
+    for dt in (0.02, 0.005):
+        for p in es.PROCESSES:
+            v = rng.normal(2.0 + (p == "nm-periods") - (dt == 0.005) * (p == "white"), 0.4, size=4)
+            vals[(dt, p)] = v
+            rows += [{"control_dt": dt, "exploration": p, "avg_reward_per_s": x} for x in v]
+    a = xr.answers(rows, (0.02, 0.005), es.PROCESSES)
+    for c in a["cells"]:
+        v = vals[(c["control_dt"], c["exploration"])]
+        lo, hi = scipy.stats.t.interval(0.95, len(v) - 1, loc=v.mean(), scale=scipy.stats.sem(v))
+        assert math.isclose(c["mean"], v.mean()) and math.isclose(c["ci95"], (hi - lo) / 2, rel_tol=1e-9)
+
+    def welch(x, y):
+        vx, vy = x.var(ddof=1) / len(x), y.var(ddof=1) / len(y)
+        df = (vx + vy) ** 2 / (vx ** 2 / (len(x) - 1) + vy ** 2 / (len(y) - 1))
+        return x.mean() - y.mean(), scipy.stats.t.ppf(0.975, df) * math.sqrt(vx + vy)
+
+    d, h = welch(vals[(0.005, "white")], vals[(0.02, "white")])
+    w = a["white_fine_minus_coarse"]
+    assert math.isclose(w["diff"], d) and math.isclose(w["ci95"], h, rel_tol=1e-9)
+    assert w["significant"] == (abs(d) > h)
+    nm = {(tuple(x["a"]), tuple(x["b"])): x for x in a["nm_periods_minus_stationary"]}
+    d, h = welch(vals[(0.005, "nm-periods")], vals[(0.005, "ou")])
+    x = nm[((0.005, "nm-periods"), (0.005, "ou"))]
+    assert math.isclose(x["diff"], d) and math.isclose(x["ci95"], h, rel_tol=1e-9)
+    for dt in (0.02, 0.005):
+        means = {p: vals[(dt, p)].mean() for p in es.PROCESSES}
+        assert a["best"][f"{dt:g}"] == max(means, key=means.get)
+
+
+def test_study_configs_are_in_seconds():
+    spec = es.StudySpec()
+    spec.validate()
+    for dt, T, k in ((0.02, 20, 1.0), (0.01, 40, 0.5), (0.005, 80, 0.25)):
+        c = spec.config(dt, "white").resolved()
+        assert c.unroll_length == T and math.isclose(c.reward_scale, k)
+        assert c.iteration_steps * dt == pytest.approx(102.4)  # seconds of experience per environment
+        assert (c.value_layers, c.value_width, c.num_envs) == (2, 64, 64)
+    # nm-periods at 20 ms with the paper's alpha = 0.8 per step and l = 10 for 0.2 s
+    c = spec.config(0.02, "nm-periods", period_s=0.2)
+    assert math.isclose(math.exp(-0.02 / c.corr_time_s), 0.8, abs_tol=1e-4)
+    assert round(c.period_s / 0.02) == 10
+    assert es.physics_timestep() == 0.005
+
+
+def test_screen_and_grid_cells():
+    spec = es.StudySpec()
+    cells = es.screen_cells(spec)
+    assert {c.process for c in cells} == {"nm-periods", "ou", "colored"}
+    assert all(c.dt == 0.005 and len(c.points()) == 3 * spec.screen_seeds for c in cells)
+    grid = es.grid_cells(spec, {"nm-periods": ("period_s", 0.1), "ou": ("corr_time_s", 0.09),
+                                "colored": ("beta", 1.0)})
+    assert [(c.dt, c.process) for c in grid[:4]] == [(0.02, p) for p in es.PROCESSES]
+    assert len(grid) == 12 and all(c.points() == [f"s{s}" for s in range(4)] for c in grid)
+    nm = [c for c in grid if c.process == "nm-periods"][0]
+    assert dict(nm.setting) == {"period_s": 0.1, "corr_time_s": es.NM_CORR_TIME_S}
+    base = nm.sweep_spec(spec).base
+    assert base.steps == 16 * 5120 and base.period_s == 0.1
+    assert es.grid_cells(spec, None) == [c for c in grid if c.process == "white"]
+
+
+def _cli(*args, cwd):
+    return subprocess.run([sys.executable, "-m", "nmrl.cli", "explore-study", *args], cwd=cwd,
+                          capture_output=True, text=True, timeout=120)
+
+
+@pytest.mark.parametrize("args,needle", [
+    (("--seeds", "0"), "seeds=0"),
+    (("--dt", "0.007"), "0.007"),
+    (("--phases", "train"), "train"),
+    (("--iterations", "1"), "iterations=1"),
+    (("--snr-batches", "1"), "snr_batches=1"),
+    (("--published", "no/such/dir"), "no/such/dir"),
+])
+def test_bad_input_is_one_line_exit_2_nothing_written(tmp_path, args, needle):
+    out = tmp_path / "study"
+    r = _cli("--out", str(out), *args, cwd=REPO)
+    assert r.returncode == 2, r.stderr
+    lines = [x for x in r.stderr.splitlines() if x.strip()]
+    assert len(lines) == 1 and needle in lines[0], r.stderr
+    assert not out.exists()
+
+
+def test_a_study_refuses_other_settings(tmp_path):
+    out = tmp_path / "study"
+    out.mkdir()
+    (out / es.SPEC_FILE).write_text(json.dumps(es.StudySpec(seeds=3).to_json()))
+    with pytest.raises(es.StudyError, match="seeds"):
+        es._check_spec(out, es.StudySpec(seeds=4))
+    es._check_spec(out, es.StudySpec(seeds=3, iterations=20))  # a longer budget continues it
+    assert json.loads((out / es.SPEC_FILE).read_text())["iterations"] == 20
+    with pytest.raises(es.StudyError, match="iterations"):
+        es._check_spec(out, es.StudySpec(seeds=3, iterations=16))
+
+
+# ------------------------------------------------------------------------------------- the SNR
+def test_gradient_estimate_per_environment_matches_an_independent_computation():
+    """make_batch's sums of g_e = grad (1/UT) sum A log pi, for white noise, against GAE in NumPy
+    (by its definition) and the normal density of jax.scipy.stats on the policy's mean and std."""
+    from tests.test_ppo import TINY, _np_gae
+    from tests.tiny_env import TinyEnv
+    from jax.flatten_util import ravel_pytree
+    from nmrl.experiments import ppo_gradsnr
+    from nmrl.learners import ppo
+    from nmrl.learners import ppo_networks as nn_
+
+    cfg = ppo.PPOConfig(**dict(TINY, num_envs=3, batch_size=6), exploration="white", reward_scale=0.5).resolved()
+    env = TinyEnv(stop_prob=0.1)
+    tr = ppo.make_ppo(cfg, env)
+    st = tr.init(jax.random.PRNGKey(1))
+    st = st.replace(obs_stats=st.obs_stats._replace(mean=st.obs_stats.mean + 0.1))
+    key = jax.random.PRNGKey(7)
+    new, (n, g_sum, g_sq) = jax.jit(ppo_gradsnr.make_batch(cfg, env))(st, key)
+    (_, _, _), data = jax.jit(tr.rollout)(st, key)  # the same rollout (same state, same key)
+    h = st.hyper
+    N, U, T = data.reward.shape
+    obs_n = nn_.normalize(st.obs_stats, data.obs)
+    v = np.asarray(nn_.value(tr.nets, st.value, obs_n), np.float64)
+    boot = np.asarray(nn_.value(tr.nets, st.value, nn_.normalize(st.obs_stats, data.next_obs)), np.float64)
+    adv = np.zeros((N, U, T))
+    for e in range(N):
+        _, a = _np_gae(np.asarray(data.reward[e], np.float64).T * float(h.reward_scale), v[e].T, boot[e],
+                       np.asarray(data.termination[e]).T > 0, np.asarray(data.truncation[e]).T > 0,
+                       float(h.gamma), float(h.lam))
+        adv[e] = a.T
+    adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+    grads = []
+    for e in range(N):
+        def obj(p):
+            mu, std = nn_.mean_std(tr.nets, p, obs_n[e], cfg.min_std)
+            lp = jnp.sum(jax.scipy.stats.norm.logpdf(data.x[e], mu, std), axis=-1)
+            return jnp.sum(jnp.asarray(adv[e], jnp.float32) * lp) / (U * T)
+        grads.append(np.asarray(ravel_pytree(jax.grad(obj)(st.policy))[0], np.float64))
+    grads = np.stack(grads)
+    assert float(n) == N
+    np.testing.assert_allclose(np.asarray(g_sum), grads.sum(0), rtol=2e-4, atol=1e-6)
+    np.testing.assert_allclose(float(g_sq), np.sum(grads ** 2), rtol=2e-4)
+    assert int(new.step) == int(st.step)  # no learning: the counters and parameters stay
+    np.testing.assert_array_equal(ravel_pytree(new.policy)[0], ravel_pytree(st.policy)[0])
+
+
+@pytest.mark.slow
+def test_a_tiny_study_runs_every_phase_and_continues(tmp_path):
+    """Every phase on a tiny budget through the command: the white cell, the screen and its choice,
+    the grid with mid-training states, evaluations, results, the SNR table; a second call has
+    nothing left to do."""
+    out = tmp_path / "study"
+    args = ["--out", str(out), "--dt", "0.02", "0.01", "--screen-dt", "0.01", "--seeds", "2", "--iterations", "2",
+            "--screen-seeds", "1", "--screen-iterations", "1", "--num-envs", "4", "--batch-size", "4",
+            "--num-minibatches", "1", "--epochs", "1", "--eval-seconds", "0.2", "--snr-batches", "2", "--quiet"]
+    r = _cli(*args, cwd=REPO)
+    assert r.returncode == 0, r.stderr[-3000:]
+    rows = list(csv_rows(out / "results.csv"))
+    assert len(rows) == 2 * 4 * 2
+    assert all(int(x["iterations"]) == 2 and x["det_reward_per_s"] not in ("", "nan") for x in rows)
+    screen = list(csv_rows(out / "screen.csv"))
+    assert sum(x["chosen"] == "True" for x in screen) == 3
+    snr = list(csv_rows(out / "snr.csv"))
+    assert len(snr) == 2 * 4 * 2 and all(float(x["trcov"]) > 0 for x in snr)
+    chosen = {r["exploration"]: (r["field"], float(r["value"])) for r in screen if r["chosen"] == "True"}
+    for c in es.grid_cells(es.StudySpec(dts=(0.02, 0.01)), chosen):
+        for s in range(2):
+            p = out / "grid" / f"dt{c.dt:g}" / c.process / "points" / f"s{s}"
+            assert (p / "mid" / "compact.npz").exists() and (p / "eval" / "eval.json").exists()
+    before = (out / "results.csv").read_text()
+    r = _cli(*args, cwd=REPO)  # everything done: nothing runs again
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert (out / "results.csv").read_text() == before
+    summary = json.loads((out / "summary.json").read_text())
+    assert set(summary["chosen"]) == {"nm-periods", "ou", "colored"}
+
+
+def csv_rows(path):
+    import csv
+
+    with open(path) as f:
+        yield from csv.DictReader(f)
