@@ -29,10 +29,8 @@ cell. Everything resumes where it stopped: run the same command again; on a fres
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
-import math
 import pathlib
 import shutil
 import sys
@@ -42,7 +40,7 @@ from typing import Sequence
 from nmrl import learners
 from nmrl.analysis import exploration_results as xr
 from nmrl.experiments import sweep
-from nmrl.runs import checkpoint, driver, exits, io_errors, lock, parser, signals, store
+from nmrl.runs import checkpoint, command, lock, parser, store
 
 PPOConfig = learners.get("ppo").config
 SPEC_FILE = "study.json"
@@ -475,36 +473,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--phases", nargs="+", default=list(PHASES), help=f"any of {list(PHASES)}")
     ap.add_argument("--quiet", action="store_true")
     a = ap.parse_args(argv)
-    guard = signals.Guard().install()
-    try:
+
+    def body() -> None:
         spec = StudySpec(dts=tuple(a.dt), seeds=a.seeds, iterations=a.iterations, screen_dt=a.screen_dt,
                          screen_seeds=a.screen_seeds, screen_iterations=a.screen_iterations, num_envs=a.num_envs,
                          value_layers=a.value_layers, value_width=a.value_width, batch_size=a.batch_size,
-                         num_minibatches=a.num_minibatches, epochs=a.epochs, checkpoint_every=a.checkpoint_every, eval_seconds=a.eval_seconds,
-                         snr_batches=a.snr_batches)
+                         num_minibatches=a.num_minibatches, epochs=a.epochs, checkpoint_every=a.checkpoint_every,
+                         eval_seconds=a.eval_seconds, snr_batches=a.snr_batches)
         run_study(spec, a.out, phases=a.phases, published=a.published, progress=not a.quiet)
-    except driver.Stopped as e:
-        print(f"nmrl explore-study: {e}; every active point was saved; run the same command again to continue",
-              file=sys.stderr)
-        return e.exit_status
-    except signals.Interrupted as e:
-        return e.exit_status
-    except lock.Locked as e:
-        print(f"nmrl explore-study: error: {e}", file=sys.stderr)
-        return exits.LOCKED
-    except Exception as e:  # noqa: BLE001 - the disk or file system; else bad input or a bug
-        f = io_errors.find(e) if isinstance(e, (OSError, checkpoint.CheckpointError, io_errors.IOFailure)) else None
-        if isinstance(e, io_errors.IOFailure) or f is not None:
-            print(f"nmrl explore-study: error: {e if isinstance(e, io_errors.IOFailure) else f.line()}",
-                  file=sys.stderr)
-            return exits.IO_FAILED
-        if isinstance(e, (ValueError, StudyError, sweep.SweepError, driver.RunError, checkpoint.CheckpointError)):
-            print(f"nmrl explore-study: error: {e}", file=sys.stderr)
-            return exits.BAD_INPUT
-        raise
-    finally:
-        guard.restore()
-    return 0
+
+    return command.run("nmrl explore-study", body, (StudyError, sweep.SweepError))
 
 
 if __name__ == "__main__":

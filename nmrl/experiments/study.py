@@ -49,7 +49,7 @@ from nmrl.analysis import stats
 from nmrl.experiments import gradvar
 from nmrl.experiments.timescale import DELTA_0, at_control_step
 from nmrl import learners
-from nmrl.runs import checkpoint, driver, exits, io_errors, lock, parser, signals, store
+from nmrl.runs import checkpoint, command, driver, lock, parser, store
 from nmrl.runs.store import read_csv, read_metrics, write_csv
 
 #: the study's learner: the paper's actor-critic (its arms are period lengths l, its grid the step sizes)
@@ -455,30 +455,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                      chunk_seconds=a.chunk_seconds, seeds=a.seeds, num_envs=a.num_envs,
                      checkpoint_every=a.checkpoint_every, gradvar_envs=a.gradvar_envs,
                      gradvar_batches=a.gradvar_batches, beta_theta_cap=a.beta_theta_cap)
-    guard = signals.Guard().install()  # a signal never raises inside JAX (nmrl/runs/signals.py)
-    try:
-        run_study(spec, a.out, phases=a.phases, progress=not a.quiet)
-    except driver.Stopped as e:
-        print(f"nmrl study: {e}; every active point was saved; run the same command again to continue",
-              file=sys.stderr)
-        return e.exit_status
-    except signals.Interrupted as e:
-        return e.exit_status
-    except lock.Locked as e:
-        print(f"nmrl study: error: {e}", file=sys.stderr)
-        return exits.LOCKED
-    except Exception as e:  # noqa: BLE001 - the disk or file system; else bad input or a bug
-        f = io_errors.find(e) if isinstance(e, (OSError, checkpoint.CheckpointError, io_errors.IOFailure)) else None
-        if isinstance(e, io_errors.IOFailure) or f is not None:
-            print(f"nmrl study: error: {e if isinstance(e, io_errors.IOFailure) else f.line()}", file=sys.stderr)
-            return exits.IO_FAILED
-        if isinstance(e, (ValueError, StudyError, driver.RunError, checkpoint.CheckpointError)):
-            print(f"nmrl study: error: {e}", file=sys.stderr)
-            return exits.BAD_INPUT
-        raise
-    finally:
-        guard.restore()
-    return 0
+    return command.run("nmrl study", lambda: run_study(spec, a.out, phases=a.phases, progress=not a.quiet),
+                       (StudyError,))
 
 
 if __name__ == "__main__":

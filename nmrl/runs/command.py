@@ -1,0 +1,44 @@
+"""How a long command ends: saved after a signal, refused by a lock, failed on the disk, or bad input.
+
+``nmrl study`` and ``nmrl explore-study`` run many sweeps under one signal guard
+(nmrl/runs/signals.py) and share this ending: a signal stops them after the chunk in flight with
+every active point saved; a second writer is refused naming the first; a disk or file-system
+failure is one line (nmrl/runs/io_errors.py); bad input is one line with exit status 2; anything
+else is a bug and raises. The statuses are nmrl/runs/exits.py's.
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import Callable
+
+from nmrl.runs import checkpoint, driver, exits, io_errors, lock, signals
+
+
+def run(prog: str, body: Callable[[], object], bad_input: tuple[type[BaseException], ...] = ()) -> int:
+    """Run ``body()`` under a signal guard; return the command's exit status (module docstring).
+    ``bad_input``: the command's own exception types that mean bad input (besides ValueError and
+    the driver's and checkpoints' errors)."""
+    guard = signals.Guard().install()
+    try:
+        body()
+    except driver.Stopped as e:
+        print(f"{prog}: {e}; every active point was saved; run the same command again to continue", file=sys.stderr)
+        return e.exit_status
+    except signals.Interrupted as e:
+        return e.exit_status
+    except lock.Locked as e:
+        print(f"{prog}: error: {e}", file=sys.stderr)
+        return exits.LOCKED
+    except Exception as e:  # noqa: BLE001 - the disk or file system; else bad input or a bug
+        f = io_errors.find(e) if isinstance(e, (OSError, checkpoint.CheckpointError, io_errors.IOFailure)) else None
+        if isinstance(e, io_errors.IOFailure) or f is not None:
+            print(f"{prog}: error: {e if isinstance(e, io_errors.IOFailure) else f.line()}", file=sys.stderr)
+            return exits.IO_FAILED
+        if isinstance(e, (ValueError, driver.RunError, checkpoint.CheckpointError) + tuple(bad_input)):
+            print(f"{prog}: error: {e}", file=sys.stderr)
+            return exits.BAD_INPUT
+        raise
+    finally:
+        guard.restore()
+    return 0
