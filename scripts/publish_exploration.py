@@ -4,7 +4,10 @@
 
 Copies the tables (study.json, results.csv, screen.csv, snr.csv, summary.json) and every cell's
 continuation files (nmrl.analysis.exploration_results.publish: what `scripts/exploration_study.sh`
-seeds a fresh clone from) and draws ``learning_curves.png`` (one panel per control step).
+seeds a fresh clone from), draws ``learning_curves.png`` (one panel per control step) and, once
+every process has runs at the finest control step, the gaits of its best and worst process
+(``gaits/<process>/``: `nmrl eval`'s strobe picture, GIF and JSON of the median seed, 10 s from
+seed 0; drawn once).
 """
 
 from __future__ import annotations
@@ -31,6 +34,17 @@ def main() -> None:
     rows = store.read_csv(src / "results.csv") if (src / "results.csv").exists() else []
     if rows:
         xr.draw(src, rows, spec.dts, es.PROCESSES, dest / "learning_curves.png")
+        fine = min(spec.dts)
+        done = [r for r in rows if int(r["iterations"]) >= spec.iterations or r["diverged"]]
+        picks = xr.best_and_worst(done, fine, es.PROCESSES) if len(done) == len(rows) else None
+        for proc, seed in picks or []:
+            out = dest / "gaits" / proc
+            if not (out / "strobe.png").exists():
+                from nmrl.analysis import evaluate
+
+                run = src / "grid" / f"dt{fine:g}" / proc / "points" / f"s{seed}"
+                evaluate.evaluate(run, seconds=10.0, seed=0, render=True, out_dir=out)
+                print(f"gait of {proc} at {fine:g} s (seed {seed}) in {out}")
     print(f"{len(written)} files under {dest}; {len(rows)} runs in results.csv")
 
 

@@ -260,3 +260,41 @@ def csv_rows(path):
 
     with open(path) as f:
         yield from csv.DictReader(f)
+
+
+def test_publish_then_seed_a_fresh_directory_carries_what_a_resume_needs(tmp_path):
+    """publish copies the tables and every cell's continuation files (not the checkpoints);
+    seed_from puts them into a fresh study directory and leaves a cell that is already there alone."""
+    src = tmp_path / "runs"
+    cell = src / "grid" / "dt0.005" / "ou"
+    pt = cell / "points" / "s0"
+    files = {cell / "sweep.json": "{}", pt / "config.json": "{}", pt / "metrics.jsonl": "{}\n",
+             pt / "compact.npz": "npz", pt / "mid" / "compact.npz": "mid", pt / "mid" / "config.json": "{}",
+             pt / "eval" / "eval.json": "{}", pt / "checkpoints" / "40960" / "state" / "x": "ckpt",
+             pt / "resumes.jsonl": "", src / "study.json": "{}", src / "results.csv": "a\n"}
+    for f, text in files.items():
+        f.parent.mkdir(parents=True, exist_ok=True)
+        f.write_text(text)
+    dest = tmp_path / "published"
+    xr.publish(src, dest)
+    got = {str(f.relative_to(dest)) for f in dest.rglob("*") if f.is_file()}
+    rel = "runs/grid/dt0.005/ou/"
+    assert got == {"study.json", "results.csv", "runs/study.json", rel + "sweep.json",
+                   *(rel + "points/s0/" + n for n in ("config.json", "metrics.jsonl", "compact.npz",
+                                                      "mid/compact.npz", "mid/config.json", "eval/eval.json"))}
+    fresh = tmp_path / "fresh"
+    seeded = es.seed_from(dest / "runs", fresh)
+    assert seeded == [fresh / "grid" / "dt0.005" / "ou"]
+    assert (fresh / "grid/dt0.005/ou/points/s0/mid/compact.npz").read_text() == "mid"
+    assert (fresh / "study.json").exists()
+    (fresh / "grid/dt0.005/ou/points/s0/metrics.jsonl").write_text("newer\n")
+    assert es.seed_from(dest / "runs", fresh) == []  # a cell already there is never overwritten
+    assert (fresh / "grid/dt0.005/ou/points/s0/metrics.jsonl").read_text() == "newer\n"
+
+
+def test_best_and_worst_process_and_their_median_seeds():
+    rows = [{"control_dt": 0.005, "exploration": p, "seed": s, "avg_reward_per_s": v}
+            for p, vals in {"white": [1.0, 5.0, 3.0], "ou": [9.0, 8.0, 7.0, 6.0], "colored": [0.0, 0.5, 0.1]}.items()
+            for s, v in enumerate(vals)]
+    assert xr.best_and_worst(rows, 0.005, ("white", "ou", "colored")) == [("ou", 2), ("colored", 2)]  # ou: 7.0, the lower median of 4
+    assert xr.best_and_worst(rows, 0.005, ("white", "nm-periods")) is None

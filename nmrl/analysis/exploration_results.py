@@ -142,6 +142,23 @@ def answers(rows: Sequence[dict], dts: Sequence[float], processes: Sequence[str]
 
 
 
+def best_and_worst(rows: Sequence[dict], dt: float, processes: Sequence[str], key: str = "avg_reward_per_s"
+                   ) -> list[tuple[str, int]] | None:
+    """``[(best process, its median seed), (worst process, its median seed)]`` at control step
+    ``dt`` by the mean of ``key`` over seeds (the median seed: the run nearest the cell's median,
+    the lower one of an even count); None unless every process has runs there."""
+    c = {p: [(float(r[key]), int(r["seed"])) for r in rows if float(r["control_dt"]) == dt
+             and r["exploration"] == p and math.isfinite(float(r[key]))] for p in processes}
+    if any(not v for v in c.values()):
+        return None
+    mean = {p: np.mean([x for x, _ in v]) for p, v in c.items()}
+    out = []
+    for p in (max(mean, key=mean.get), min(mean, key=mean.get)):
+        v = sorted(c[p])
+        out.append((p, v[(len(v) - 1) // 2][1]))
+    return out
+
+
 # ------------------------------------------------------------------------------------ publishing
 #: what a fresh clone needs of every cell to continue it, and what the answers are made of
 PUBLISHED_FILES = ("sweep.json", "config.json", "metrics.jsonl", "compact.npz", "eval.json")
@@ -221,4 +238,4 @@ def draw(src: pathlib.Path, rows: Sequence[dict], dts: Sequence[float], processe
 
 
 __all__: Sequence[str] = ("RESULT_COLUMNS", "SCREEN_COLUMNS", "score", "choose", "eval_summary", "run_row", "cells",
-                          "cell_table", "diff", "answers", "publish", "curves", "draw")
+                          "cell_table", "diff", "answers", "best_and_worst", "publish", "curves", "draw")
