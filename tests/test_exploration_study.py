@@ -157,12 +157,18 @@ def _cli(*args, cwd):
     (("--snr-batches", "1"), "snr_batches=1"),
     (("--published", "no/such/dir"), "no/such/dir"),
 ])
-def test_bad_input_is_one_line_exit_2_nothing_written(tmp_path, args, needle):
+def test_bad_input_is_one_line_exit_2_nothing_written(tmp_path, capsys, args, needle):
     out = tmp_path / "study"
-    r = _cli("--out", str(out), *args, cwd=REPO)
-    assert r.returncode == 2, r.stderr
-    lines = [x for x in r.stderr.splitlines() if x.strip()]
-    assert len(lines) == 1 and needle in lines[0], r.stderr
+    assert es.main(["--out", str(out), *args]) == 2
+    lines = [x for x in capsys.readouterr().err.splitlines() if x.strip()]
+    assert len(lines) == 1 and needle in lines[0] and lines[0].startswith("nmrl explore-study: error:"), lines
+    assert not out.exists()
+
+
+def test_the_command_refuses_bad_input_through_nmrl(tmp_path):
+    out = tmp_path / "study"
+    r = _cli("--out", str(out), "--screen-dt", "0.0125", cwd=REPO)
+    assert r.returncode == 2 and "0.0125" in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert not out.exists()
 
 
