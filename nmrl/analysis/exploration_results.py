@@ -228,7 +228,8 @@ def draw(src: pathlib.Path, rows: Sequence[dict], dts: Sequence[float], processe
         ax.set_title(f"δ = {dt * 1000:g} ms")
         ax.set_xlabel("simulated seconds (all environments)")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, loc="lower right")
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=8, loc="lower right")
     axes[0][0].set_ylabel("average reward per second (exploring)")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
