@@ -152,6 +152,8 @@ def _cli(*args, cwd):
 @pytest.mark.parametrize("args,needle", [
     (("--seeds", "0"), "seeds=0"),
     (("--dt", "0.007"), "0.007"),
+    (("--dt", "0.02", "0.02"), "appear once"),
+    (("--dt", "-0.02"), "> 0 s"),
     (("--phases", "train"), "train"),
     (("--iterations", "1"), "iterations=1"),
     (("--snr-batches", "1"), "snr_batches=1"),

@@ -40,7 +40,7 @@ from typing import Sequence
 from nmrl import learners
 from nmrl.analysis import exploration_results as xr
 from nmrl.experiments import sweep
-from nmrl.runs import checkpoint, command, lock, parser, store
+from nmrl.runs import bounds, checkpoint, command, lock, parser, store
 
 PPOConfig = learners.get("ppo").config
 SPEC_FILE = "study.json"
@@ -91,15 +91,10 @@ class StudySpec:
         def bad(name, allowed):
             return ValueError(f"{name}={getattr(self, name)!r} is invalid: {allowed}")
 
-        if not self.dts or any(not (isinstance(d, (int, float)) and d > 0) for d in self.dts):
-            raise bad("dts", "give control steps > 0 s, e.g. 0.02 0.005 0.01")
-        if len(set(self.dts)) != len(self.dts):
-            raise bad("dts", "each control step may appear once")
-        for name in ("seeds", "iterations", "screen_seeds", "screen_iterations", "num_envs", "value_layers",
-                     "value_width", "batch_size", "num_minibatches", "epochs", "checkpoint_every"):
-            v = getattr(self, name)
-            if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
-                raise bad(name, "must be an integer >= 1")
+        bounds.control_steps("dts", self.dts, "0.02 0.005 0.01")
+        bounds.positive_ints(self, ("seeds", "iterations", "screen_seeds", "screen_iterations", "num_envs",
+                                    "value_layers", "value_width", "batch_size", "num_minibatches", "epochs",
+                                    "checkpoint_every"))
         if self.iterations < 2:
             raise bad("iterations", "must be >= 2 (the mid-training state is taken at half)")
         if not (isinstance(self.snr_batches, int) and self.snr_batches >= 2):

@@ -49,7 +49,7 @@ from nmrl.analysis import stats
 from nmrl.experiments import gradvar
 from nmrl.experiments.timescale import DELTA_0, at_control_step
 from nmrl import learners
-from nmrl.runs import checkpoint, command, driver, lock, parser, store
+from nmrl.runs import bounds, checkpoint, command, driver, lock, parser, store
 from nmrl.runs.store import read_csv, read_metrics, write_csv
 
 #: the study's learner: the paper's actor-critic (its arms are period lengths l, its grid the step sizes)
@@ -99,10 +99,7 @@ class StudySpec:
         def bad(name, allowed):
             return ValueError(f"{name}={getattr(self, name)!r} is invalid: {allowed}")
 
-        if not self.dts or any(not (isinstance(d, (int, float)) and d > 0) for d in self.dts):
-            raise bad("dts", "give control steps > 0 s, e.g. 0.02 0.01 0.005")
-        if len(set(self.dts)) != len(self.dts):
-            raise bad("dts", "each control step may appear once")
+        bounds.control_steps("dts", self.dts, "0.02 0.01 0.005")
         if not self.periods or any(p is not None and not (isinstance(p, (int, float)) and p > 0) for p in self.periods):
             raise bad("periods", "give durations > 0 s (None = the stationary policy)")
         if len(set(self.periods)) != len(self.periods):
@@ -111,10 +108,7 @@ class StudySpec:
             g = getattr(self, name)
             if len(g) < 1 or any(not (isinstance(b, (int, float)) and b > 0 and math.isfinite(b)) for b in g):
                 raise bad(name, "give step sizes > 0")
-        for name in ("seeds", "num_envs", "checkpoint_every", "gradvar_envs", "gradvar_batches"):
-            v = getattr(self, name)
-            if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
-                raise bad(name, "must be an integer >= 1")
+        bounds.positive_ints(self, ("seeds", "num_envs", "checkpoint_every", "gradvar_envs", "gradvar_batches"))
         if self.beta_theta_cap is not None and not (
                 isinstance(self.beta_theta_cap, (int, float)) and self.beta_theta_cap >= min(self.beta_theta_grid)):
             raise bad("beta_theta_cap", f"must be >= the smallest grid value {min(self.beta_theta_grid):g}")
