@@ -20,7 +20,7 @@ Order of work (each step a cell: an ``nmrl sweep`` directory, resumable on its o
    each point's compact state there (``points/<p>/mid/``, for the mid-training SNR), then finishes.
    Every finished point is evaluated (deterministic policy, ``eval_seconds`` from seed 0).
 4. ``snr.csv``: the gradient's SNR per (delta, process) at the initial policy and at mid-training
-   (seed 0), once every grid cell of that delta has its mid-training state.
+   (seed 0), after that delta's grid cells, before the next delta's.
 
 ``results.csv`` (one row per grid run) and ``summary.json`` (the answers) are rewritten after every
 cell. Everything resumes where it stopped: run the same command again; on a fresh clone
@@ -435,11 +435,12 @@ def _run(spec: StudySpec, out: pathlib.Path, phases: Sequence[str], progress: bo
         if progress:
             print("the screen has not finished: the grid's correlated processes wait for it", file=sys.stderr)
         return write_results(out, spec, None)
-    for c in grid_cells(spec, chosen):
-        _grid_step(out, c, spec, phases, progress)
-        write_results(out, spec, chosen)
-    if "snr" in phases:
-        _snr(out, spec, chosen, progress)
+    for dt in spec.dts:  # the stages: a control step's SNR as soon as its cells have their mid states
+        for c in [c for c in grid_cells(spec, chosen) if c.dt == dt]:
+            _grid_step(out, c, spec, phases, progress)
+            write_results(out, spec, chosen)
+        if "snr" in phases:
+            _snr(out, spec, chosen, progress)
     return write_results(out, spec, chosen)
 
 
