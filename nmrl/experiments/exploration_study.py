@@ -393,12 +393,7 @@ def run_study(spec: StudySpec, out: str | pathlib.Path, *, phases: Sequence[str]
               published: str | pathlib.Path | None = None, progress: bool = True) -> list[dict]:
     """Run (or continue) the study into ``out`` (module docstring); returns results.csv's rows."""
     spec.validate()
-    bad = [p for p in phases if p not in PHASES]
-    if bad:
-        raise ValueError(f"unknown phase(s) {bad}: choose from {list(PHASES)}")
-    out = pathlib.Path(out).absolute()
-    if out.exists() and not out.is_dir():
-        raise StudyError(f"--out={str(out)!r} is invalid: it exists and is not a directory")
+    out = command.study_dir(out, phases, PHASES, StudyError)
     if published is not None and not pathlib.Path(published).is_dir():
         raise ValueError(f"--published={str(published)!r} is invalid: not a directory")
     out.mkdir(parents=True, exist_ok=True)

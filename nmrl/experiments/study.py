@@ -337,12 +337,7 @@ def run_study(spec: StudySpec, out: str | pathlib.Path, *, phases: Sequence[str]
               progress: bool = True) -> dict:
     """Run (or continue) the study into ``out``; returns {"grid": rows, "final": rows, "gradvar": rows}."""
     spec.validate()
-    bad = [p for p in phases if p not in PHASES]
-    if bad:
-        raise ValueError(f"unknown phase(s) {bad}: choose from {list(PHASES)}")
-    out = pathlib.Path(out).absolute()
-    if out.exists() and not out.is_dir():
-        raise StudyError(f"--out={str(out)!r} is invalid: it exists and is not a directory")
+    out = command.study_dir(out, phases, PHASES, StudyError)
     held = lock.hold(out)  # one writer of the study for its whole run (nmrl/runs/lock.py)
     try:
         return _run_study(spec, out, phases, progress)

@@ -9,8 +9,10 @@ else is a bug and raises. The statuses are nmrl/runs/exits.py's.
 
 from __future__ import annotations
 
+import os
+import pathlib
 import sys
-from typing import Callable
+from typing import Callable, Sequence
 
 from nmrl.runs import checkpoint, driver, exits, io_errors, lock, signals
 
@@ -42,3 +44,16 @@ def run(prog: str, body: Callable[[], object], bad_input: tuple[type[BaseExcepti
     finally:
         guard.restore()
     return 0
+
+
+def study_dir(out: str | os.PathLike, phases: Sequence[str], allowed: Sequence[str],
+              error: type[Exception] = ValueError) -> pathlib.Path:
+    """A study command's directory, absolute, once its ``phases`` are among ``allowed`` (ValueError
+    naming the others) and ``out`` is not an existing file (``error``); nothing is created."""
+    bad = [p for p in phases if p not in allowed]
+    if bad:
+        raise ValueError(f"unknown phase(s) {bad}: choose from {list(allowed)}")
+    out = pathlib.Path(out).absolute()
+    if out.exists() and not out.is_dir():
+        raise error(f"--out={str(out)!r} is invalid: it exists and is not a directory")
+    return out
