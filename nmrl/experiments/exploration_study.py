@@ -164,8 +164,7 @@ class Cell:
         return sweep.SweepSpec(ls=self.values, seeds=self.seeds, base=base, field=self.field)
 
     def points(self) -> list[str]:
-        return [sweep.point_name(v, s, self.field) for v, s in
-                [(v, s) for v in self.values for s in range(self.seeds)]]
+        return [sweep.point_name(v, s, self.field) for v in self.values for s in range(self.seeds)]
 
 
 def screen_cells(spec: StudySpec) -> list[Cell]:
@@ -235,8 +234,7 @@ def keep_mid(out: pathlib.Path, cell: Cell, spec: StudySpec) -> None:
         dst = src / "mid"
         if (dst / checkpoint.COMPACT_FILE).exists():
             continue
-        step, diverged = _steps_done(src)
-        if step != half or not checkpoint.has_compact(src):
+        if not checkpoint.has_compact(src):
             continue
         _, arrays = checkpoint.load_compact(src)
         if int(arrays["step"]) != half:
