@@ -232,6 +232,52 @@ def test_gradient_estimate_per_environment_matches_an_independent_computation():
     np.testing.assert_array_equal(ravel_pytree(new.policy)[0], ravel_pytree(st.policy)[0])
 
 
+_SIDE_BY_SIDE = """
+import json, jax, numpy as np
+from nmrl.experiments import gradvar, ppo_gradsnr
+from nmrl.learners import ppo
+from tests.test_ppo import TINY
+from tests.tiny_env import TinyEnv
+assert jax.local_device_count() == 2, jax.devices()
+cfg = ppo.PPOConfig(**dict(TINY, num_envs=3, batch_size=6), exploration="ou", reward_scale=0.5).resolved()
+env = TinyEnv(stop_prob=0.1)
+tr = ppo.make_ppo(cfg, env)
+states = [tr.init(jax.random.PRNGKey(s)) for s in (1, 2, 3)]
+many = ppo_gradsnr.measure_many(cfg, states, batches=2, seed=5, warmup=1, env=env)
+batch = jax.jit(ppo_gradsnr.make_batch(cfg, env))
+plain = []
+for st in states:  # one policy at a time: the warm-up rollout, then two counted ones
+    key, sums = jax.random.PRNGKey(5), []
+    for b in range(3):
+        key, k = jax.random.split(key)
+        st, s = batch(st, k)
+        if b:
+            sums.append(jax.device_get(s))
+    n, g, q = (np.array([np.asarray(x[i], np.float64) for x in sums]) for i in range(3))
+    plain.append(gradvar.summarize(n, g, q, cfg.unrolls_per_env * cfg.unroll_s))
+print(json.dumps([many, plain]))
+"""
+
+
+def test_policies_measured_side_by_side_on_two_devices_match_one_at_a_time(tmp_path):
+    """measure_many over 2 devices (3 policies: one device holds two, one slot idle) gives each
+    policy what a plain loop of the batch function (checked above against NumPy) gives it alone."""
+    import os
+
+    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2", "JAX_PLATFORMS": "cpu",
+           "PYTHONPATH": str(REPO)}
+    p = subprocess.run([sys.executable, "-c", _SIDE_BY_SIDE], env=env, cwd=REPO, capture_output=True, text=True,
+                       timeout=600)
+    assert p.returncode == 0, p.stderr[-3000:]
+    many, plain = json.loads(p.stdout.strip().splitlines()[-1])
+    assert len(many) == len(plain) == 3
+    assert len({round(m["trcov"], 9) for m in many}) == 3  # three different policies
+    for m, q in zip(many, plain):
+        assert (m["periods"], m["batches"]) == (q["periods"], q["batches"]) == (6, 2)
+        for k in ("trcov", "trcov_ci", "mean_sq", "mean_sq_ci", "snr_per_s"):
+            np.testing.assert_allclose(m[k], q[k], rtol=1e-3, atol=1e-9, err_msg=k)
+
+
 @pytest.mark.slow
 def test_a_tiny_study_runs_every_phase_and_continues(tmp_path):
     """Every phase on a tiny budget through the command: the white cell, the screen and its choice,

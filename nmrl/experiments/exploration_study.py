@@ -344,25 +344,24 @@ def _snr(out: pathlib.Path, spec: StudySpec, chosen: dict, progress: bool) -> li
         mids = [c.dir(out) / "points" / "s0" / "mid" for c in cells]
         if not all(checkpoint.has_compact(m) for m in mids):
             continue
-        for c, mid in zip(cells, mids):
+        for c, mid in zip(cells, mids):  # a cell's two policies side by side, one per device
             cfg = dataclasses.replace(c.sweep_spec(spec).base, seed=0)
-            for policy in ("initial", "mid"):
-                if (dt, c.process, policy) in have:
-                    continue
-                t0 = time.time()
-                if policy == "initial":
-                    st = ppo_gradsnr.initial_state(cfg, 0)
-                else:
-                    st = checkpoint.restore_compact(mid, make_ppo(cfg.resolved()))
-                r = ppo_gradsnr.measure(cfg, st, batches=spec.snr_batches, seed=1)
+            todo = [p for p in ("initial", "mid") if (dt, c.process, p) not in have]
+            if not todo:
+                continue
+            t0 = time.time()
+            states = [ppo_gradsnr.initial_state(cfg, 0) if policy == "initial"
+                      else checkpoint.restore_compact(mid, make_ppo(cfg.resolved())) for policy in todo]
+            measured = ppo_gradsnr.measure_many(cfg, states, batches=spec.snr_batches, seed=1)
+            for policy, st, r in zip(todo, states, measured):
                 rows.append({"control_dt": dt, "exploration": c.process, "setting": setting_label(c),
                              "policy": policy, "step": int(st.step), "estimates": r["periods"],
                              "batches": r["batches"], "seconds_per_estimate": r["seconds_per_estimate"],
                              **{k: r[k] for k in ("trcov", "trcov_ci", "mean_sq", "mean_sq_ci", "snr_per_s")}})
-                store.write_csv(path, SNR_COLUMNS, rows)
                 if progress:
                     print(f"[snr dt={dt:g} {c.process} {policy}] snr per s {r['snr_per_s']:.3e} "
-                          f"({time.time() - t0:,.0f} s)", file=sys.stderr, flush=True)
+                          f"({time.time() - t0:,.0f} s with {', '.join(todo)})", file=sys.stderr, flush=True)
+            store.write_csv(path, SNR_COLUMNS, rows)
     return rows
 
 

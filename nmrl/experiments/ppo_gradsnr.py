@@ -19,7 +19,7 @@ the SNR of one second of one environment's experience, |E g|^2 / (tr Cov(g) * U 
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import Any, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -30,6 +30,7 @@ from nmrl.experiments import gradvar
 from nmrl.learners import ppo_losses as L
 from nmrl.learners import ppo_networks as nn_
 from nmrl.learners.ppo import PPOConfig, PPOState, make_ppo
+from nmrl.runs import points
 
 
 def make_batch(cfg: PPOConfig, env: Any = None):
@@ -72,40 +73,71 @@ def make_batch(cfg: PPOConfig, env: Any = None):
     return batch
 
 
-_JITTED: dict = {}
+_PROGRAMS: dict = {}
 
 
-def _jitted(cfg: PPOConfig, env: Any):
-    """One compiled batch function per (config, environment): the initial and the mid-training
-    policy of a run are measured by the same program."""
-    k = (cfg, id(env))
-    if k not in _JITTED:
-        _JITTED[k] = jax.jit(make_batch(cfg, env))
-    return _JITTED[k]
+def _program(cfg: PPOConfig, env: Any, num_devices: int):
+    """One compiled program per (config, environment, devices): the policies' batches side by side,
+    a slot's state carrying its key, laid out as a sweep's points (nmrl/runs/points.py: one slot
+    per device at a time, no communication)."""
+    k = (cfg, id(env), num_devices)
+    if k not in _PROGRAMS:
+        batch = make_batch(cfg, env)
+
+        def chunk(slot):
+            st, key = slot
+            st, sums = batch(st, key)
+            return (st, key), sums
+
+        _PROGRAMS[k] = jax.jit(points.points_program(chunk, num_devices))
+    return _PROGRAMS[k]
+
+
+def measure_many(cfg: PPOConfig, states: Sequence[PPOState], *, batches: int, seed: int = 0, warmup: int = 1,
+                 env: Any = None, num_devices: int | None = None) -> list[dict]:
+    """SNR statistics (gradvar.summarize's keys) of each of ``states``' policies under ``cfg``, the
+    policies measured side by side over ``num_devices`` local devices (default: all, at most one
+    per policy): ``warmup`` uncounted rollouts (all environments start from the reset pose
+    together), then ``batches``; every policy sees the same key sequence (PRNGKey(seed), split
+    once per batch)."""
+    if not (isinstance(batches, int) and batches >= 2):
+        raise ValueError(f"batches={batches!r} is invalid: need an integer >= 2 for an interval")
+    if not states:
+        return []
+    cfg = cfg.resolved()
+    d = min(len(states), jax.local_device_count() if num_devices is None else num_devices)
+    slots = [i for i in points.slot_order(len(states), d)]
+    stacked = points.stack_trees([states[max(i, 0)] for i in slots])
+    active = points.place_points(jnp.array([i >= 0 for i in slots]), d)
+    fn = _program(cfg, env, d)
+    n = [[] for _ in states]
+    gs = [[] for _ in states]
+    gq = [[] for _ in states]
+    key = jax.random.PRNGKey(seed)
+    for b in range(warmup + batches):
+        key, k = jax.random.split(key)
+        keys = jnp.broadcast_to(k, (len(slots),) + k.shape)
+        (stacked, _), (nb, g_sum, g_sq) = fn(points.place_points((stacked, keys), d), active)
+        if b < warmup:
+            continue
+        nb, g_sum, g_sq = jax.device_get((nb, g_sum, g_sq))
+        for j, i in enumerate(slots):
+            if i >= 0:
+                n[i].append(float(nb[j]))
+                gs[i].append(np.asarray(g_sum[j], np.float64))
+                gq[i].append(float(g_sq[j]))
+    out = []
+    for i in range(len(states)):
+        r = gradvar.summarize(np.array(n[i]), np.stack(gs[i]), np.array(gq[i]), cfg.unrolls_per_env * cfg.unroll_s)
+        r["seconds_per_estimate"] = cfg.unrolls_per_env * cfg.unroll_s
+        out.append(r)
+    return out
 
 
 def measure(cfg: PPOConfig, state: PPOState, *, batches: int, seed: int = 0, warmup: int = 1, env: Any = None
             ) -> dict:
-    """SNR statistics (gradvar.summarize's keys) of ``state``'s policy under ``cfg``: ``warmup``
-    uncounted rollouts (all environments start from the reset pose together), then ``batches``."""
-    if not (isinstance(batches, int) and batches >= 2):
-        raise ValueError(f"batches={batches!r} is invalid: need an integer >= 2 for an interval")
-    cfg = cfg.resolved()
-    fn = _jitted(cfg, env)
-    n, gs, gq = [], [], []
-    key = jax.random.PRNGKey(seed)
-    for b in range(warmup + batches):
-        key, k = jax.random.split(key)
-        state, (nb, g_sum, g_sq) = fn(state, k)
-        if b < warmup:
-            continue
-        nb, g_sum, g_sq = jax.device_get((nb, g_sum, g_sq))
-        n.append(float(nb))
-        gs.append(np.asarray(g_sum, np.float64))
-        gq.append(float(g_sq))
-    out = gradvar.summarize(np.array(n), np.stack(gs), np.array(gq), cfg.unrolls_per_env * cfg.unroll_s)
-    out["seconds_per_estimate"] = cfg.unrolls_per_env * cfg.unroll_s
-    return out
+    """:func:`measure_many` of one policy (on one device)."""
+    return measure_many(cfg, [state], batches=batches, seed=seed, warmup=warmup, env=env, num_devices=1)[0]
 
 
 def initial_state(cfg: PPOConfig, seed: int = 0, env: Any = None) -> PPOState:
@@ -114,4 +146,4 @@ def initial_state(cfg: PPOConfig, seed: int = 0, env: Any = None) -> PPOState:
     return make_ppo(cfg, env).init(jax.random.PRNGKey(seed))
 
 
-__all__: Any = ("make_batch", "measure", "initial_state")
+__all__: Any = ("make_batch", "measure", "measure_many", "initial_state")
