@@ -10,6 +10,9 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${OUT:-runs/exploration}
 PUBLISHED=${PUBLISHED:-results/exploration/runs}
+# Compiled programs are kept on disk: a cell's second leg (after its mid-training copy), its
+# evaluations and a continued study load them instead of compiling again (about a minute each).
+export JAX_COMPILATION_CACHE_DIR=${JAX_COMPILATION_CACHE_DIR:-$PWD/runs/xla-cache}
 args=(--out "$OUT")
 if [ -d "$PUBLISHED" ]; then args+=(--published "$PUBLISHED"); fi
 exec nice -n "${NICE:-19}" .venv/bin/nmrl explore-study "${args[@]}" "$@"
