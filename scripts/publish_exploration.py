@@ -4,7 +4,8 @@
 
 Copies the tables (study.json, results.csv, screen.csv, snr.csv, summary.json) and every cell's
 continuation files (nmrl.analysis.exploration_results.publish: what `scripts/exploration_study.sh`
-seeds a fresh clone from), draws ``learning_curves.png`` (one panel per control step) and, once
+seeds a fresh clone from), writes ``answers.md`` (the numbers as tables: progress, rewards per
+cell, the answers, the SNR, the screen), draws ``learning_curves.png`` (one panel per control step) and, once
 every process has runs at the finest control step, the gaits of its best and worst process
 (``gaits/<process>/``: `nmrl eval`'s strobe picture, GIF and JSON of the median seed, 10 s from
 seed 0; drawn once).
@@ -34,8 +35,12 @@ def main() -> None:
     rows = store.read_csv(src / "results.csv") if (src / "results.csv").exists() else []
     if rows:
         xr.draw(src, rows, spec.dts, es.PROCESSES, dest / "learning_curves.png")
+        tables = {n: store.read_csv(src / f"{n}.csv") if (src / f"{n}.csv").exists() else [] for n in ("screen", "snr")}
+        summary = json.loads((src / "summary.json").read_text())
+        store.atomic_write_text(dest / "answers.md", xr.report(summary, rows, tables["screen"], tables["snr"],
+                                                               spec.dts, es.PROCESSES, spec.iterations))
         fine = min(spec.dts)
-        done = [r for r in rows if int(r["iterations"]) >= spec.iterations or r["diverged"]]
+        done = xr.finished(rows, spec.iterations)
         picks = xr.best_and_worst(done, fine, es.PROCESSES) if len(done) == len(rows) else None
         for proc, seed in picks or []:
             out = dest / "gaits" / proc

@@ -113,6 +113,58 @@ def test_answers_match_scipy_t_and_welch_intervals():
         assert a["best"][f"{dt:g}"] == max(means, key=means.get)
 
 
+def test_the_answers_are_made_of_finished_runs_only(tmp_path):
+    """summary.json's cells hold the seeds with the full budget (or diverged); a seed half way
+    through is in results.csv at its iteration but not in the answers."""
+    spec = es.StudySpec(dts=(0.02,), seeds=4)
+    cell = es.grid_cell(spec, 0.02, "white", {})
+    finals = {0: 1.5, 1: 0.5, 2: 9.0, 3: -20.0}
+    for s, last in finals.items():
+        n = 16 if s < 2 else 8  # seed 2 is half way; seed 3 diverged at its 5th iteration
+        rewards = [0.0] * (n - 1) + [last]
+        _metrics(cell.dir(tmp_path) / "points" / f"s{s}",
+                 _rows(rewards if s != 3 else [0.0] * 4 + [last], diverged_at=4 if s == 3 else None))
+    rows = es.write_results(tmp_path, spec, None)
+    assert sorted(int(r["iterations"]) for r in rows) == [5, 8, 16, 16]
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert (summary["runs"], summary["finished_runs"]) == (4, 3)
+    (c,) = summary["answers"]["cells"]
+    v = np.array([finals[0], finals[1], finals[3]]) / 0.02
+    lo, hi = scipy.stats.t.interval(0.95, 2, loc=v.mean(), scale=scipy.stats.sem(v))
+    assert c["n"] == 3 and math.isclose(c["mean"], v.mean()) and math.isclose(c["ci95"], (hi - lo) / 2)
+
+
+def test_the_report_shows_each_cell_and_difference_of_the_finished_runs():
+    rng = np.random.default_rng(5)
+    rows, vals = [], {}
+    for dt in (0.02, 0.005):
+        for p in es.PROCESSES:
+            v = rng.normal(50 + 10 * (p == "ou"), 5, size=4)
+            its = [16, 16, 16, 16] if (dt, p) != (0.005, "colored") else [16, 9, 9, 9]
+            vals[(dt, p)] = v[[i for i, n in enumerate(its) if n == 16]]
+            rows += [{"control_dt": dt, "exploration": p, "iterations": n, "diverged": False, "avg_reward_per_s": x,
+                      "det_reward_per_s": x + 1} for x, n in zip(v, its)]
+    done = xr.finished(rows, 16)
+    assert len(done) == len(rows) - 3
+    summary = {"answers": xr.answers(done, (0.02, 0.005), es.PROCESSES),
+               "answers_deterministic": xr.answers(done, (0.02, 0.005), es.PROCESSES, key="det_reward_per_s")}
+    snr = [{"control_dt": 0.005, "exploration": "ou", "setting": "corr_time_s=0.045", "policy": "initial",
+            "step": 0, "trcov": 2.0, "trcov_ci": 0.5, "mean_sq": 0.04, "mean_sq_ci": 0.01, "snr_per_s": 1.953e-4}]
+    md = xr.report(summary, rows, [], snr, (0.02, 0.005), es.PROCESSES, 16)
+    assert f"**{len(done)} of {len(rows)} grid runs**" in md
+    v = vals[(0.005, "white")]
+    h = scipy.stats.t.ppf(0.975, 3) * v.std(ddof=1) / 2
+    assert f"| white | {vals[(0.02, 'white')].mean():+.1f}" in md and f"{v.mean():+.1f} ± {h:.1f} (n=4) |" in md
+    assert "(n=1)" in md and f"{vals[(0.005, 'colored')][0]:+.1f} (n=1)" in md  # the one finished colored seed
+    x, y = vals[(0.005, "ou")], vals[(0.005, "white")]
+    vx, vy = x.var(ddof=1) / 4, y.var(ddof=1) / 4
+    df = (vx + vy) ** 2 / (vx ** 2 / 3 + vy ** 2 / 3)
+    d, hw = x.mean() - y.mean(), scipy.stats.t.ppf(0.975, df) * math.sqrt(vx + vy)
+    line = next(ln for ln in md.splitlines() if ln.startswith("| ou − white |"))
+    assert f"{d:+.1f} ± {hw:.1f}" + (" **(significant)**" if abs(d) > hw else "") in line.split("|")[3]
+    assert "| 5 ms | ou | corr_time_s=0.045 | initial (0) | 2 ± 0.5 | 0.04 ± 0.01 | 0.000195 |" in md
+
+
 def test_study_configs_are_in_seconds():
     spec = es.StudySpec()
     spec.validate()

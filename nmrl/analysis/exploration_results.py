@@ -121,7 +121,8 @@ def answers(rows: Sequence[dict], dts: Sequence[float], processes: Sequence[str]
             key: str = "avg_reward_per_s") -> dict:
     """The study's questions as numbers (docs/exploration-study.md): white's change from the
     coarsest to the finest control step; every process against white at each control step; the
-    best process per control step; nm-periods against each stationary correlated process."""
+    best process per control step (where every process has runs); nm-periods against each
+    stationary correlated process."""
     coarse, fine = max(dts), min(dts)
     out: dict = {"key": key, "cells": cell_table(rows, key)}
     out["white_fine_minus_coarse"] = diff(rows, key, (fine, "white"), (coarse, "white"))
@@ -131,7 +132,7 @@ def answers(rows: Sequence[dict], dts: Sequence[float], processes: Sequence[str]
     best = {}
     for dt in dts:
         have = [t for t in out["cells"] if t["control_dt"] == dt]
-        if have:
+        if {t["exploration"] for t in have} >= set(processes):
             b = max(have, key=lambda t: t["mean"])
             best[f"{dt:g}"] = b["exploration"]
     out["best"] = best
@@ -140,6 +141,101 @@ def answers(rows: Sequence[dict], dts: Sequence[float], processes: Sequence[str]
     return out
 
 
+
+def finished(rows: Sequence[dict], iterations: int) -> list[dict]:
+    """The rows of runs that are over: their full ``iterations``, or diverged. The answers are made
+    of these only (a run half way through is not a result)."""
+    return [r for r in rows if int(r["iterations"]) >= iterations or r["diverged"] is True]
+
+
+def _pm(m: float, h: float, digits: int = 1) -> str:
+    if not math.isfinite(m):
+        return "–"
+    return f"{m:+.{digits}f}" + (f" ± {h:.{digits}f}" if math.isfinite(h) else "")
+
+
+def _d(x: dict | None) -> str:
+    if x is None:
+        return "–"
+    return _pm(x["diff"], x["ci95"]) + (" **(significant)**" if x["significant"] else "")
+
+
+def report(summary: dict, results: Sequence[dict], screen: Sequence[dict], snr: Sequence[dict],
+           dts: Sequence[float], processes: Sequence[str], iterations: int) -> str:
+    """The study's numbers as a Markdown page (results/exploration/answers.md): progress, the final
+    average reward per second of the exploring and the deterministic policy per cell (mean ± 95%
+    t half-width over the finished seeds), the answers as Welch differences, the gradient's SNR and
+    the screen. Made of ``summary`` (:func:`answers` of the finished runs) and the tables."""
+    dts = sorted(dts, reverse=True)
+    col = [f"{dt * 1000:g} ms" for dt in dts]
+    done = finished(results, iterations)
+    lines = ["# The exploration × control-step study: its numbers",
+             "",
+             f"Written by `scripts/publish_exploration.py` from `results.csv`, `summary.json`, `snr.csv` and "
+             f"`screen.csv`; the design and the discussion: docs/exploration-study.md. **{len(done)} of "
+             f"{len(results)} grid runs** started so far have their budget ({iterations} PPO iterations) or "
+             f"diverged; only those enter the numbers below. Rewards per second = mean r_t / 20 ms at every "
+             f"δ; ± is the 95% t half-width over seeds (differences: Welch).", ""]
+    progress = {}
+    for r in results:
+        k = (float(r["control_dt"]), r["exploration"])
+        progress.setdefault(k, []).append(int(r["iterations"]))
+    lines += ["## Progress (iterations per seed)", "", "| process | " + " | ".join(col) + " |",
+              "|---" * (len(dts) + 1) + "|"]
+    for p in processes:
+        lines.append(f"| {p} | " + " | ".join(" ".join(map(str, progress.get((dt, p), []))) or "–"
+                                               for dt in dts) + " |")
+    for key, title in (("answers", "Exploring policy: average reward per second over the last iteration"),
+                       ("answers_deterministic", "Deterministic policy: average reward per second over 10 s")):
+        a = summary.get(key) or {}
+        cell = {(c["control_dt"], c["exploration"]): c for c in a.get("cells", [])}
+        lines += ["", f"## {title}", "", "| process | " + " | ".join(col) + " |", "|---" * (len(dts) + 1) + "|"]
+        for p in processes:
+            lines.append(f"| {p} | " + " | ".join(
+                _pm(cell[(dt, p)]["mean"], cell[(dt, p)]["ci95"]) + f" (n={cell[(dt, p)]['n']})"
+                if (dt, p) in cell else "–" for dt in dts) + " |")
+        if not a:
+            continue
+        fine, coarse = min(dts), max(dts)
+        lines += ["", f"* `white` {fine * 1000:g} ms − {coarse * 1000:g} ms: {_d(a.get('white_fine_minus_coarse'))}"]
+        by = {(tuple(x["a"]), tuple(x["b"])): x for k in ("process_minus_white", "process_fine_minus_coarse",
+                                                          "nm_periods_minus_stationary") for x in a.get(k, [])}
+        lines += ["", "| difference | " + " | ".join(col) + " |", "|---" * (len(dts) + 1) + "|"]
+        for p in processes:
+            if p == "white":
+                continue
+            lines.append(f"| {p} − white | " + " | ".join(_d(by.get(((dt, p), (dt, "white")))) for dt in dts)
+                         + " |")
+        for q in ("ou", "colored"):
+            if q in processes and "nm-periods" in processes:
+                lines.append(f"| nm-periods − {q} | " + " | ".join(
+                    _d(by.get(((dt, "nm-periods"), (dt, q)))) for dt in dts) + " |")
+        lines += ["", f"| {fine * 1000:g} ms − {coarse * 1000:g} ms | " + " | ".join(processes) + " |",
+                  "|---" * (len(processes) + 1) + "|",
+                  "| | " + " | ".join(_d(by.get(((fine, p), (coarse, p)))) for p in processes) + " |"]
+        best = a.get("best", {})
+        named = ", ".join(f"{float(k) * 1000:g} ms: `{v}`" for k, v in sorted(best.items(), key=lambda kv: -float(kv[0])))
+        lines += ["", f"Best process per control step (highest mean, where every process has finished runs): "
+                      f"{named or '–'}."]
+    if snr:
+        lines += ["", "## The gradient's signal-to-noise ratio (seed 0)", "",
+                  "PPO's surrogate gradient at θ_old, one estimate per environment from 102.4 s of experience; "
+                  "tr Cov and the unbiased |E g|² with 95% half-widths over the rollouts; SNR per second = "
+                  "|E g|² / (tr Cov · seconds per estimate).", "",
+                  "| δ | process | setting | policy (step) | tr Cov | \\|E g\\|² | SNR per s |",
+                  "|---|---|---|---|---|---|---|"]
+        for r in sorted(snr, key=lambda r: (-float(r["control_dt"]), processes.index(r["exploration"])
+                                            if r["exploration"] in processes else 99, r["policy"])):
+            lines.append(f"| {float(r['control_dt']) * 1000:g} ms | {r['exploration']} | {r['setting']} | "
+                         f"{r['policy']} ({r['step']}) | {float(r['trcov']):.3g} ± {float(r['trcov_ci']):.2g} | "
+                         f"{float(r['mean_sq']):.3g} ± {float(r['mean_sq_ci']):.2g} | {float(r['snr_per_s']):.3g} |")
+    if screen:
+        lines += ["", "## The screen (average reward per control step over the second half of its iterations)",
+                  "", "| process | setting | seed | iterations | score | chosen |", "|---|---|---|---|---|---|"]
+        for r in screen:
+            lines.append(f"| {r['exploration']} | {r['field']} = {float(r['value']):g} | {r['seed']} | "
+                         f"{r['iterations']} | {float(r['score']):+.3f} | {'yes' if r['chosen'] is True else ''} |")
+    return "\n".join(lines) + "\n"
 
 
 def best_and_worst(rows: Sequence[dict], dt: float, processes: Sequence[str], key: str = "avg_reward_per_s"
@@ -239,4 +335,5 @@ def draw(src: pathlib.Path, rows: Sequence[dict], dts: Sequence[float], processe
 
 
 __all__: Sequence[str] = ("RESULT_COLUMNS", "SCREEN_COLUMNS", "score", "choose", "eval_summary", "run_row", "cells",
-                          "cell_table", "diff", "answers", "best_and_worst", "publish", "curves", "draw")
+                          "cell_table", "diff", "answers", "finished", "report", "best_and_worst", "publish",
+                          "curves", "draw")

@@ -323,10 +323,14 @@ def result_rows(out: pathlib.Path, spec: StudySpec, chosen: dict | None) -> list
 
 
 def write_results(out: pathlib.Path, spec: StudySpec, chosen: dict | None) -> list[dict]:
+    """results.csv (every grid run so far, at its last iteration) and summary.json (the answers, of
+    the finished runs only)."""
     rows = result_rows(out, spec, chosen)
     store.write_csv(out / "results.csv", xr.RESULT_COLUMNS, rows)
-    summary = {"answers": xr.answers(rows, spec.dts, PROCESSES),
-               "answers_deterministic": xr.answers(rows, spec.dts, PROCESSES, key="det_reward_per_s"),
+    done = xr.finished(rows, spec.iterations)
+    summary = {"runs": len(rows), "finished_runs": len(done),
+               "answers": xr.answers(done, spec.dts, PROCESSES),
+               "answers_deterministic": xr.answers(done, spec.dts, PROCESSES, key="det_reward_per_s"),
                "chosen": {k: {"field": f, "value": v} for k, (f, v) in (chosen or {}).items()}}
     store.atomic_write_json(out / "summary.json", summary)
     return rows
