@@ -134,6 +134,28 @@ def test_the_answers_are_made_of_finished_runs_only(tmp_path):
     assert c["n"] == 3 and math.isclose(c["mean"], v.mean()) and math.isclose(c["ci95"], (hi - lo) / 2)
 
 
+def test_the_screen_rule_on_the_grids_first_iterations_gives_white_its_screen_score(tmp_path):
+    """At the screen's control step the grid's seeds 0..screen_seeds-1 are scored over their first
+    screen_iterations chunks (the second half: chunks 3-4), like the screen's runs."""
+    spec = es.StudySpec(dts=(0.005,), seeds=3)
+    chosen = {"nm-periods": ("period_s", 0.1), "ou": ("corr_time_s", 0.045), "colored": ("beta", 0.5)}
+    rng = np.random.default_rng(2)
+    want = {}
+    for proc in ("white", "ou"):
+        cell = es.grid_cell(spec, 0.005, proc, chosen)
+        for s in range(3):
+            r = rng.normal(-5, 1, size=16 if s != 1 or proc == "white" else 3)  # ou seed 1: 3 chunks only
+            _metrics(cell.dir(tmp_path) / "points" / f"s{s}", _rows(list(map(float, r)), step0=20480))
+            if s < 2 and len(r) >= 4:
+                want[(proc, s)] = float(np.mean(r[2:4]))
+    es.write_results(tmp_path, spec, chosen)
+    got = json.loads((tmp_path / "summary.json").read_text())["screen_from_grid"]
+    assert {(g["exploration"], g["seed"]) for g in got} == set(want)
+    for g in got:
+        assert math.isclose(g["score"], want[(g["exploration"], g["seed"])], rel_tol=1e-6)
+    assert next(g for g in got if g["exploration"] == "ou")["setting"] == "corr_time_s=0.045"
+
+
 def test_the_report_shows_each_cell_and_difference_of_the_finished_runs():
     rng = np.random.default_rng(5)
     rows, vals = [], {}

@@ -235,6 +235,14 @@ def report(summary: dict, results: Sequence[dict], screen: Sequence[dict], snr: 
         for r in screen:
             lines.append(f"| {r['exploration']} | {r['field']} = {float(r['value']):g} | {r['seed']} | "
                          f"{r['iterations']} | {float(r['score']):+.3f} | {'yes' if r['chosen'] is True else ''} |")
+    ref = summary.get("screen_from_grid") or []
+    if ref:
+        lines += ["", "The screen's rule applied to the grid's runs at the screen's control step (the screen's "
+                      "seeds, their first iterations): `white` is the limit of every correlated process as its "
+                      "correlation shrinks; a chosen setting repeats its screen runs.", "",
+                  "| process | setting | seed | score |", "|---|---|---|---|"]
+        for r in ref:
+            lines.append(f"| {r['exploration']} | {r['setting']} | {r['seed']} | {float(r['score']):+.3f} |")
     return "\n".join(lines) + "\n"
 
 

@@ -292,6 +292,25 @@ def screen_rows(out: pathlib.Path, spec: StudySpec) -> list[dict]:
     return rows
 
 
+def screen_from_grid(out: pathlib.Path, spec: StudySpec, chosen: dict | None) -> list[dict]:
+    """The screen's rule applied to the grid's runs at the screen's control step: the seeds the
+    screen ran, their first ``screen_iterations`` iterations. For `white` (the limit of every
+    correlated process as its correlation shrinks) it is the reference the screen has no run of;
+    for a chosen setting it is the screen's own run again (the same config and seed)."""
+    if spec.screen_dt not in spec.dts:
+        return []
+    rows = []
+    for c in grid_cells(spec, chosen):
+        if c.dt != spec.screen_dt:
+            continue
+        for s in range(min(spec.screen_seeds, c.seeds)):
+            m = store.read_metrics(c.dir(out) / "points" / sweep.point_name(None, s, None))
+            if len(m) >= spec.screen_iterations:
+                rows.append({"exploration": c.process, "setting": setting_label(c), "seed": s,
+                             "score": xr.score(m[:spec.screen_iterations])})
+    return rows
+
+
 def chosen_settings(out: pathlib.Path, spec: StudySpec) -> dict[str, tuple[str, float]] | None:
     """The screen's choice per correlated process, None until every screen run has its budget."""
     rows = screen_rows(out, spec)
@@ -331,7 +350,8 @@ def write_results(out: pathlib.Path, spec: StudySpec, chosen: dict | None) -> li
     summary = {"runs": len(rows), "finished_runs": len(done),
                "answers": xr.answers(done, spec.dts, PROCESSES),
                "answers_deterministic": xr.answers(done, spec.dts, PROCESSES, key="det_reward_per_s"),
-               "chosen": {k: {"field": f, "value": v} for k, (f, v) in (chosen or {}).items()}}
+               "chosen": {k: {"field": f, "value": v} for k, (f, v) in (chosen or {}).items()},
+               "screen_from_grid": screen_from_grid(out, spec, chosen)}
     store.atomic_write_json(out / "summary.json", summary)
     return rows
 
