@@ -5,10 +5,11 @@
 Copies the tables (study.json, results.csv, screen.csv, snr.csv, summary.json) and every cell's
 continuation files (nmrl.analysis.exploration_results.publish: what `scripts/exploration_study.sh`
 seeds a fresh clone from), writes ``answers.md`` (the numbers as tables: progress, rewards per
-cell, the answers, the SNR, the screen), draws ``learning_curves.png`` (one panel per control step) and, once
-every process has runs at the finest control step, the gaits of its best and worst process
+cell, the answers, the SNR, the screen), draws ``learning_curves.png`` (one panel per control step)
+and ``summary.png`` (final rewards and the gradient's SNR against the control step) and, once
+every run at the finest control step is over, the gaits of its best and worst process
 (``gaits/<process>/``: `nmrl eval`'s strobe picture, GIF and JSON of the median seed, 10 s from
-seed 0; drawn once).
+seed 0; drawn once), and the two strobe pictures side by side in ``gaits/best_and_worst.png``.
 """
 
 from __future__ import annotations
@@ -39,10 +40,12 @@ def main() -> None:
         summary = json.loads((src / "summary.json").read_text())
         store.atomic_write_text(dest / "answers.md", xr.report(summary, rows, tables["screen"], tables["snr"],
                                                                spec.dts, es.PROCESSES, spec.iterations))
+        xr.draw_summary(rows, tables["snr"], spec.dts, es.PROCESSES, spec.iterations, dest / "summary.png")
         fine = min(spec.dts)
-        done = xr.finished(rows, spec.iterations)
-        picks = xr.best_and_worst(done, fine, es.PROCESSES) if len(done) == len(rows) else None
-        for proc, seed in picks or []:
+        done = [r for r in xr.finished(rows, spec.iterations) if float(r["control_dt"]) == fine]
+        picks = xr.best_and_worst(done, fine, es.PROCESSES) if len(done) == spec.seeds * len(es.PROCESSES) else None
+        titles = []
+        for (proc, seed), rank in zip(picks or [], ("best", "worst")):
             out = dest / "gaits" / proc
             if not (out / "strobe.png").exists():
                 from nmrl.analysis import evaluate
@@ -50,6 +53,10 @@ def main() -> None:
                 run = src / "grid" / f"dt{fine:g}" / proc / "points" / f"s{seed}"
                 evaluate.evaluate(run, seconds=10.0, seed=0, render=True, out_dir=out)
                 print(f"gait of {proc} at {fine:g} s (seed {seed}) in {out}")
+            titles.append((f"{rank} at δ = {fine * 1000:g} ms: {proc} (its median seed, {seed}; deterministic "
+                           f"policy, 10 s)", out / "strobe.png"))
+        if titles:
+            xr.draw_side_by_side(titles, dest / "gaits" / "best_and_worst.png")
     print(f"{len(written)} files under {dest}; {len(rows)} runs in results.csv")
 
 

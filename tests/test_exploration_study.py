@@ -187,6 +187,56 @@ def test_the_report_shows_each_cell_and_difference_of_the_finished_runs():
     assert "| 5 ms | ou | corr_time_s=0.045 | initial (0) | 2 ± 0.5 | 0.04 ± 0.01 | 0.000195 |" in md
 
 
+def test_the_summary_figure_draws_the_finished_seeds_means_intervals_and_snr(tmp_path, saved_figures):
+    from matplotlib.container import ErrorbarContainer
+
+    rng = np.random.default_rng(8)
+    rows = []
+    for dt in (0.02, 0.005):
+        for p in es.PROCESSES:
+            for s, n in enumerate((16, 16, 16, 7)):  # seed 3 is not over: not drawn
+                rows.append({"control_dt": dt, "exploration": p, "seed": s, "iterations": n, "diverged": False,
+                             "avg_reward_per_s": float(rng.normal(40, 9)), "det_reward_per_s": float(rng.normal(60, 9))})
+    snr = [{"control_dt": dt, "exploration": "white", "policy": pol, "snr_per_s": v, "trcov": 10 * v,
+            "trcov_ci": v} for dt, pol, v in ((0.02, "mid", 3e-3), (0.005, "mid", 1e-3), (0.02, "initial", 2e-3))]
+    xr.draw_summary(rows, snr, (0.02, 0.005), es.PROCESSES, 16, tmp_path / "summary.png")
+    ((path, fig),) = saved_figures
+    assert path.name == "summary.png"
+    for ax, key in zip(fig.axes[:2], ("avg_reward_per_s", "det_reward_per_s")):
+        bars = {c.get_label(): c for c in ax.containers if isinstance(c, ErrorbarContainer)}
+        assert len(bars) == 4
+        x, y = (np.asarray(a, float) for a in bars["ou (mean, 95% CI)"].lines[0].get_data())
+        np.testing.assert_allclose(x, [0.02, 0.005])
+        for k, dt in enumerate((0.02, 0.005)):
+            v = np.array([r[key] for r in rows if r["exploration"] == "ou" and r["control_dt"] == dt
+                          and r["iterations"] == 16])
+            lo, hi = scipy.stats.t.interval(0.95, 2, loc=v.mean(), scale=scipy.stats.sem(v))
+            assert math.isclose(y[k], v.mean())
+            seg = bars["ou (mean, 95% CI)"].lines[2][0].get_segments()[k]
+            assert math.isclose(seg[1][1] - seg[0][1], hi - lo, rel_tol=1e-9)
+    lines = {c.get_label(): c.lines[0] for c in fig.axes[2].containers if isinstance(c, ErrorbarContainer)}
+    assert set(lines) == {"white, mid", "white, initial"}
+    np.testing.assert_allclose(np.asarray(lines["white, mid"].get_ydata(), float), [3e-3, 1e-3])
+    np.testing.assert_allclose(np.asarray(lines["white, initial"].get_ydata(), float), [2e-3])
+
+
+def test_side_by_side_shows_each_picture_under_its_title(tmp_path, saved_figures):
+    import matplotlib.image
+
+    pics = []
+    for i, name in enumerate(("best", "worst")):
+        a = np.zeros((6, 9, 3))
+        a[..., i] = 1.0
+        matplotlib.image.imsave(tmp_path / f"{name}.png", a)
+        pics.append((f"{name} at 5 ms", tmp_path / f"{name}.png"))
+    xr.draw_side_by_side(pics, tmp_path / "both.png")
+    ((_, fig),) = saved_figures
+    assert [ax.get_title() for ax in fig.axes] == ["best at 5 ms", "worst at 5 ms"]
+    for i, ax in enumerate(fig.axes):
+        im = np.asarray(ax.images[0].get_array())
+        assert im.shape[:2] == (6, 9) and np.all(im[..., i] == 1.0) and np.all(im[..., 1 - i] == 0.0)
+
+
 def test_study_configs_are_in_seconds():
     spec = es.StudySpec()
     spec.validate()

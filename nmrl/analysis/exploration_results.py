@@ -342,6 +342,91 @@ def draw(src: pathlib.Path, rows: Sequence[dict], dts: Sequence[float], processe
     return path
 
 
+
+def draw_summary(rows: Sequence[dict], snr: Sequence[dict], dts: Sequence[float], processes: Sequence[str],
+                 iterations: int, path: pathlib.Path) -> pathlib.Path:
+    """The thesis in one figure (``summary.png``): the exploring and the deterministic policy's
+    final average reward per second against the control step, one line per process (mean and 95%
+    t-interval over the finished seeds; x: each seed), and the gradient's SNR per second of
+    experience and tr Cov (seed 0; solid: mid-training, dashed: initial policy)."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    done = finished(rows, iterations)
+    dts = sorted(dts, reverse=True)
+    fig, axes = plt.subplots(1, 4, figsize=(20, 4.6), dpi=110)
+    for ax, key, title in ((axes[0], "avg_reward_per_s", "exploring policy, last iteration"),
+                           (axes[1], "det_reward_per_s", "deterministic policy, 10 s")):
+        c = cells(done, key)
+        for i, p in enumerate(processes):
+            xs, ms, hs = [], [], []
+            for dt in dts:
+                v = c.get((dt, p))
+                if v is None:
+                    continue
+                m, h = stats.mean_ci95(v)
+                xs.append(dt), ms.append(m), hs.append(h)
+                shift = 1 + 0.03 * (i - (len(processes) - 1) / 2)
+                ax.scatter([dt * shift] * len(v), v, s=14, color=f"C{i}", alpha=0.5, marker="x")
+            if xs:
+                ax.errorbar(xs, ms, yerr=hs, marker="o", capsize=4, color=f"C{i}", label=f"{p} (mean, 95% CI)")
+        ax.set_title(title)
+        ax.set_ylabel("average reward per second")
+    for ax, key, title in ((axes[2], "snr_per_s", "gradient SNR per second of experience"),
+                           (axes[3], "trcov", "tr Cov of the per-environment gradient")):
+        for i, p in enumerate(processes):
+            for policy, ls in (("mid", "-"), ("initial", "--")):
+                rr = sorted((r for r in snr if r["exploration"] == p and r["policy"] == policy),
+                            key=lambda r: -float(r["control_dt"]))
+                if rr:
+                    ax.errorbar([float(r["control_dt"]) for r in rr], [float(r[key]) for r in rr],
+                                yerr=[float(r["trcov_ci"]) for r in rr] if key == "trcov" else None,
+                                marker="o", ls=ls, color=f"C{i}", capsize=3, label=f"{p}, {policy}")
+        ax.set_yscale("log" if key == "trcov" else "symlog", **({} if key == "trcov" else {"linthresh": 1e-4}))
+        ax.set_title(title)
+    for ax in axes:
+        ax.set_xscale("log")
+        ax.set_xticks(dts, [f"{dt * 1000:g}" for dt in dts])
+        ax.minorticks_off()
+        ax.set_xlim(max(dts) * 1.25, min(dts) / 1.25)  # coarse to fine, every control step in view
+        ax.set_xlabel("control step δ [ms]")
+        ax.grid(alpha=0.3)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7)
+        else:
+            ax.text(0.5, 0.5, "nothing finished yet", ha="center", va="center", transform=ax.transAxes, color="0.4")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+
+def draw_side_by_side(pictures: Sequence[tuple[str, pathlib.Path]], path: pathlib.Path) -> pathlib.Path:
+    """The given pictures (``(title, png)``; the gaits' strobe pictures) one above the other in one
+    file, each under its title, so the best and the worst process's gaits are compared at a glance."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.image
+    import matplotlib.pyplot as plt
+
+    images = [matplotlib.image.imread(str(f)) for _, f in pictures]
+    fig, axes = plt.subplots(len(images), 1, figsize=(12, 3.2 * len(images)), dpi=110, squeeze=False)
+    for ax, (title, _), im in zip(axes[:, 0], pictures, images):
+        ax.imshow(im)
+        ax.set_title(title, fontsize=10)
+        ax.axis("off")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
 __all__: Sequence[str] = ("RESULT_COLUMNS", "SCREEN_COLUMNS", "score", "choose", "eval_summary", "run_row", "cells",
                           "cell_table", "diff", "answers", "finished", "report", "best_and_worst", "publish",
-                          "curves", "draw")
+                          "curves", "draw", "draw_summary", "draw_side_by_side")
