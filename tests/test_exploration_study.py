@@ -268,9 +268,9 @@ def test_screen_and_grid_cells():
     assert es.grid_cells(spec, None) == [c for c in grid if c.process == "white"]
 
 
-def _cli(*args, cwd):
+def _cli(*args, cwd, timeout=120):
     return subprocess.run([sys.executable, "-m", "nmrl.cli", "explore-study", *args], cwd=cwd,
-                          capture_output=True, text=True, timeout=120)
+                          capture_output=True, text=True, timeout=timeout)
 
 
 @pytest.mark.parametrize("args,needle", [
@@ -411,7 +411,7 @@ def test_a_tiny_study_runs_every_phase_and_continues(tmp_path):
     args = ["--out", str(out), "--dt", "0.02", "0.01", "--screen-dt", "0.01", "--seeds", "2", "--iterations", "2",
             "--screen-seeds", "1", "--screen-iterations", "1", "--num-envs", "4", "--batch-size", "4",
             "--num-minibatches", "1", "--epochs", "1", "--eval-seconds", "0.2", "--snr-batches", "2", "--quiet"]
-    r = _cli(*args, cwd=REPO)
+    r = _cli(*args, cwd=REPO, timeout=5400)  # about 40 compiles of tiny programs
     assert r.returncode == 0, r.stderr[-3000:]
     rows = list(csv_rows(out / "results.csv"))
     assert len(rows) == 2 * 4 * 2
@@ -426,11 +426,18 @@ def test_a_tiny_study_runs_every_phase_and_continues(tmp_path):
             p = out / "grid" / f"dt{c.dt:g}" / c.process / "points" / f"s{s}"
             assert (p / "mid" / "compact.npz").exists() and (p / "eval" / "eval.json").exists()
     before = (out / "results.csv").read_text()
-    r = _cli(*args, cwd=REPO)  # everything done: nothing runs again
+    r = _cli(*args, cwd=REPO, timeout=600)  # everything done: nothing runs again
     assert r.returncode == 0, r.stderr[-3000:]
     assert (out / "results.csv").read_text() == before
     summary = json.loads((out / "summary.json").read_text())
     assert set(summary["chosen"]) == {"nm-periods", "ou", "colored"}
+    assert summary["runs"] == summary["finished_runs"] == 16
+    assert len(summary["answers"]["cells"]) == 8 and set(summary["answers"]["best"]) == {"0.02", "0.01"}
+    ref = {r["exploration"]: r for r in summary["screen_from_grid"]}  # the grid at the screen's 0.01 s, seed 0
+    assert set(ref) == set(es.PROCESSES) and all(r["seed"] == 0 for r in ref.values())
+    for r in screen:  # a chosen setting's grid run repeats its screen run (same config, seed, first iteration)
+        if r["chosen"] == "True":
+            assert float(ref[r["exploration"]]["score"]) == pytest.approx(float(r["score"]), rel=1e-4, abs=1e-4)
 
 
 def csv_rows(path):
