@@ -72,6 +72,7 @@ def test_run_row_converts_to_reward_per_second_and_reads_the_deterministic_evalu
     assert r["iterations"] == 16 and r["diverged"] is False
     assert math.isclose(r["avg_reward"], rewards[-1])  # the last tenth of 16 chunks: the last one
     assert math.isclose(r["avg_reward_per_s"], rewards[-1] / 0.02)
+    assert math.isclose(r["auc_reward_per_s"], np.mean(rewards) / 0.02, rel_tol=1e-12)  # the curve's mean
     assert math.isclose(r["det_reward_per_s"], 3.1 / 0.02) and r["det_forward_speed"] == 3.3
     # an evaluation of an earlier step is not this run's
     (p / "eval" / "eval.json").write_text(json.dumps({"step": 8 * 20480, "deterministic": {
@@ -170,10 +171,13 @@ def test_the_report_shows_each_cell_and_difference_of_the_finished_runs():
     assert len(done) == len(rows) - 3
     summary = {"answers": xr.answers(done, (0.02, 0.005), es.PROCESSES),
                "answers_deterministic": xr.answers(done, (0.02, 0.005), es.PROCESSES, key="det_reward_per_s")}
+    # no answers_auc: its table is drawn with empty cells
     snr = [{"control_dt": 0.005, "exploration": "ou", "setting": "corr_time_s=0.045", "policy": "initial",
             "step": 0, "trcov": 2.0, "trcov_ci": 0.5, "mean_sq": 0.04, "mean_sq_ci": 0.01, "snr_per_s": 1.953e-4}]
     md = xr.report(summary, rows, [], snr, (0.02, 0.005), es.PROCESSES, 16)
     assert f"**{len(done)} of {len(rows)} grid runs**" in md
+    auc = md[md.index("over the whole run"):md.index("## The gradient")]
+    assert "(n=" not in auc and "| white | – | – |" in auc
     v = vals[(0.005, "white")]
     h = scipy.stats.t.ppf(0.975, 3) * v.std(ddof=1) / 2
     assert f"| white | {vals[(0.02, 'white')].mean():+.1f}" in md and f"{v.mean():+.1f} ± {h:.1f} (n=4) |" in md

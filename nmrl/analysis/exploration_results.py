@@ -11,7 +11,9 @@ trains. The study itself is nmrl/experiments/exploration_study.py, its page docs
   iterations: the last one), ``det_reward`` the deterministic policy's over a 10 s evaluation
   (``nmrl eval``'s ``deterministic.avg_reward``). The rewards (8)-(14) are rates, so the average
   reward per second is ``mean(r_t) / 0.02 s`` at every control step (nmrl/experiments/timescale.py):
-  ``avg_reward_per_s``, ``det_reward_per_s``.
+  ``avg_reward_per_s``, ``det_reward_per_s``. ``auc_reward_per_s`` is the mean of the exploring
+  policy's reward per second over every iteration of the run (the area under its learning curve
+  per simulated second): how fast it learned, less noisy than one iteration while the curves rise.
 * The answers (:func:`answers`): per (control step, process) the mean and 95% t-interval over seeds;
   differences of two cells with Welch's interval (nmrl.analysis.stats).
 """
@@ -31,7 +33,7 @@ from nmrl.runs import store
 #: the control step the paper's rewards are per-step values of (reward per second = mean r_t / DELTA_0)
 DELTA_0 = 0.02
 RESULT_COLUMNS = ("learner", "exploration", "setting", "control_dt", "seed", "control_steps", "simulated_s",
-                  "iterations", "avg_reward", "avg_reward_per_s", "det_reward", "det_reward_per_s",
+                  "iterations", "avg_reward", "avg_reward_per_s", "auc_reward_per_s", "det_reward", "det_reward_per_s",
                   "forward_speed", "det_forward_speed", "diverged")
 SCREEN_COLUMNS = ("exploration", "field", "value", "seed", "iterations", "score", "diverged", "chosen")
 
@@ -83,6 +85,7 @@ def run_row(point: pathlib.Path, *, exploration: str, setting: str, control_dt: 
     return {"learner": "ppo", "exploration": exploration, "setting": setting, "control_dt": control_dt,
             "seed": seed, "control_steps": step * num_envs, "simulated_s": step * num_envs * control_dt,
             "iterations": step // iteration_steps, "avg_reward": avg, "avg_reward_per_s": avg / DELTA_0,
+            "auc_reward_per_s": float(np.mean([r["avg_reward"] for r in m])) / DELTA_0,
             "det_reward": det, "det_reward_per_s": det / DELTA_0,
             "forward_speed": stats.final_avg(m, "forward_speed"), "det_forward_speed": det_speed,
             "diverged": bool(any(store.is_diverged(r) for r in m))}
@@ -186,7 +189,9 @@ def report(summary: dict, results: Sequence[dict], screen: Sequence[dict], snr: 
         lines.append(f"| {p} | " + " | ".join(" ".join(map(str, progress.get((dt, p), []))) or "–"
                                                for dt in dts) + " |")
     for key, title in (("answers", "Exploring policy: average reward per second over the last iteration"),
-                       ("answers_deterministic", "Deterministic policy: average reward per second over 10 s")):
+                       ("answers_deterministic", "Deterministic policy: average reward per second over 10 s"),
+                       ("answers_auc", "Exploring policy: average reward per second over the whole run (the "
+                                       "learning curve's mean)")):
         a = summary.get(key) or {}
         cell = {(c["control_dt"], c["exploration"]): c for c in a.get("cells", [])}
         lines += ["", f"## {title}", "", "| process | " + " | ".join(col) + " |", "|---" * (len(dts) + 1) + "|"]

@@ -350,6 +350,7 @@ def write_results(out: pathlib.Path, spec: StudySpec, chosen: dict | None) -> li
     summary = {"runs": len(rows), "finished_runs": len(done),
                "answers": xr.answers(done, spec.dts, PROCESSES),
                "answers_deterministic": xr.answers(done, spec.dts, PROCESSES, key="det_reward_per_s"),
+               "answers_auc": xr.answers(done, spec.dts, PROCESSES, key="auc_reward_per_s"),
                "chosen": {k: {"field": f, "value": v} for k, (f, v) in (chosen or {}).items()},
                "screen_from_grid": screen_from_grid(out, spec, chosen)}
     store.atomic_write_json(out / "summary.json", summary)
