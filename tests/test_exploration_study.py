@@ -7,6 +7,7 @@ estimate; the command's bad input against the house rule (one line, exit 2, noth
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import pathlib
@@ -129,6 +130,9 @@ def test_the_answers_are_made_of_finished_runs_only(tmp_path):
     assert sorted(int(r["iterations"]) for r in rows) == [5, 8, 16, 16]
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert (summary["runs"], summary["finished_runs"]) == (4, 3)
+    assert summary["commands"] == {"0.02/white": cell.command(spec, out="runs/rerun/dt0.02/white")}
+    md = xr.report(summary, rows, [], [], spec.dts, es.PROCESSES, 16)
+    assert f"* white at 20 ms: `{cell.command(spec, out='runs/rerun/dt0.02/white')}`" in md
     (c,) = summary["answers"]["cells"]
     v = np.array([finals[0], finals[1], finals[3]]) / 0.02
     lo, hi = scipy.stats.t.interval(0.95, 2, loc=v.mean(), scale=scipy.stats.sem(v))
@@ -239,6 +243,28 @@ def test_side_by_side_shows_each_picture_under_its_title(tmp_path, saved_figures
     for i, ax in enumerate(fig.axes):
         im = np.asarray(ax.images[0].get_array())
         assert im.shape[:2] == (6, 9) and np.all(im[..., i] == 1.0) and np.all(im[..., 1 - i] == 0.0)
+
+
+def test_a_grid_cells_command_parses_back_to_its_config_through_nmrl_sweeps_parser():
+    """Each grid cell's re-run command, read by the real ``nmrl sweep`` parser, gives the cell's
+    config (the one its points run), its seed count and checkpointing."""
+    import shlex
+
+    from nmrl import cli
+
+    spec = es.StudySpec()
+    chosen = {"nm-periods": ("period_s", 0.1), "ou": ("corr_time_s", 0.045), "colored": ("beta", 0.5)}
+    learner = cli._learner("ppo")
+    for c in es.grid_cells(spec, chosen):
+        argv = shlex.split(c.command(spec, out="/tmp/x"))
+        assert argv[:2] == ["nmrl", "sweep"]
+        args = cli.build_parser(learner).parse_args(argv[1:])
+        got = cli.config_from_args(args, skip=cli._sweep_skip(learner))
+        want = c.sweep_spec(spec).base
+        assert dataclasses.replace(got, seed=want.seed) == want, c
+        assert (args.seeds, args.checkpoint_every, args.out) == (4, 1, "/tmp/x")
+    with pytest.raises(ValueError, match="varies"):
+        es.screen_cells(spec)[0].command(spec)
 
 
 def test_study_configs_are_in_seconds():

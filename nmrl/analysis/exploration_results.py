@@ -248,6 +248,14 @@ def report(summary: dict, results: Sequence[dict], screen: Sequence[dict], snr: 
                   "| process | setting | seed | score |", "|---|---|---|---|"]
         for r in ref:
             lines.append(f"| {r['exploration']} | {r['setting']} | {r['seed']} | {float(r['score']):+.3f} |")
+    commands = summary.get("commands") or {}
+    if commands:
+        lines += ["", "## Running a cell again from scratch", "",
+                  "The same program and seeds as the study's cell, so the same numbers (a cell's runs and the "
+                  "screen's runs of the same setting and seed agree to the last bit in their common "
+                  "iterations; a point run alone by `nmrl train` is another program and agrees only "
+                  "statistically). A smaller `--steps` stops earlier.", ""]
+        lines += [f"* {k.split('/')[1]} at {float(k.split('/')[0]) * 1000:g} ms: `{v}`" for k, v in commands.items()]
     return "\n".join(lines) + "\n"
 
 

@@ -166,6 +166,20 @@ class Cell:
     def points(self) -> list[str]:
         return [sweep.point_name(v, s, self.field) for v in self.values for s in range(self.seeds)]
 
+    def command(self, spec: StudySpec, out: str = "runs/rerun") -> str:
+        """The ``nmrl sweep`` command that runs this grid cell again from scratch into ``out``: the
+        same program and seeds, so the same numbers (every config field that differs from PPO's
+        default, as its option)."""
+        if self.field is not None:
+            raise ValueError(f"{self.phase} cell {self.process} varies {self.field}: only a grid cell is one "
+                             f"nmrl sweep of seeds")
+        base, default = self.sweep_spec(spec).base, PPOConfig()
+        given = {f.name: getattr(base, f.name) for f in dataclasses.fields(base)
+                 if f.name != "seed" and getattr(base, f.name) != getattr(default, f.name)}
+        flags = [f"--{k.replace('_', '-')} {v if isinstance(v, str) else repr(v)}" for k, v in given.items()]
+        return " ".join(["nmrl sweep --learner ppo", *flags, f"--seeds {self.seeds}", "--checkpoint-every 1",
+                         f"--out {out}"])
+
 
 def screen_cells(spec: StudySpec) -> list[Cell]:
     out = []
@@ -352,7 +366,9 @@ def write_results(out: pathlib.Path, spec: StudySpec, chosen: dict | None) -> li
                "answers_deterministic": xr.answers(done, spec.dts, PROCESSES, key="det_reward_per_s"),
                "answers_auc": xr.answers(done, spec.dts, PROCESSES, key="auc_reward_per_s"),
                "chosen": {k: {"field": f, "value": v} for k, (f, v) in (chosen or {}).items()},
-               "screen_from_grid": screen_from_grid(out, spec, chosen)}
+               "screen_from_grid": screen_from_grid(out, spec, chosen),
+               "commands": {f"{c.dt:g}/{c.process}": c.command(spec, out=f"runs/rerun/dt{c.dt:g}/{c.process}")
+                            for c in grid_cells(spec, chosen)}}
     store.atomic_write_json(out / "summary.json", summary)
     return rows
 
