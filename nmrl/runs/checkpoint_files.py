@@ -23,6 +23,8 @@ import pathlib
 import platform
 import re
 import subprocess
+import threading
+import time
 from typing import Any, Iterator
 
 import jax
@@ -104,6 +106,23 @@ def _run_drained(coro: Any) -> Any:
             loop.close()
 
 
+#: how long a failed orbax operation's own threads get to finish (and log) while the loggers are quiet
+_SETTLE_S = 20.0
+
+
+def _join_new_threads(before: set, timeout: float) -> None:
+    """Wait (at most ``timeout`` s in all) for orbax's threads started since ``before`` was taken
+    (its save and commit threads; a library's long-lived worker pools are not waited for).
+
+    When a save fails (a full disk), orbax's other background threads of that save fail a moment
+    later and log their exception with its traceback through absl; waiting for them while the
+    loggers are still quiet keeps a failure to the command's one line."""
+    deadline = time.monotonic() + timeout
+    for t in threading.enumerate():
+        if t not in before and type(t).__module__.startswith("orbax") and t is not threading.current_thread():
+            t.join(max(0.0, deadline - time.monotonic()))
+
+
 @contextlib.contextmanager
 def _quiet_absl() -> Iterator[None]:
     """Keep library noise off stderr while orbax runs.
@@ -111,6 +130,8 @@ def _quiet_absl() -> Iterator[None]:
     orbax logs expected failures (and a line per save) at ERROR/INFO through absl; and a failed
     read of a damaged checkpoint makes tensorstore print "Event loop is closed" tracebacks later
     (see :func:`_run_drained`, swapped in for orbax's loop runner while this context is active).
+    When the body fails, the threads it started are given time to finish before the loggers speak
+    again (:func:`_join_new_threads`).
     """
     loggers = [logging.getLogger("absl"), logging.getLogger("orbax"), logging.getLogger("asyncio")]
     old = [lg.level for lg in loggers]
@@ -123,8 +144,12 @@ def _quiet_absl() -> Iterator[None]:
     runner = getattr(_au, "_run_sync_via_new_loop", None)
     if runner is not None:
         _au._run_sync_via_new_loop = _run_drained
+    before = set(threading.enumerate())
     try:
         yield
+    except BaseException:
+        _join_new_threads(before, _SETTLE_S)
+        raise
     finally:
         if runner is not None:
             _au._run_sync_via_new_loop = runner
