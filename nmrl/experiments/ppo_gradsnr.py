@@ -106,7 +106,7 @@ def measure_many(cfg: PPOConfig, states: Sequence[PPOState], *, batches: int, se
         return []
     cfg = cfg.resolved()
     d = min(len(states), jax.local_device_count() if num_devices is None else num_devices)
-    slots = [i for i in points.slot_order(len(states), d)]
+    slots = points.slot_order(len(states), d)
     stacked = points.stack_trees([states[max(i, 0)] for i in slots])
     active = points.place_points(jnp.array([i >= 0 for i in slots]), d)
     fn = _program(cfg, env, d)
