@@ -180,7 +180,7 @@ def test_the_report_shows_each_cell_and_difference_of_the_finished_runs():
             "step": 0, "trcov": 2.0, "trcov_ci": 0.5, "mean_sq": 0.04, "mean_sq_ci": 0.01, "snr_per_s": 1.953e-4}]
     md = xr.report(summary, rows, [], snr, (0.02, 0.005), es.PROCESSES, 16)
     assert f"**{len(done)} of {len(rows)} grid runs**" in md
-    auc = md[md.index("over the whole run"):md.index("## The gradient")]
+    auc = md[md.index("## Exploring policy: average reward per second over the whole run"):md.index("## The gradient")]
     assert "(n=" not in auc and "| white | – | – |" in auc
     v = vals[(0.005, "white")]
     h = scipy.stats.t.ppf(0.975, 3) * v.std(ddof=1) / 2
@@ -193,6 +193,84 @@ def test_the_report_shows_each_cell_and_difference_of_the_finished_runs():
     line = next(ln for ln in md.splitlines() if ln.startswith("| ou − white |"))
     assert f"{d:+.1f} ± {hw:.1f}" + (" **(significant)**" if abs(d) > hw else "") in line.split("|")[3]
     assert "| 5 ms | ou | corr_time_s=0.045 | initial (0) | 2 ± 0.5 | 0.04 ± 0.01 | 0.000195 |" in md
+
+
+def _welch_satterthwaite(samples, weights):
+    """sum w_i mean_i and its 95% half-width, written out with numpy and scipy's t quantile."""
+    v = [w * w * np.var(x, ddof=1) / len(x) for w, x in zip(weights, samples)]
+    df = sum(v) ** 2 / sum(vi ** 2 / (len(x) - 1) for vi, x in zip(v, samples))
+    return sum(w * np.mean(x) for w, x in zip(weights, samples)), scipy.stats.t.ppf(0.975, df) * math.sqrt(sum(v))
+
+
+def _grid_rows(level, rng, dts=(0.02, 0.005), seeds=4, spread=1.0):
+    """Finished rows whose exploring, deterministic and whole-run rewards per second are level(dt, p)
+    plus normal noise."""
+    rows, vals = [], {}
+    for dt in dts:
+        for p in es.PROCESSES:
+            v = level(dt, p) + rng.normal(0, spread, seeds)
+            vals[(dt, p)] = v
+            rows += [{"control_dt": dt, "exploration": p, "iterations": 16, "diverged": False, "avg_reward_per_s": x,
+                      "det_reward_per_s": x + 0.5, "auc_reward_per_s": x / 2} for x in v]
+    return rows, vals
+
+
+def _summary(rows, dts=(0.02, 0.005)):
+    return {k: xr.answers(rows, dts, es.PROCESSES, key=key) for k, key in
+            (("answers", "avg_reward_per_s"), ("answers_deterministic", "det_reward_per_s"),
+             ("answers_auc", "auc_reward_per_s"))}
+
+
+def _line(lines, start):
+    return next(ln for ln in lines if ln.lstrip().startswith(start))
+
+
+@pytest.mark.parametrize("white_lead", [0.0, 3.0])
+def test_the_answers_in_words_follow_the_intervals_when_white_degrades_and_nm_periods_does_not(white_lead):
+    """white, ou and colored lose 100 per s from 20 to 5 ms; nm-periods keeps its level; seeds
+    spread by 1 per s; white is ``white_lead`` per s above the others at both steps. The words must
+    say: white degrades (with scipy's Welch interval); nm-periods loses less than white (the
+    interaction, written out with Welch-Satterthwaite here), which removes the degradation when
+    nm-periods at 5 ms reaches white at 20 ms and only reduces it when white leads by 3; nm-periods
+    is best at 5 ms by a significant lead and ahead of both stationary processes; colored's lead
+    over white does not grow."""
+    rng = np.random.default_rng(11)
+    rows, v = _grid_rows(lambda dt, p: 100.0 - 100.0 * (dt == 0.005) * (p != "nm-periods") + white_lead * (p == "white"),
+                         rng)
+    lines = xr.plain_answers(_summary(rows), (0.02, 0.005), es.PROCESSES)
+    q1 = _line(lines, "1.")
+    d, h = _welch_satterthwaite([v[(0.02, "white")], v[(0.005, "white")]], [-1, 1])
+    lo, hi = scipy.stats.ttest_ind(v[(0.005, "white")], v[(0.02, "white")], equal_var=False).confidence_interval(0.95)
+    assert math.isclose(d - h, lo) and math.isclose(d + h, hi)
+    assert f"{d:+.1f} ± {h:.1f} per s" in q1 and q1.endswith("yes, it degrades.")
+    nm = _line(lines, "* `nm-periods`:")
+    i, hi_ = _welch_satterthwaite([v[(0.005, "nm-periods")], v[(0.02, "nm-periods")], v[(0.005, "white")],
+                                   v[(0.02, "white")]], [1, -1, -1, 1])
+    assert f"against `white`'s {i:+.1f} ± {hi_:.1f} per s" in nm and "loses significantly less than `white`" in nm
+    assert "loses significantly" not in _line(lines, "* `ou`:")  # ou changes as white does
+    verdict = _line(lines, "* Removed by" if white_lead == 0 else "* Reduced but not removed by")
+    assert "`nm-periods`" in verdict and "`ou`" not in verdict and "`colored`" not in verdict
+    assert _line(lines, "* 5 ms: `nm-periods`").endswith("a significant lead.")
+    if white_lead:
+        assert _line(lines, "* 20 ms: `white`").endswith("a significant lead.")
+    reset = _line(lines, "* 5 ms: nm-periods −")
+    assert reset.count("significantly ahead") == 2
+    cn = _line(lines, "* CN-PPO")
+    assert "5 ms" in cn and "20 ms" in cn and cn.endswith("no significant difference.")
+
+
+def test_the_answers_in_words_say_what_is_not_yet_measured_and_when_there_is_nothing_to_remove():
+    rng = np.random.default_rng(12)
+    rows, _ = _grid_rows(lambda dt, p: 10.0, rng, dts=(0.02,))
+    lines = xr.plain_answers(_summary(rows, (0.02,)), (0.02, 0.005), es.PROCESSES)
+    assert _line(lines, "1.").endswith("5 ms − 20 ms: not yet measured (`white` needs finished runs at both).")
+    assert "Not yet answerable" in "\n".join(lines)
+    assert _line(lines, "* 5 ms:").endswith("not yet measured (every process needs finished runs).")
+    rows, _ = _grid_rows(lambda dt, p: 10.0 + 50.0 * (dt == 0.005), rng)  # everything improves at 5 ms
+    lines = xr.plain_answers(_summary(rows), (0.02, 0.005), es.PROCESSES)
+    assert _line(lines, "1.").endswith("no, it improves.")
+    assert "there is no degradation to remove" in "\n".join(lines)
+    assert "Removed by" not in "\n".join(lines)
 
 
 def test_the_summary_figure_draws_the_finished_seeds_means_intervals_and_snr(tmp_path, saved_figures):

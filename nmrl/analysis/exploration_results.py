@@ -120,25 +120,48 @@ def diff(rows: Sequence[dict], key: str, a: tuple[float, str], b: tuple[float, s
     return {"a": list(a), "b": list(b), "diff": d, "ci95": h, "significant": bool(abs(d) > h)}
 
 
+def interaction(rows: Sequence[dict], key: str, a: str, b: str, fine: float, coarse: float) -> dict | None:
+    """How much more process ``a`` changes from ``coarse`` to ``fine`` than process ``b`` does:
+    ``(a_fine - a_coarse) - (b_fine - b_coarse)`` of ``key`` with its Welch-Satterthwaite 95%
+    half-width (nmrl.analysis.stats.contrast_ci95; None if a cell has fewer than 2 values). The
+    paper's thesis in one number: with ``b`` = white, a process that keeps its exploration at fine
+    control steps loses less than white, so its interaction is positive."""
+    c = cells(rows, key)
+    need = [(fine, a), (coarse, a), (fine, b), (coarse, b)]
+    if any(k not in c or len(c[k]) < 2 for k in need):
+        return None
+    d, h = stats.contrast_ci95([c[k] for k in need], [1.0, -1.0, -1.0, 1.0])
+    return {"a": a, "b": b, "fine": fine, "coarse": coarse, "diff": d, "ci95": h,
+            "significant": bool(abs(d) > h)}
+
+
 def answers(rows: Sequence[dict], dts: Sequence[float], processes: Sequence[str],
             key: str = "avg_reward_per_s") -> dict:
     """The study's questions as numbers (docs/exploration-study.md): white's change from the
-    coarsest to the finest control step; every process against white at each control step; the
-    best process per control step (where every process has runs); nm-periods against each
-    stationary correlated process."""
+    coarsest to the finest control step; every process against white at each control step; every
+    process's own change, and that change against white's (:func:`interaction`); every process at
+    the finest step against white at the coarsest; the best process per control step (where every
+    process has runs) and its lead over the second; nm-periods against each stationary correlated
+    process."""
     coarse, fine = max(dts), min(dts)
     out: dict = {"key": key, "cells": cell_table(rows, key)}
     out["white_fine_minus_coarse"] = diff(rows, key, (fine, "white"), (coarse, "white"))
     out["process_minus_white"] = [d for dt in dts for p in processes if p != "white"
                                   for d in [diff(rows, key, (dt, p), (dt, "white"))] if d]
     out["process_fine_minus_coarse"] = [d for p in processes for d in [diff(rows, key, (fine, p), (coarse, p))] if d]
-    best = {}
+    out["process_fine_minus_white_coarse"] = [d for p in processes if p != "white"
+                                              for d in [diff(rows, key, (fine, p), (coarse, "white"))] if d]
+    out["change_minus_white_change"] = [d for p in processes if p != "white"
+                                        for d in [interaction(rows, key, p, "white", fine, coarse)] if d]
+    best, margin = {}, {}
     for dt in dts:
         have = [t for t in out["cells"] if t["control_dt"] == dt]
         if {t["exploration"] for t in have} >= set(processes):
-            b = max(have, key=lambda t: t["mean"])
-            best[f"{dt:g}"] = b["exploration"]
+            first, second = sorted(have, key=lambda t: -t["mean"])[:2]
+            best[f"{dt:g}"] = first["exploration"]
+            margin[f"{dt:g}"] = diff(rows, key, (dt, first["exploration"]), (dt, second["exploration"]))
     out["best"] = best
+    out["best_margin"] = margin
     out["nm_periods_minus_stationary"] = [d for dt in dts for p in ("ou", "colored") if p in processes
                                           for d in [diff(rows, key, (dt, "nm-periods"), (dt, p))] if d]
     return out
@@ -163,14 +186,240 @@ def _d(x: dict | None) -> str:
     return _pm(x["diff"], x["ci95"]) + (" **(significant)**" if x["significant"] else "")
 
 
+def _index(a: dict) -> dict:
+    """Every difference of one :func:`answers` dict by what it compares: ``(cell a, cell b)`` for
+    differences of two cells, ``(process a, process b)`` for interactions."""
+    out = {}
+    for k in ("white_fine_minus_coarse", "process_minus_white", "process_fine_minus_coarse",
+              "nm_periods_minus_stationary", "process_fine_minus_white_coarse"):
+        v = a.get(k)
+        for x in ([v] if isinstance(v, dict) else v or []):
+            out[(tuple(x["a"]), tuple(x["b"]))] = x
+    for x in (a.get("best_margin") or {}).values():
+        if x:
+            out[(tuple(x["a"]), tuple(x["b"]))] = x
+    for x in a.get("change_minus_white_change") or []:
+        out[(x["a"], x["b"])] = x
+    return out
+
+
+def _get(ix: dict, key: tuple) -> dict | None:
+    """The difference ``key`` = (a, b) from an :func:`_index`, or b - a's negated when only that
+    one is there (same interval)."""
+    if key in ix:
+        return ix[key]
+    x = ix.get(key[::-1])
+    return None if x is None else {**x, "a": x["b"], "b": x["a"], "diff": -x["diff"]}
+
+
+def _sign(x: dict | None, ahead: str = "significantly ahead", behind: str = "significantly behind") -> str:
+    """A difference in words: significantly positive, significantly negative, or neither."""
+    if x is None:
+        return "not yet measured"
+    if not x["significant"]:
+        return "no significant difference"
+    return ahead if x["diff"] > 0 else behind
+
+
+def plain_answers(summary: dict, dts: Sequence[float], processes: Sequence[str]) -> list[str]:
+    """The study's questions (docs/exploration-study.md) answered in words from ``summary``'s
+    numbers: each answer is the exploring policy's average reward per second over the last
+    iteration (Welch 95% intervals over seeds; "significant" = the interval excludes 0), with the
+    same difference for the deterministic policy and for the whole run's mean in brackets. A
+    question whose cells have no finished runs yet says so."""
+    ix = {k: _index(summary.get(k) or {}) for k in ("answers", "answers_deterministic", "answers_auc")}
+    dts = sorted(dts, reverse=True)
+    fine, coarse = min(dts), max(dts)
+    ms = lambda dt: f"{dt * 1000:g} ms"  # noqa: E731
+
+    def num(key) -> str:
+        main = _get(ix["answers"], key)
+        if main is None:
+            return "not yet measured"
+        rest = [f"{name} {_pm(x['diff'], x['ci95'])}" for name, k in (("deterministic", "answers_deterministic"),
+                                                                      ("whole run", "answers_auc"))
+                for x in [_get(ix[k], key)] if x]
+        return _pm(main["diff"], main["ci95"]) + " per s" + (f" ({'; '.join(rest)})" if rest else "")
+
+    cells = {(c["control_dt"], c["exploration"]): c for c in (summary.get("answers") or {}).get("cells", [])}
+    out = ["## The answers in words", "",
+           "Each number is a difference of mean rewards per second with its Welch 95% interval over the finished "
+           "seeds: first the exploring policy over the last iteration, then in brackets the deterministic policy "
+           "and the exploring policy's mean over the whole run.", ""]
+    w = ((fine, "white"), (coarse, "white"))
+    wd = _get(ix["answers"], w)
+    out.append(f"1. **Does `white` PPO degrade from {ms(coarse)} to {ms(fine)}?** `white` {ms(fine)} − {ms(coarse)}: "
+               + (f"not yet measured (`white` needs finished runs at both)." if wd is None else f"{num(w)}: " +
+                                {"significantly behind": "yes, it degrades.",
+                                 "significantly ahead": "no, it improves.",
+                                 "no significant difference": "no significant change."}[_sign(wd)]))
+    out.append(f"2. **Does a correlated process remove the degradation?** Each process's own change from "
+               f"{ms(coarse)} to {ms(fine)}, that change against `white`'s (positive: it loses less than `white`), "
+               f"and the process at {ms(fine)} against `white` at {ms(coarse)}:")
+    removers, reducers = [], []
+    for p in processes:
+        if p == "white":
+            continue
+        it = _get(ix["answers"], (p, "white"))
+        vs = _get(ix["answers"], ((fine, p), (coarse, "white")))
+        out.append(f"   * `{p}`: own change {num(((fine, p), (coarse, p)))}; against `white`'s "
+                   f"{num((p, 'white'))}, {_sign(it, 'loses significantly less than `white`', 'loses significantly more than `white`')}; "
+                   f"against `white` at {ms(coarse)} {num(((fine, p), (coarse, 'white')))}, {_sign(vs)}.")
+        if it and it["significant"] and it["diff"] > 0:
+            (removers if vs and not (vs["significant"] and vs["diff"] < 0) else reducers).append(p)
+    names = lambda ps: ", ".join(f"`{p}`" for p in ps)  # noqa: E731
+    if wd is None:
+        out.append("   * Not yet answerable: `white` has no finished runs at both control steps.")
+    elif not (wd["significant"] and wd["diff"] < 0):
+        out.append("   * `white` does not degrade significantly, so there is no degradation to remove; the "
+                   "changes above say whether a process gains or loses more than `white`.")
+    else:
+        verdict = []
+        if removers:
+            verdict.append(f"removed by {names(removers)} (less loss than `white`, and at {ms(fine)} not behind "
+                           f"`white` at {ms(coarse)})")
+        if reducers:
+            verdict.append(f"reduced but not removed by {names(reducers)} (less loss than `white`, but at "
+                           f"{ms(fine)} significantly behind `white` at {ms(coarse)})")
+        out.append("   * " + ("; ".join(verdict).capitalize() if verdict else
+                              "No process removes or reduces it (none loses significantly less than `white`)") + ".")
+    out.append("3. **Which process is best at each control step?** (highest mean; its lead over the second):")
+    margins = (summary.get("answers") or {}).get("best_margin") or {}
+    for dt in dts:
+        m = margins.get(f"{dt:g}")
+        if m is None:
+            out.append(f"   * {ms(dt)}: not yet measured (every process needs finished runs).")
+            continue
+        a, b = m["a"][1], m["b"][1]
+        out.append(f"   * {ms(dt)}: `{a}` ({_pm(cells[(dt, a)]['mean'], cells[(dt, a)]['ci95'])} per s), ahead of "
+                   f"`{b}` by {num(((dt, a), (dt, b)))}: "
+                   + ("a significant lead." if m["significant"] else "not a significant lead."))
+    out.append("4. **Reset or correlation?** nm-periods (correlated, reset at each period's end) against the "
+               "stationary correlated processes:")
+    for dt in dts:
+        parts = [f"− `{q}` {num(((dt, 'nm-periods'), (dt, q)))}, {_sign(_get(ix['answers'], ((dt, 'nm-periods'), (dt, q))))}"
+                 for q in ("ou", "colored") if q in processes]
+        out.append(f"   * {ms(dt)}: nm-periods " + "; ".join(parts) + ".")
+    claims = (("colored", "CN-PPO (colored noise, β = 0.5 best, ahead of white in PPO)"),
+              ("ou", "ARP (stationary autoregressive noise ahead of white, more so at high control rates)"))
+    out.append("5. **Against CN-PPO and ARP:**")
+    for p, claim in claims:
+        if p not in processes:
+            continue
+        per = "; ".join(f"{ms(dt)} {num(((dt, p), (dt, 'white')))}, {_sign(_get(ix['answers'], ((dt, p), (dt, 'white'))))}"
+                        for dt in dts)
+        out.append(f"   * {claim}: `{p}` − `white`: {per}; its lead's change from {ms(coarse)} to {ms(fine)}: "
+                   f"{num((p, 'white'))}, {_sign(_get(ix['answers'], (p, 'white')), 'grows significantly', 'shrinks significantly')}.")
+    return out + [""]
+
+
+def _columns(dts: Sequence[float]) -> tuple[str, str]:
+    """A Markdown table's header cells (one per control step, coarsest first) and its rule."""
+    return " | ".join(f"{dt * 1000:g} ms" for dt in dts), "|---" * (len(dts) + 1) + "|"
+
+
+def _progress_lines(results: Sequence[dict], dts: Sequence[float], processes: Sequence[str]) -> list[str]:
+    """Iterations done by each seed of every cell."""
+    progress: dict = {}
+    for r in results:
+        progress.setdefault((float(r["control_dt"]), r["exploration"]), []).append(int(r["iterations"]))
+    head, rule = _columns(dts)
+    return ["## Progress (iterations per seed)", "", f"| process | {head} |", rule] + [
+        f"| {p} | " + " | ".join(" ".join(map(str, progress.get((dt, p), []))) or "–" for dt in dts) + " |"
+        for p in processes]
+
+
+def _answer_lines(a: dict, title: str, dts: Sequence[float], processes: Sequence[str]) -> list[str]:
+    """One measure's tables: the cells (mean ± 95% t half-width, seeds), the differences against
+    `white` and between nm-periods and the stationary processes per control step, every process's
+    change from the coarsest to the finest step, and the best process per step."""
+    head, rule = _columns(dts)
+    cell = {(c["control_dt"], c["exploration"]): c for c in a.get("cells", [])}
+    lines = ["", f"## {title}", "", f"| process | {head} |", rule]
+    lines += [f"| {p} | " + " | ".join(_pm(cell[(dt, p)]["mean"], cell[(dt, p)]["ci95"]) + f" (n={cell[(dt, p)]['n']})"
+                                       if (dt, p) in cell else "–" for dt in dts) + " |" for p in processes]
+    if not a:
+        return lines
+    fine, coarse = min(dts), max(dts)
+    by = _index(a)
+    lines += ["", f"* `white` {fine * 1000:g} ms − {coarse * 1000:g} ms: {_d(a.get('white_fine_minus_coarse'))}",
+              "", f"| difference | {head} |", rule]
+    lines += [f"| {p} − white | " + " | ".join(_d(by.get(((dt, p), (dt, "white")))) for dt in dts) + " |"
+              for p in processes if p != "white"]
+    lines += [f"| nm-periods − {q} | " + " | ".join(_d(by.get(((dt, "nm-periods"), (dt, q)))) for dt in dts) + " |"
+              for q in ("ou", "colored") if q in processes and "nm-periods" in processes]
+    lines += ["", f"| {fine * 1000:g} ms − {coarse * 1000:g} ms | " + " | ".join(processes) + " |",
+              "|---" * (len(processes) + 1) + "|",
+              "| | " + " | ".join(_d(by.get(((fine, p), (coarse, p)))) for p in processes) + " |"]
+    best = a.get("best", {})
+    named = ", ".join(f"{float(k) * 1000:g} ms: `{v}`" for k, v in sorted(best.items(), key=lambda kv: -float(kv[0])))
+    return lines + ["", f"Best process per control step (highest mean, where every process has finished runs): "
+                        f"{named or '–'}."]
+
+
+def _snr_lines(snr: Sequence[dict], processes: Sequence[str]) -> list[str]:
+    """The gradient's SNR table, coarsest control step first."""
+    if not snr:
+        return []
+    lines = ["", "## The gradient's signal-to-noise ratio (seed 0)", "",
+             "PPO's surrogate gradient at θ_old, one estimate per environment from 102.4 s of experience; "
+             "tr Cov and the unbiased |E g|² with 95% half-widths over the rollouts; SNR per second = "
+             "|E g|² / (tr Cov · seconds per estimate).", "",
+             "| δ | process | setting | policy (step) | tr Cov | \\|E g\\|² | SNR per s |",
+             "|---|---|---|---|---|---|---|"]
+    order = lambda r: (-float(r["control_dt"]), processes.index(r["exploration"])  # noqa: E731
+                       if r["exploration"] in processes else 99, r["policy"])
+    return lines + [f"| {float(r['control_dt']) * 1000:g} ms | {r['exploration']} | {r['setting']} | "
+                    f"{r['policy']} ({r['step']}) | {float(r['trcov']):.3g} ± {float(r['trcov_ci']):.2g} | "
+                    f"{float(r['mean_sq']):.3g} ± {float(r['mean_sq_ci']):.2g} | {float(r['snr_per_s']):.3g} |"
+                    for r in sorted(snr, key=order)]
+
+
+def _screen_lines(screen: Sequence[dict], from_grid: Sequence[dict]) -> list[str]:
+    """The screen's runs and scores, then the screen's rule applied to the grid's runs."""
+    lines = []
+    if screen:
+        lines += ["", "## The screen (average reward per control step over the second half of its iterations)",
+                  "", "| process | setting | seed | iterations | score | chosen |", "|---|---|---|---|---|---|"]
+        lines += [f"| {r['exploration']} | {r['field']} = {float(r['value']):g} | {r['seed']} | "
+                  f"{r['iterations']} | {float(r['score']):+.3f} | {'yes' if r['chosen'] is True else ''} |"
+                  for r in screen]
+    if from_grid:
+        lines += ["", "The screen's rule applied to the grid's runs at the screen's control step (the screen's "
+                      "seeds, their first iterations): `white` is the limit of every correlated process as its "
+                      "correlation shrinks; a chosen setting repeats its screen runs.", "",
+                  "| process | setting | seed | score |", "|---|---|---|---|"]
+        lines += [f"| {r['exploration']} | {r['setting']} | {r['seed']} | {float(r['score']):+.3f} |" for r in from_grid]
+    return lines
+
+
+def _command_lines(commands: dict) -> list[str]:
+    """One `nmrl sweep` command per grid cell that runs it again from scratch."""
+    if not commands:
+        return []
+    return ["", "## Running a cell again from scratch", "",
+            "The same program and seeds as the study's cell, so the same numbers (a cell's runs and the "
+            "screen's runs of the same setting and seed agree to the last bit in their common "
+            "iterations; a point run alone by `nmrl train` is another program and agrees only "
+            "statistically). A smaller `--steps` stops earlier.", ""] + [
+        f"* {k.split('/')[1]} at {float(k.split('/')[0]) * 1000:g} ms: `{v}`" for k, v in commands.items()]
+
+
+#: the measures answers.md shows, by their summary.json key
+MEASURES = (("answers", "Exploring policy: average reward per second over the last iteration"),
+            ("answers_deterministic", "Deterministic policy: average reward per second over 10 s"),
+            ("answers_auc", "Exploring policy: average reward per second over the whole run (the learning "
+                            "curve's mean)"))
+
+
 def report(summary: dict, results: Sequence[dict], screen: Sequence[dict], snr: Sequence[dict],
            dts: Sequence[float], processes: Sequence[str], iterations: int) -> str:
-    """The study's numbers as a Markdown page (results/exploration/answers.md): progress, the final
-    average reward per second of the exploring and the deterministic policy per cell (mean ± 95%
-    t half-width over the finished seeds), the answers as Welch differences, the gradient's SNR and
-    the screen. Made of ``summary`` (:func:`answers` of the finished runs) and the tables."""
+    """The study's numbers as a Markdown page (results/exploration/answers.md): progress, the
+    answers in words (:func:`plain_answers`), the final average reward per second of the exploring
+    and the deterministic policy per cell (mean ± 95% t half-width over the finished seeds) with
+    the Welch differences, the gradient's SNR, the screen and the re-run commands. Made of
+    ``summary`` (:func:`answers` of the finished runs) and the tables."""
     dts = sorted(dts, reverse=True)
-    col = [f"{dt * 1000:g} ms" for dt in dts]
     done = finished(results, iterations)
     lines = ["# The exploration × control-step study: its numbers",
              "",
@@ -179,83 +428,11 @@ def report(summary: dict, results: Sequence[dict], screen: Sequence[dict], snr: 
              f"{len(results)} grid runs** started so far have their budget ({iterations} PPO iterations) or "
              f"diverged; only those enter the numbers below. Rewards per second = mean r_t / 20 ms at every "
              f"δ; ± is the 95% t half-width over seeds (differences: Welch).", ""]
-    progress = {}
-    for r in results:
-        k = (float(r["control_dt"]), r["exploration"])
-        progress.setdefault(k, []).append(int(r["iterations"]))
-    lines += ["## Progress (iterations per seed)", "", "| process | " + " | ".join(col) + " |",
-              "|---" * (len(dts) + 1) + "|"]
-    for p in processes:
-        lines.append(f"| {p} | " + " | ".join(" ".join(map(str, progress.get((dt, p), []))) or "–"
-                                               for dt in dts) + " |")
-    for key, title in (("answers", "Exploring policy: average reward per second over the last iteration"),
-                       ("answers_deterministic", "Deterministic policy: average reward per second over 10 s"),
-                       ("answers_auc", "Exploring policy: average reward per second over the whole run (the "
-                                       "learning curve's mean)")):
-        a = summary.get(key) or {}
-        cell = {(c["control_dt"], c["exploration"]): c for c in a.get("cells", [])}
-        lines += ["", f"## {title}", "", "| process | " + " | ".join(col) + " |", "|---" * (len(dts) + 1) + "|"]
-        for p in processes:
-            lines.append(f"| {p} | " + " | ".join(
-                _pm(cell[(dt, p)]["mean"], cell[(dt, p)]["ci95"]) + f" (n={cell[(dt, p)]['n']})"
-                if (dt, p) in cell else "–" for dt in dts) + " |")
-        if not a:
-            continue
-        fine, coarse = min(dts), max(dts)
-        lines += ["", f"* `white` {fine * 1000:g} ms − {coarse * 1000:g} ms: {_d(a.get('white_fine_minus_coarse'))}"]
-        by = {(tuple(x["a"]), tuple(x["b"])): x for k in ("process_minus_white", "process_fine_minus_coarse",
-                                                          "nm_periods_minus_stationary") for x in a.get(k, [])}
-        lines += ["", "| difference | " + " | ".join(col) + " |", "|---" * (len(dts) + 1) + "|"]
-        for p in processes:
-            if p == "white":
-                continue
-            lines.append(f"| {p} − white | " + " | ".join(_d(by.get(((dt, p), (dt, "white")))) for dt in dts)
-                         + " |")
-        for q in ("ou", "colored"):
-            if q in processes and "nm-periods" in processes:
-                lines.append(f"| nm-periods − {q} | " + " | ".join(
-                    _d(by.get(((dt, "nm-periods"), (dt, q)))) for dt in dts) + " |")
-        lines += ["", f"| {fine * 1000:g} ms − {coarse * 1000:g} ms | " + " | ".join(processes) + " |",
-                  "|---" * (len(processes) + 1) + "|",
-                  "| | " + " | ".join(_d(by.get(((fine, p), (coarse, p)))) for p in processes) + " |"]
-        best = a.get("best", {})
-        named = ", ".join(f"{float(k) * 1000:g} ms: `{v}`" for k, v in sorted(best.items(), key=lambda kv: -float(kv[0])))
-        lines += ["", f"Best process per control step (highest mean, where every process has finished runs): "
-                      f"{named or '–'}."]
-    if snr:
-        lines += ["", "## The gradient's signal-to-noise ratio (seed 0)", "",
-                  "PPO's surrogate gradient at θ_old, one estimate per environment from 102.4 s of experience; "
-                  "tr Cov and the unbiased |E g|² with 95% half-widths over the rollouts; SNR per second = "
-                  "|E g|² / (tr Cov · seconds per estimate).", "",
-                  "| δ | process | setting | policy (step) | tr Cov | \\|E g\\|² | SNR per s |",
-                  "|---|---|---|---|---|---|---|"]
-        for r in sorted(snr, key=lambda r: (-float(r["control_dt"]), processes.index(r["exploration"])
-                                            if r["exploration"] in processes else 99, r["policy"])):
-            lines.append(f"| {float(r['control_dt']) * 1000:g} ms | {r['exploration']} | {r['setting']} | "
-                         f"{r['policy']} ({r['step']}) | {float(r['trcov']):.3g} ± {float(r['trcov_ci']):.2g} | "
-                         f"{float(r['mean_sq']):.3g} ± {float(r['mean_sq_ci']):.2g} | {float(r['snr_per_s']):.3g} |")
-    if screen:
-        lines += ["", "## The screen (average reward per control step over the second half of its iterations)",
-                  "", "| process | setting | seed | iterations | score | chosen |", "|---|---|---|---|---|---|"]
-        for r in screen:
-            lines.append(f"| {r['exploration']} | {r['field']} = {float(r['value']):g} | {r['seed']} | "
-                         f"{r['iterations']} | {float(r['score']):+.3f} | {'yes' if r['chosen'] is True else ''} |")
-    ref = summary.get("screen_from_grid") or []
-    if ref:
-        lines += ["", "The screen's rule applied to the grid's runs at the screen's control step (the screen's "
-                      "seeds, their first iterations): `white` is the limit of every correlated process as its "
-                      "correlation shrinks; a chosen setting repeats its screen runs.", "",
-                  "| process | setting | seed | score |", "|---|---|---|---|"]
-        for r in ref:
-            lines.append(f"| {r['exploration']} | {r['setting']} | {r['seed']} | {float(r['score']):+.3f} |")
-    commands = summary.get("commands") or {}
-    if commands:
-        lines += ["", "## Running a cell again from scratch", "",
-                  "The same program and seeds as the study's cell, so the same numbers (a cell's runs and the "
-                  "screen's runs of the same setting and seed agree to the last bit in their common "
-                  "iterations; a point run alone by `nmrl train` is another program and agrees only "
-                  "statistically). A smaller `--steps` stops earlier.", ""]
-        lines += [f"* {k.split('/')[1]} at {float(k.split('/')[0]) * 1000:g} ms: `{v}`" for k, v in commands.items()]
+    lines += _progress_lines(results, dts, processes) + [""] + plain_answers(summary, dts, processes)
+    for key, title in MEASURES:
+        lines += _answer_lines(summary.get(key) or {}, title, dts, processes)
+    lines += _snr_lines(snr, processes) + _screen_lines(screen, summary.get("screen_from_grid") or [])
+    lines += _command_lines(summary.get("commands") or {})
     return "\n".join(lines) + "\n"
 
 

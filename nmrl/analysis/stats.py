@@ -5,6 +5,8 @@ Plain numpy/scipy on numbers and metrics rows (``metrics.jsonl`` objects); no fi
 
 from __future__ import annotations
 
+from typing import Sequence
+
 import numpy as np
 from scipy import stats
 
@@ -33,6 +35,26 @@ def diff_ci95(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
         return float(b.mean() - a.mean()), 0.0
     dof = se2**2 / (va**2 / (a.size - 1) + vb**2 / (b.size - 1))
     return float(b.mean() - a.mean()), float(stats.t.ppf(0.975, dof) * np.sqrt(se2))
+
+
+def contrast_ci95(samples: Sequence[np.ndarray], weights: Sequence[float]) -> tuple[float, float]:
+    """``sum_i w_i mean(samples_i)`` and the half-width of its 95% interval for independent samples of
+    unequal variances: standard error ``sqrt(sum_i w_i^2 s_i^2 / n_i)``, degrees of freedom by
+    Welch-Satterthwaite, ``(sum_i v_i)^2 / sum_i v_i^2 / (n_i - 1)`` with ``v_i = w_i^2 s_i^2 / n_i``.
+    With weights (-1, +1) it is :func:`diff_ci95`; with (+1, -1, -1, +1) over (a at δ1, a at δ2, b at
+    δ1, b at δ2) it is the interaction: how much more ``a`` changes from δ2 to δ1 than ``b`` does.
+    NaN when a sample has fewer than 2 finite values."""
+    xs = [np.asarray(x, float) for x in samples]
+    xs = [x[np.isfinite(x)] for x in xs]
+    if len(xs) != len(weights) or any(x.size < 2 for x in xs):
+        return float("nan"), float("nan")
+    est = float(sum(w * x.mean() for w, x in zip(weights, xs)))
+    v = np.array([w * w * x.var(ddof=1) / x.size for w, x in zip(weights, xs)])
+    se2 = float(v.sum())
+    if se2 == 0:
+        return est, 0.0
+    dof = se2**2 / float(sum(vi**2 / (x.size - 1) for vi, x in zip(v, xs)))
+    return est, float(stats.t.ppf(0.975, dof) * np.sqrt(se2))
 
 
 def smooth(y: np.ndarray, k: int = 5) -> np.ndarray:
