@@ -266,10 +266,12 @@ def test_the_answers_in_words_say_what_is_not_yet_measured_and_when_there_is_not
     assert _line(lines, "1.").endswith("5 ms − 20 ms: not yet measured (`white` needs finished runs at both).")
     assert "Not yet answerable" in "\n".join(lines)
     assert _line(lines, "* 5 ms:").endswith("not yet measured (every process needs finished runs).")
+    assert "not yet measured, not yet measured" not in "\n".join(lines)
+    assert _line(lines, "* 5 ms: nm-periods −").strip() == "* 5 ms: nm-periods − `ou` not yet measured; − `colored` not yet measured."
     rows, _ = _grid_rows(lambda dt, p: 10.0 + 50.0 * (dt == 0.005), rng)  # everything improves at 5 ms
     lines = xr.plain_answers(_summary(rows), (0.02, 0.005), es.PROCESSES)
     assert _line(lines, "1.").endswith("no, it improves.")
-    assert "there is no degradation to remove" in "\n".join(lines)
+    assert "* `white` improves significantly, so there is no degradation to remove" in "\n".join(lines)
     assert "Removed by" not in "\n".join(lines)
 
 

@@ -241,6 +241,11 @@ def plain_answers(summary: dict, dts: Sequence[float], processes: Sequence[str])
                 for x in [_get(ix[k], key)] if x]
         return _pm(main["diff"], main["ci95"]) + " per s" + (f" ({'; '.join(rest)})" if rest else "")
 
+    def said(key, *words) -> str:
+        """The difference ``key`` and its meaning in words, or "not yet measured" once."""
+        x = _get(ix["answers"], key)
+        return "not yet measured" if x is None else f"{num(key)}, {_sign(x, *words)}"
+
     cells = {(c["control_dt"], c["exploration"]): c for c in (summary.get("answers") or {}).get("cells", [])}
     out = ["## The answers in words", "",
            "Each number is a difference of mean rewards per second with its Welch 95% interval over the finished "
@@ -263,16 +268,17 @@ def plain_answers(summary: dict, dts: Sequence[float], processes: Sequence[str])
         it = _get(ix["answers"], (p, "white"))
         vs = _get(ix["answers"], ((fine, p), (coarse, "white")))
         out.append(f"   * `{p}`: own change {num(((fine, p), (coarse, p)))}; against `white`'s "
-                   f"{num((p, 'white'))}, {_sign(it, 'loses significantly less than `white`', 'loses significantly more than `white`')}; "
-                   f"against `white` at {ms(coarse)} {num(((fine, p), (coarse, 'white')))}, {_sign(vs)}.")
+                   f"{said((p, 'white'), 'loses significantly less than `white`', 'loses significantly more than `white`')}; "
+                   f"against `white` at {ms(coarse)} {said(((fine, p), (coarse, 'white')))}.")
         if it and it["significant"] and it["diff"] > 0:
             (removers if vs and not (vs["significant"] and vs["diff"] < 0) else reducers).append(p)
     names = lambda ps: ", ".join(f"`{p}`" for p in ps)  # noqa: E731
     if wd is None:
         out.append("   * Not yet answerable: `white` has no finished runs at both control steps.")
     elif not (wd["significant"] and wd["diff"] < 0):
-        out.append("   * `white` does not degrade significantly, so there is no degradation to remove; the "
-                   "changes above say whether a process gains or loses more than `white`.")
+        out.append("   * `white` " + ("improves significantly" if wd["significant"] else "does not change significantly")
+                   + ", so there is no degradation to remove; the changes above say whether a process gains or "
+                     "loses more than `white`.")
     else:
         verdict = []
         if removers:
@@ -297,7 +303,7 @@ def plain_answers(summary: dict, dts: Sequence[float], processes: Sequence[str])
     out.append("4. **Reset or correlation?** nm-periods (correlated, reset at each period's end) against the "
                "stationary correlated processes:")
     for dt in dts:
-        parts = [f"− `{q}` {num(((dt, 'nm-periods'), (dt, q)))}, {_sign(_get(ix['answers'], ((dt, 'nm-periods'), (dt, q))))}"
+        parts = [f"− `{q}` {said(((dt, 'nm-periods'), (dt, q)))}"
                  for q in ("ou", "colored") if q in processes]
         out.append(f"   * {ms(dt)}: nm-periods " + "; ".join(parts) + ".")
     claims = (("colored", "CN-PPO (colored noise, β = 0.5 best, ahead of white in PPO)"),
@@ -306,10 +312,10 @@ def plain_answers(summary: dict, dts: Sequence[float], processes: Sequence[str])
     for p, claim in claims:
         if p not in processes:
             continue
-        per = "; ".join(f"{ms(dt)} {num(((dt, p), (dt, 'white')))}, {_sign(_get(ix['answers'], ((dt, p), (dt, 'white'))))}"
+        per = "; ".join(f"{ms(dt)} {said(((dt, p), (dt, 'white')))}"
                         for dt in dts)
         out.append(f"   * {claim}: `{p}` − `white`: {per}; its lead's change from {ms(coarse)} to {ms(fine)}: "
-                   f"{num((p, 'white'))}, {_sign(_get(ix['answers'], (p, 'white')), 'grows significantly', 'shrinks significantly')}.")
+                   f"{said((p, 'white'), 'grows significantly', 'shrinks significantly')}.")
     return out + [""]
 
 
