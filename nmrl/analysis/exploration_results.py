@@ -404,10 +404,11 @@ def _command_lines(commands: dict) -> list[str]:
     if not commands:
         return []
     return ["", "## Running a cell again from scratch", "",
-            "The same program and seeds as the study's cell, so the same numbers (a cell's runs and the "
-            "screen's runs of the same setting and seed agree to the last bit in their common "
-            "iterations; a point run alone by `nmrl train` is another program and agrees only "
-            "statistically). A smaller `--steps` stops earlier.", ""] + [
+            "The same program and seeds as the study's cell, so the same numbers on the same machine "
+            "(a cell's runs and the screen's runs of the same setting and seed agree to the last bit in "
+            "their common iterations); on another machine the compiled program's floating point differs "
+            "and a rerun agrees only statistically, as does a point run alone by `nmrl train` (another "
+            "program). A smaller `--steps` stops earlier.", ""] + [
         f"* {k.split('/')[1]} at {float(k.split('/')[0]) * 1000:g} ms: `{v}`" for k, v in commands.items()]
 
 
