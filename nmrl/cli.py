@@ -157,6 +157,13 @@ def _with_exploration(args: argparse.Namespace, learner, cfg, given: set[str]):
 
 
 def _fail(msg: str, status: int = _exits.BAD_INPUT) -> int:
+    """Print the one line ``nmrl: error: MSG`` and return ``status`` (a disk failure's line through
+    nmrl/runs/io_errors.py's ``report``, which keeps orbax's late tracebacks of it off stderr)."""
+    if status == _exits.IO_FAILED:
+        from nmrl.runs import io_errors
+
+        io_errors.report(f"nmrl: error: {msg}")
+        return status
     print(f"nmrl: error: {msg}", file=sys.stderr, flush=True)
     return status
 
@@ -574,6 +581,12 @@ def learner_name(argv: list[str]) -> str | None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the command ``argv``; None: the process's own arguments, ``main`` being the process's
+    entry point (which alone may mute stderr after a disk failure's line, nmrl/runs/io_errors.py)."""
+    if argv is None:
+        from nmrl.runs import io_errors
+
+        io_errors.mute_after_report = True
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv[:1] in (["train"], ["sweep"]):
         try:

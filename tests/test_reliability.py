@@ -196,6 +196,39 @@ def test_read_only_and_immutable_directories_are_found_by_writing(small_fs, tmp_
     assert io_errors.immutable(imm) is None
 
 
+LATE_TRACEBACK = """
+    import sys, threading, time
+    from nmrl.runs import io_errors
+
+    io_errors.mute_after_report = sys.argv[1] == "mute"
+
+    def late():  # a library's worker thread that logs the same failure once the command has spoken
+        time.sleep(0.3)
+        try:
+            raise OSError(28, "No space left on device")
+        except OSError:
+            import traceback
+            traceback.print_exc()
+
+    t = threading.Thread(target=late)
+    t.start()
+    io_errors.report("nmrl: error: cannot write /r/checkpoints/200: the disk is full")
+    sys.exit(5)
+"""
+
+
+@pytest.mark.parametrize("mute", ["mute", "keep"])
+def test_a_disk_failure_line_is_the_last_thing_on_stderr_of_the_command(mute):
+    p = _spawn(LATE_TRACEBACK, mute)
+    out, err = p.communicate(timeout=60)
+    lines = [x for x in err.splitlines() if x.strip()]
+    assert p.returncode == 5 and lines[0] == "nmrl: error: cannot write /r/checkpoints/200: the disk is full"
+    if mute == "mute":  # the process's entry point: the late traceback does not reach stderr
+        assert lines == lines[:1], err
+    else:  # called in-process (tests, other programs): their stderr is left alone
+        assert lines[1] == "Traceback (most recent call last):" and "No space left on device" in lines[-1]
+
+
 def test_partial_saves_are_removed_and_finished_steps_kept(tmp_path):
     c = tmp_path / "checkpoints"
     (c / "200" / "state").mkdir(parents=True)

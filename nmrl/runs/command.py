@@ -35,7 +35,7 @@ def run(prog: str, body: Callable[[], object], bad_input: tuple[type[BaseExcepti
     except Exception as e:  # noqa: BLE001 - the disk or file system; else bad input or a bug
         f = io_errors.find(e) if isinstance(e, (OSError, checkpoint.CheckpointError, io_errors.IOFailure)) else None
         if isinstance(e, io_errors.IOFailure) or f is not None:
-            print(f"{prog}: error: {e if isinstance(e, io_errors.IOFailure) else f.line()}", file=sys.stderr)
+            io_errors.report(f"{prog}: error: {e if isinstance(e, io_errors.IOFailure) else f.line()}")
             return exits.IO_FAILED
         if isinstance(e, (ValueError, driver.RunError, checkpoint.CheckpointError) + tuple(bad_input)):
             print(f"{prog}: error: {e}", file=sys.stderr)

@@ -22,6 +22,7 @@ import os
 import pathlib
 import re
 import struct
+import sys
 
 #: Exit status of a command stopped by a disk or file system failure (see the module docstring).
 IO_FAILED = 5
@@ -73,6 +74,26 @@ class IOFailure(Exception):
     def __init__(self, failure: Failure, what: str = "cannot write", hint: str = ""):
         self.failure = failure
         super().__init__(failure.line(what) + (f"; {hint}" if hint else ""))
+
+
+#: whether :func:`report` mutes stderr after its line; the process's entry point (nmrl/cli.py's
+#: ``main`` run as the ``nmrl`` command) sets it, in-process callers leave their stderr alone
+mute_after_report = False
+
+
+def report(line: str) -> None:
+    """Print a disk failure's one ``line`` on stderr, and then (with :data:`mute_after_report`)
+    point file descriptor 2 at the null device for the rest of the process.
+
+    orbax's worker threads of the failed write finish after the command has caught the failure:
+    they re-raise the same exception and log it with its traceback, some only while the interpreter
+    shuts down. The command has already named the path and the cause; that noise would bury it."""
+    print(line, file=sys.stderr, flush=True)
+    if mute_after_report:
+        with contextlib.suppress(OSError, ValueError):
+            fd = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(fd, 2)
+            os.close(fd)
 
 
 def immutable(path: str | os.PathLike) -> str | None:
