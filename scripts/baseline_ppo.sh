@@ -16,6 +16,9 @@
 # Fig. 3 sweep pinned to the other core (CPUS=0 scripts/fig3_paper.sh).
 set -euo pipefail
 cd "$(dirname "$0")/.."
+# shellcheck source=scripts/lower_priority.sh
+source scripts/lower_priority.sh
+lower_priority  # a background launch (setsid) yields the CPUs to interactive work
 OUT=${OUT:-runs/baseline_ppo}
 PUBLISHED=${PUBLISHED:-results/baseline_ppo}
 SEEDS=${SEEDS:-0 1 2}

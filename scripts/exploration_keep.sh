@@ -60,6 +60,9 @@ case "${1:-}" in
     if ! [[ "$min" =~ ^[0-9]+$ ]] || [ "$min" -lt 5 ]; then
       echo "watch: MIN=${min} is invalid: a whole number of minutes >= 5" >&2; exit 2
     fi
+    # shellcheck source=scripts/lower_priority.sh
+    source scripts/lower_priority.sh
+    lower_priority  # its evaluations and publishing, as the study (scripts/lower_priority.sh)
     start
     while true; do
       sleep "${INTERVAL_S:-$((min * 60))}"

@@ -15,4 +15,7 @@ PUBLISHED=${PUBLISHED:-results/exploration/runs}
 export JAX_COMPILATION_CACHE_DIR=${JAX_COMPILATION_CACHE_DIR:-$PWD/runs/xla-cache}
 args=(--out "$OUT")
 if [ -d "$PUBLISHED" ]; then args+=(--published "$PUBLISHED"); fi
+# shellcheck source=scripts/lower_priority.sh
+source scripts/lower_priority.sh
+lower_priority
 exec nice -n "${NICE:-19}" .venv/bin/nmrl explore-study "${args[@]}" "$@"

@@ -12,6 +12,9 @@
 # Publish the progress with: .venv/bin/python scripts/publish_ppo_validation.py
 set -euo pipefail
 cd "$(dirname "$0")/.."
+# shellcheck source=scripts/lower_priority.sh
+source scripts/lower_priority.sh
+lower_priority  # a background launch (setsid) yields the CPUs to interactive work
 OUT=${OUT:-runs/ppo_validation}
 PUBLISHED=${PUBLISHED:-results/ppo/validation}
 STEPS=${STEPS:-81920}

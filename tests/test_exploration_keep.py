@@ -28,7 +28,8 @@ def layout(tmp_path):
     tag = uuid.uuid4().hex[:12]
     pat = f"standin-study-{tag}"
     (tmp_path / "scripts").mkdir()
-    shutil.copy(REPO / "scripts" / "exploration_keep.sh", tmp_path / "scripts" / "exploration_keep.sh")
+    for f in ("exploration_keep.sh", "lower_priority.sh"):
+        shutil.copy(REPO / "scripts" / f, tmp_path / "scripts" / f)
     study = tmp_path / "scripts" / "exploration_study.sh"  # says it started, then runs until signalled
     study.write_text(f'#!/usr/bin/env bash\nmkdir -p runs/exploration\necho "{{}}" > runs/exploration/study.json\n'
                      f'echo "study started"\nexec -a {pat} sleep 300\n')
