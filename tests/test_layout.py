@@ -79,6 +79,7 @@ def test_bad_first_and_devices(tmp_path, capsys):
     assert devices.requested(["sweep", "--devices=4"]) == "4"
 
 
+@pytest.mark.slow  # two cold compiles (~2 min); by default test_sharding checks 2 devices == 1 and test_sweep each point == its run alone
 def test_cli_uses_every_core_and_matches_one_device(tmp_path):
     """No XLA_FLAGS: the CLI itself exposes one host device per core (2 here) and says so first."""
     if devices.cpu_cores() < 2:

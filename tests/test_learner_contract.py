@@ -195,6 +195,7 @@ def test_resume_is_bit_identical(uninterrupted, tmp_path):
                                                                                  hidden_critic=4)))
 
 
+@pytest.mark.slow  # ~55 s cold; by default test_sweep and test_layout check both for the paper's learner
 def test_sweep_point_equals_the_run_alone_and_continues_from_compact_state(uninterrupted, tmp_path):
     out = tmp_path / "sweep"
     spec = sweep.SweepSpec(ls=(1e-4, 3e-4), seeds=1, base=dataclasses.replace(CFG, lr=1e-4), field="lr")
@@ -227,6 +228,7 @@ def test_sweep_point_equals_the_run_alone_and_continues_from_compact_state(unint
     assert rec["from_step"] == 15 and rec["from_checkpoint"].endswith(store.COMPACT_FILE)
 
 
+@pytest.mark.slow  # ~70 s cold; by default test_cli checks train, resume and eval through the CLI for the paper's learner
 def test_cli_train_resume_and_eval_through_the_contract(tmp_path, capsys):
     d = tmp_path / "run"
     tiny = ["--num-envs", "2", "--chunk-steps", "5", "--quiet", "--devices", "1"]

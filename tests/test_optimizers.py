@@ -313,6 +313,7 @@ def _same(a, b) -> bool:
                             np.asarray(y).tobytes() for x, y in zip(la, lb))
 
 
+@pytest.mark.slow  # ~60 s cold; by default test_checkpoint checks the optimizer state is saved and a resume equals the uninterrupted run
 def test_checkpoint_carries_adam_state_and_resume_equals_uninterrupted(tmp_path):
     trainer = make_train(CFG)
     chunk = jax.jit(trainer.chunk)

@@ -91,6 +91,7 @@ def test_a_sweep_refuses_points_its_spec_does_not_account_for(run4, tmp_path):
     assert snapshot(s) == before
 
 
+@pytest.mark.slow  # ~35 s cold; by default the same refusal on a first start (test_a_sweep_refuses_points_its_spec_does_not_account_for)
 def test_a_sweep_resume_refuses_a_point_outside_its_spec(run4, tmp_path):
     s = tmp_path / "S"
     rc, _, err = _main(["sweep", *T, "--steps", "100", "--l", "10", "--seeds", "1", "--quiet", "--out", str(s)])
@@ -106,6 +107,7 @@ def test_a_sweep_resume_refuses_a_point_outside_its_spec(run4, tmp_path):
 # ----------------------------------------------------------------------------- 2. one writer per directory
 
 
+@pytest.mark.slow  # two real training processes (~60 s cold); by default test_reliability starts writers at the same moment on the lock itself
 def test_two_writers_started_together_one_is_refused_naming_the_other(tmp_path):
     out = tmp_path / "R"
     ps = [_proc(["train", *T, "--steps", "200", "--seed", str(s), "--quiet", "--out", str(out)]) for s in (0, 1)]

@@ -122,6 +122,7 @@ def tiny_study(tmp_path_factory):
     return out, res
 
 
+@pytest.mark.slow  # the whole tiny study (~2.5 min cold)
 def test_grid_choice_follows_the_rule(tiny_study):
     out, res = tiny_study
     assert len(res["grid"]) == 4
@@ -207,6 +208,7 @@ def test_rows_from_hand_written_metrics(tmp_path):
         ("stationary", 0): False, ("stationary", 1): True, ("p0.04s", 0): False, ("p0.04s", 1): True}
 
 
+@pytest.mark.slow  # the whole tiny study (~2.5 min cold)
 def test_gradvar_rows_and_figures(tiny_study, tmp_path, saved_figures):
     out, res = tiny_study
     rows = res["gradvar"]
@@ -278,6 +280,7 @@ def _check_timescale_figures(out, res, tmp_path, saved):
                 assert rect.get_xy() == (j - 0.5, i - 0.5) and rect.get_edgecolor()[:3] == (1.0, 0.0, 0.0)
 
 
+@pytest.mark.slow  # the whole tiny study (~2.5 min cold)
 def test_rerun_is_a_no_op_and_other_settings_are_refused(tiny_study):
     out, res = tiny_study
     before = (out / "final.csv").read_text()
@@ -292,6 +295,7 @@ def test_rerun_is_a_no_op_and_other_settings_are_refused(tiny_study):
     assert json.loads((out / "study.json").read_text())["seeds"] == 2
 
 
+@pytest.mark.slow  # the whole tiny study (~2.5 min cold)
 def test_longer_final_budget_extends_the_final_runs(tiny_study, tmp_path):
     import shutil
 
@@ -312,6 +316,7 @@ def test_longer_final_budget_extends_the_final_runs(tiny_study, tmp_path):
     assert json.loads((out / "study.json").read_text())["final_seconds"] == 3.0
 
 
+@pytest.mark.slow  # the whole tiny study (~2.5 min cold)
 def test_beta_theta_cap_reuses_the_grid(tiny_study, tmp_path):
     import os
     import shutil
