@@ -159,12 +159,13 @@ def _with_exploration(args: argparse.Namespace, learner, cfg, given: set[str]):
 def _fail(msg: str, status: int = _exits.BAD_INPUT) -> int:
     """Print the one line ``nmrl: error: MSG`` and return ``status`` (a disk failure's line through
     nmrl/runs/io_errors.py's ``report``, which keeps orbax's late tracebacks of it off stderr)."""
+    line = f"nmrl: error: {msg}"
     if status == _exits.IO_FAILED:
         from nmrl.runs import io_errors
 
-        io_errors.report(f"nmrl: error: {msg}")
-        return status
-    print(f"nmrl: error: {msg}", file=sys.stderr, flush=True)
+        io_errors.report(line)
+    else:
+        print(line, file=sys.stderr, flush=True)
     return status
 
 
