@@ -8,6 +8,7 @@ float32 limits, ``json`` line by line, the bytes of arrays actually allocated).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import errno
 import json
@@ -236,6 +237,28 @@ def test_partial_saves_are_removed_and_finished_steps_kept(tmp_path):
     gone = io_errors.remove_partial_saves(c)
     assert [g.name for g in gone] == ["300.orbax-checkpoint-tmp-1733"]
     assert [x.name for x in c.iterdir()] == ["200"]
+
+
+def test_a_partial_save_still_being_written_is_removed_once_its_writer_stops(tmp_path):
+    import threading
+
+    part = tmp_path / "checkpoints" / "300.orbax-checkpoint-tmp" / "state"
+    part.mkdir(parents=True)
+    stop = time.monotonic() + 0.5
+
+    def writer():  # a library thread of the failed save, still adding files for half a second
+        i = 0
+        while time.monotonic() < stop:
+            with contextlib.suppress(OSError):  # once the directory is gone, its writes fail
+                (part / f"d{i}").write_bytes(b"x" * 4096)
+            i += 1
+
+    t = threading.Thread(target=writer)
+    t.start()
+    time.sleep(0.05)
+    io_errors.remove_partial_saves(tmp_path / "checkpoints")
+    t.join()
+    assert list((tmp_path / "checkpoints").iterdir()) == []
 
 
 # ----------------------------------------------------------------------------- JSON lines after a crash

@@ -191,16 +191,25 @@ def check_writable(directory: str | os.PathLike) -> None:
                 m.rmdir()
 
 
-def remove_partial_saves(checkpoints: str | os.PathLike) -> list[pathlib.Path]:
+def remove_partial_saves(checkpoints: str | os.PathLike, settle_s: float = 10.0) -> list[pathlib.Path]:
     """Remove the unfinished step directories a failed save left (orbax's
-    ``<step>.orbax-checkpoint-tmp*``; readers ignore them, but they take disk space); returns them."""
+    ``<step>.orbax-checkpoint-tmp*``; readers ignore them, but they take disk space); returns them.
+
+    tensorstore's writer threads of the failed save (not Python threads: nothing to join) may still
+    put a file into a directory while it is being removed, which leaves it behind; each is removed
+    again until it is gone, for at most ``settle_s`` seconds in all."""
     import shutil
+    import time
 
     d = pathlib.Path(checkpoints)
     gone = []
+    deadline = time.monotonic() + settle_s
     with contextlib.suppress(OSError):
         for p in d.iterdir():
             if ".orbax-checkpoint-tmp" in p.name:
                 shutil.rmtree(p, ignore_errors=True)
+                while p.exists() and time.monotonic() < deadline:
+                    time.sleep(0.05)
+                    shutil.rmtree(p, ignore_errors=True)
                 gone.append(p)
     return gone
