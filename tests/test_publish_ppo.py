@@ -28,7 +28,7 @@ def _brute_nearest(rows, budget):
     return best
 
 
-@pytest.mark.parametrize("last,budget", itertools.product((2, 3, 4, 31, 76, 77), (1e6, 1e7, 2.5e7)))
+@pytest.mark.parametrize("last,budget", list(itertools.product((2, 3, 4, 31, 76, 77), (1e6, 1e7, 2.5e7))))
 def test_nearest_row_is_the_nearest_iteration_once_reached(last, budget):
     rows = [{"step": ITER * k} for k in range(last + 1)]
     assert pp.nearest_row(rows, budget) == _brute_nearest(rows, budget)

@@ -59,7 +59,11 @@ def mean_curve(points: dict, grid: np.ndarray) -> np.ndarray:
         r = np.array([x["avg_reward"] for x in rows], float)
         y = np.interp(grid, t, r, left=np.nan, right=np.nan)
         ys.append(y)
-    return np.nanmean(np.array(ys), axis=0) if ys else np.full(grid.shape, np.nan)
+    if not ys:
+        return np.full(grid.shape, np.nan)
+    ys = np.array(ys)
+    n = np.sum(~np.isnan(ys), axis=0)
+    return np.where(n > 0, np.nansum(ys, axis=0) / np.maximum(n, 1), np.nan)
 
 
 def at_trials(rows: list[dict], m: int) -> float | None:
