@@ -8,8 +8,9 @@ seeds a fresh clone from), writes ``answers.md`` (the numbers as tables: progres
 cell, the answers, the SNR, the screen), draws ``learning_curves.png`` (one panel per control step)
 and ``summary.png`` (final rewards and the gradient's SNR against the control step) and, once
 every run at the finest control step is over, the gaits of its best and worst process
-(``gaits/<process>/``: `nmrl eval`'s strobe picture, GIF and JSON of the median seed, 10 s from
-seed 0; drawn once), and the two strobe pictures side by side in ``gaits/best_and_worst.png``.
+(``gaits/<process>/``: `nmrl eval`'s strobe picture, GIF, trajectory and JSON of the median seed,
+10 s from seed 0; evaluated once), and the two strobes one above the other at one scale in
+``gaits/best_and_worst.png``.
 """
 
 from __future__ import annotations
@@ -47,16 +48,16 @@ def main() -> None:
         titles = []
         for (proc, seed), rank in zip(picks or [], ("best", "worst")):
             out = dest / "gaits" / proc
-            if not (out / "strobe.png").exists():
+            if not (out / "trajectory.npz").exists():
                 from nmrl.analysis import evaluate
 
                 run = src / "grid" / f"dt{fine:g}" / proc / "points" / f"s{seed}"
                 evaluate.evaluate(run, seconds=10.0, seed=0, render=True, out_dir=out)
                 print(f"gait of {proc} at {fine:g} s (seed {seed}) in {out}")
             titles.append((f"{rank} at δ = {fine * 1000:g} ms: {proc} (its median seed, {seed}; deterministic "
-                           f"policy, 10 s)", out / "strobe.png"))
+                           f"policy)", out / "trajectory.npz"))
         if titles:
-            xr.draw_side_by_side(titles, dest / "gaits" / "best_and_worst.png")
+            xr.draw_gaits(titles, dest / "gaits" / "best_and_worst.png")
     print(f"{len(written)} files under {dest}; {len(rows)} runs in results.csv")
 
 

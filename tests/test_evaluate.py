@@ -117,7 +117,13 @@ def test_json_well_formed(result, run):
 def test_pictures(result, run):
     png = run / "eval" / "strobe.png"
     gif = run / "eval" / "gait.gif"
-    assert result["files"] == {"strobe": str(png), "gif": str(gif)}
+    traj = run / "eval" / "trajectory.npz"
+    assert result["files"] == {"strobe": str(png), "gif": str(gif), "trajectory": str(traj)}
+    with np.load(traj) as z:
+        pos, dt = z["pos"], float(z["control_dt"])
+    assert dt == CFG.control_dt and pos.shape == (round(SECONDS / CFG.control_dt) + 1, 10, 2)
+    assert np.all(np.isfinite(pos))
+    np.testing.assert_allclose(pos[0, 0], [0.0, 0.1], atol=1e-5)  # frame 0: hind paw at (0, 0.1) m (Sec. V-C)
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     img = iio.imread(png)
     assert 200 <= img.shape[0] <= 3000 and 300 <= img.shape[1] <= 3000, img.shape

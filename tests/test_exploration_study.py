@@ -308,21 +308,36 @@ def test_the_summary_figure_draws_the_finished_seeds_means_intervals_and_snr(tmp
     np.testing.assert_allclose(np.asarray(lines["white, initial"].get_ydata(), float), [2e-3])
 
 
-def test_side_by_side_shows_each_picture_under_its_title(tmp_path, saved_figures):
-    import matplotlib.image
-
-    pics = []
-    for i, name in enumerate(("best", "worst")):
-        a = np.zeros((6, 9, 3))
-        a[..., i] = 1.0
-        matplotlib.image.imsave(tmp_path / f"{name}.png", a)
-        pics.append((f"{name} at 5 ms", tmp_path / f"{name}.png"))
-    xr.draw_side_by_side(pics, tmp_path / "both.png")
-    ((_, fig),) = saved_figures
-    assert [ax.get_title() for ax in fig.axes] == ["best at 5 ms", "worst at 5 ms"]
-    for i, ax in enumerate(fig.axes):
-        im = np.asarray(ax.images[0].get_array())
-        assert im.shape[:2] == (6, 9) and np.all(im[..., i] == 1.0) and np.all(im[..., 1 - i] == 0.0)
+def test_gaits_are_drawn_one_above_the_other_at_one_scale(tmp_path, saved_figures):
+    """Two gaits of different control steps and reach: each panel shows its own poses every 0.1 s of
+    the first 3 s under its title, and both panels span the same metres with the same metres per
+    pixel, so the runner's 6 m and the stander's 0.2 m compare by eye."""
+    rng = np.random.default_rng(0)
+    base = rng.uniform(0.0, 0.8, size=(10, 2))
+    files = []
+    for name, dt, speed in (("runner", 0.005, 2.0), ("stander", 0.02, 0.05)):
+        t = np.arange(round(10.0 / dt) + 1) * dt
+        pos = base[None] + np.stack([speed * t, np.zeros_like(t)], axis=-1)[:, None, :]
+        np.savez(tmp_path / f"{name}.npz", pos=pos.astype(np.float32), control_dt=dt)
+        files.append((f"{name} at {dt * 1000:g} ms", tmp_path / f"{name}.npz", pos, dt))
+    xr.draw_gaits([(title, f) for title, f, _, _ in files], tmp_path / "both.png")
+    ((path, fig),) = saved_figures
+    assert path == tmp_path / "both.png" and path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    axes = fig.axes
+    assert [ax.get_title().split("\n")[0] for ax in axes] == ["runner at 5 ms", "stander at 20 ms"]
+    for ax, (_, _, pos, dt) in zip(axes, files):
+        sticks = [ln for ln in ax.lines if len(ln.get_xdata()) == 10]
+        shown = [round(k * 0.1 / dt) for k in range(31)]  # 0, 0.1, ..., 3.0 s
+        assert len(sticks) == len(shown)
+        for ln, i in zip(sticks, shown):
+            np.testing.assert_allclose(np.column_stack(ln.get_data()), pos[i], atol=1e-6)
+    assert axes[0].get_xlim() == axes[1].get_xlim() and axes[0].get_ylim() == axes[1].get_ylim()
+    lo, hi = axes[0].get_xlim()
+    assert lo <= base[:, 0].min() and hi >= base[:, 0].max() + 2.0 * 3.0  # the runner's 6 m fit
+    fig.canvas.draw()
+    per_m = [ax.transData.transform([(1.0, 1.0)]) - ax.transData.transform([(0.0, 0.0)]) for ax in axes]
+    np.testing.assert_allclose(per_m[0], per_m[1], rtol=1e-6)
+    assert per_m[0][0, 0] == pytest.approx(per_m[0][0, 1], rel=1e-6)  # equal metres in x and y
 
 
 def test_a_grid_cells_command_parses_back_to_its_config_through_nmrl_sweeps_parser():

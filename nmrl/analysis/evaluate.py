@@ -13,7 +13,8 @@ with the run's control step (no random stopping, no automatic reset: a rollout i
 Both use the same compiled program (the noise is scaled by a traced 0 or 1). The result is a
 JSON-able dict (see :func:`evaluate`) written to ``RUN_DIR/eval/eval.json``; with ``render`` the
 deterministic rollout is drawn as a Fig.-4-like strobe (``strobe.png``) and an animation
-(``gait.gif``, real time, camera following the trunk). Pictures use matplotlib's Agg backend only.
+(``gait.gif``, real time, camera following the trunk; :mod:`nmrl.analysis.gait_pictures`), and its
+joint positions are kept in ``trajectory.npz`` to redraw.
 Same checkpoint and seed give the identical JSON.
 
 The checkpoint must be of the run (its identity, ``RUN_DIR/config.json``: nmrl/runs/checkpoint.py);
@@ -36,7 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from nmrl import learners
-from nmrl.paper import geometry as g
+from nmrl.analysis.gait_pictures import plot_strobe, write_gif
 from nmrl.paper.env import REWARD_TERMS, EnvConfig, HalfCheetah, forward_kinematics
 from nmrl.runs import checkpoint, io_errors
 from nmrl.runs.store import atomic_path, atomic_write_text
@@ -51,7 +52,7 @@ WRIST = 8
 #: strides are counted from this time on (the trial starts at rest, hind paw 0.1 m up: Sec. V-C)
 GAIT_FROM_S = 1.0
 EVAL_DIR = "eval"
-GIF_FPS = 25.0
+TRAJECTORY = "trajectory.npz"  #: the deterministic rollout's joint positions, written with the pictures
 
 
 # ----------------------------------------------------------------------------- rollout
@@ -232,7 +233,9 @@ def evaluate(
     mean), ``distance`` (m the trunk moved), ``terms`` (each reward term (8)-(14), mean per step),
     ``ground_share`` {heel, knee, head} (share of steps with that joint on the ground),
     ``gait`` (stride frequency and length of each paw, wrist on the ground: :func:`gait`),
-    ``nonfinite`` (steps whose physics failed). With ``render`` also ``files`` {strobe, gif}.
+    ``nonfinite`` (steps whose physics failed). With ``render`` also ``files`` {strobe, gif,
+    trajectory}: ``trajectory.npz`` holds the deterministic rollout's joint positions ``pos`` (T+1, 10,
+    2) and ``control_dt``, so that gaits can be redrawn side by side at one scale.
     The JSON is also written to ``OUT_DIR/eval.json`` (``OUT_DIR`` = ``RUN_DIR/eval``).
     Raises CheckpointError for a missing/bad checkpoint or one of another run (ForeignCheckpoint),
     ValueError for bad ``seconds``, :class:`nmrl.runs.io_errors.IOFailure` (before the rollouts)
@@ -270,7 +273,10 @@ def evaluate(
         title = f"{run.name}, step {step}, deterministic policy"
         strobe = plot_strobe(det["pos"], config.control_dt, out_dir / "strobe.png", title=title)
         gif = write_gif(det["pos"], config.control_dt, out_dir / "gait.gif")
-        result["files"] = {"strobe": str(strobe), "gif": str(gif)}
+        traj = out_dir / TRAJECTORY
+        with atomic_path(traj) as tmp:
+            np.savez(tmp, pos=np.asarray(det["pos"], np.float32), control_dt=np.float64(config.control_dt))
+        result["files"] = {"strobe": str(strobe), "gif": str(gif), "trajectory": str(traj)}
     atomic_write_text(out_dir / "eval.json", json.dumps(result, indent=2, allow_nan=False) + "\n")
     return result
 
@@ -299,122 +305,3 @@ def select_policy(run: pathlib.Path, step: int | None = None):
         return meta, (config, *params.values())
 
     return checkpoint.newest_good(run, load, step)
-
-
-# ----------------------------------------------------------------------------- pictures
-
-
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _marker_sizes(scale: float) -> np.ndarray:
-    return scale * g.MASSES  # heavier joints bigger (hip 4 kg, head 2 kg)
-
-
-def plot_strobe(
-    pos: np.ndarray,
-    control_dt: float,
-    path: str | os.PathLike,
-    *,
-    every_s: float = 0.1,
-    span_s: float = 3.0,
-    title: str | None = None,
-) -> pathlib.Path:
-    """A Fig.-4-like strobe: the stick figure every ``every_s`` seconds of the first ``span_s``.
-
-    ``pos``: (T+1, 10, 2) joint positions (x, y) per control step, frame 0 the initial pose.
-    """
-    plt = _pyplot()
-    path = pathlib.Path(path)
-    k = max(1, int(round(every_s / control_dt)))
-    last = min(len(pos) - 1, int(round(span_s / control_dt)))
-    frames = [i for i in range(0, last + 1, k) if np.all(np.isfinite(pos[i]))]
-    if not frames:
-        frames = [0]
-    P = pos[frames]
-    x_lo = float(np.nanmin(P[..., 0])) - 0.2 if np.isfinite(P).any() else -1.0
-    x_hi = float(np.nanmax(P[..., 0])) + 0.2 if np.isfinite(P).any() else 1.0
-    y_hi = max(1.0, float(np.nanmax(P[..., 1])) + 0.15) if np.isfinite(P).any() else 1.0
-    width = min(24.0, max(5.0, 2.0 * (x_hi - x_lo) + 1.0))
-    fig, ax = plt.subplots(figsize=(width, 0.25 + 2.0 * (y_hi + 0.1) + 0.6), dpi=100)
-    cmap = plt.get_cmap("viridis")
-    sizes = _marker_sizes(10.0)
-    for j, i in enumerate(frames):
-        c = cmap(j / max(1, len(frames) - 1))
-        p = pos[i]
-        ax.plot(p[:, 0], p[:, 1], "-", color=c, lw=1.2, alpha=0.85)
-        ax.scatter(p[:, 0], p[:, 1], s=sizes, color=c, zorder=3, edgecolors="none")
-    ax.axhline(0.0, color="0.3", lw=1.5)
-    ax.set_xlim(x_lo, x_hi)
-    ax.set_ylim(-0.1, y_hi)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    dt_frames = k * control_dt
-    ax.set_title((title + "\n" if title else "") + f"every {dt_frames:.2f} s, "
-                 f"t = 0 to {frames[-1] * control_dt:.2f} s", fontsize=9)
-    fig.tight_layout()
-    try:
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp)
-    finally:
-        plt.close(fig)
-    return path
-
-
-def write_gif(
-    pos: np.ndarray,
-    control_dt: float,
-    path: str | os.PathLike,
-    *,
-    fps: float = GIF_FPS,
-    half_width: float = 1.5,
-) -> pathlib.Path:
-    """An animation of the stick figure in real time (about ``fps`` frames/s), the camera on the trunk."""
-    import imageio.v3 as iio
-
-    plt = _pyplot()
-    path = pathlib.Path(path)
-    stride = max(1, int(round(1.0 / (fps * control_dt))))
-    duration_ms = 1000.0 * stride * control_dt
-    idx = list(range(0, len(pos), stride))
-    fig, ax = plt.subplots(figsize=(5.0, 2.0), dpi=80)  # 3 m x 1.2 m at equal aspect
-    fig.subplots_adjust(left=0.0, right=1.0, bottom=0.0, top=1.0)
-    ax.set_axis_off()
-    ax.set_aspect("equal")
-    ax.set_xlim(-half_width, half_width)
-    ax.set_ylim(-0.15, 1.05)
-    (ground,) = ax.plot([], [], color="0.3", lw=1.5)
-    (ticks,) = ax.plot([], [], "|", color="0.3", ms=6)
-    (line,) = ax.plot([], [], "-", color="tab:blue", lw=2)
-    dots = ax.scatter(np.zeros(10), np.zeros(10), s=_marker_sizes(8.0), color="tab:red", zorder=3)
-    text = ax.text(0.02, 0.92, "", transform=ax.transAxes, fontsize=8)
-    frames = []
-    last_cx = 0.0
-    try:
-        for i in idx:
-            p = pos[i]
-            cx = 0.5 * (p[3, 0] + p[4, 0])
-            cx = float(cx) if np.isfinite(cx) else last_cx
-            last_cx = cx
-            lo, hi = cx - half_width, cx + half_width
-            ax.set_xlim(lo, hi)
-            ground.set_data([lo, hi], [0.0, 0.0])
-            tx = np.arange(math.floor(lo * 2) / 2, hi + 0.5, 0.5)  # ground marks every 0.5 m
-            ticks.set_data(tx, np.zeros_like(tx))
-            line.set_data(p[:, 0], p[:, 1])
-            dots.set_offsets(p)
-            text.set_text(f"t = {i * control_dt:5.2f} s")
-            fig.canvas.draw()
-            frames.append(np.asarray(fig.canvas.buffer_rgba())[..., :3].copy())
-    finally:
-        plt.close(fig)
-    with atomic_path(path) as tmp:
-        iio.imwrite(tmp, np.stack(frames), duration=duration_ms, loop=0)
-    return path

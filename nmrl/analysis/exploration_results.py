@@ -27,7 +27,7 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from nmrl.analysis import stats
+from nmrl.analysis import gait_pictures, stats
 from nmrl.runs import store
 
 #: the control step the paper's rewards are per-step values of (reward per second = mean r_t / DELTA_0)
@@ -602,28 +602,36 @@ def draw_summary(rows: Sequence[dict], snr: Sequence[dict], dts: Sequence[float]
 
 
 
-def draw_side_by_side(pictures: Sequence[tuple[str, pathlib.Path]], path: pathlib.Path) -> pathlib.Path:
-    """The given pictures (``(title, png)``; the gaits' strobe pictures) one above the other in one
-    file, each under its title, so the best and the worst process's gaits are compared at a glance."""
-    import matplotlib
-
-    matplotlib.use("Agg", force=True)
-    import matplotlib.image
-    import matplotlib.pyplot as plt
-
-    images = [matplotlib.image.imread(str(f)) for _, f in pictures]
-    fig, axes = plt.subplots(len(images), 1, figsize=(12, 3.2 * len(images)), dpi=110, squeeze=False)
-    for ax, (title, _), im in zip(axes[:, 0], pictures, images):
-        ax.imshow(im)
-        ax.set_title(title, fontsize=10)
-        ax.axis("off")
+def draw_gaits(gaits: Sequence[tuple[str, pathlib.Path]], path: pathlib.Path, every_s: float = 0.1,
+               span_s: float = 3.0) -> pathlib.Path:
+    """The strobes of the given gaits (``(title, trajectory.npz)`` as `nmrl eval` writes it) one above
+    the other at one scale: every panel spans the same metres in x and y, so how far each robot gets
+    in ``span_s`` seconds, and the height it runs at, compare at a glance."""
+    plt = gait_pictures.pyplot()
+    runs = []
+    for title, f in gaits:
+        with np.load(f) as z:
+            pos, dt = np.asarray(z["pos"], float), float(z["control_dt"])
+        frames = gait_pictures.strobe_frames(pos, dt, every_s, span_s)
+        runs.append((title, pos, dt, frames, gait_pictures.strobe_extent(pos, frames)))
+    x_lo = min(r[4][0] for r in runs)
+    x_hi = max(r[4][1] for r in runs)
+    y_hi = max(r[4][2] for r in runs)
+    scale = min(1.6, 20.0 / (x_hi - x_lo))  # inches per metre, the widest picture at most 20 in
+    fig, axes = plt.subplots(len(runs), 1, squeeze=False, dpi=100,
+                             figsize=(scale * (x_hi - x_lo) + 1.0, len(runs) * (scale * (y_hi + 0.1) + 0.9)))
+    for ax, (title, pos, dt, frames, _) in zip(axes[:, 0], runs):
+        gait_pictures.draw_strobe(ax, pos, frames, dt, (x_lo, x_hi, y_hi), every_s, title)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
-    plt.close(fig)
+    try:
+        with store.atomic_path(path) as tmp:
+            fig.savefig(tmp)
+    finally:
+        plt.close(fig)
     return path
 
 
 __all__: Sequence[str] = ("RESULT_COLUMNS", "SCREEN_COLUMNS", "score", "choose", "eval_summary", "run_row", "cells",
                           "cell_table", "diff", "answers", "finished", "report", "best_and_worst", "publish",
-                          "curves", "draw", "draw_summary", "draw_side_by_side")
+                          "curves", "draw", "draw_summary", "draw_gaits")
