@@ -113,6 +113,43 @@ def test_answers_match_scipy_t_and_welch_intervals():
     for dt in (0.02, 0.005):
         means = {p: vals[(dt, p)].mean() for p in es.PROCESSES}
         assert a["best"][f"{dt:g}"] == max(means, key=means.get)
+    assert a["process_step_change"] == []  # two control steps: the one change is the coarse-to-fine one
+
+
+def _welch(x, y):
+    vx, vy = x.var(ddof=1) / len(x), y.var(ddof=1) / len(y)
+    df = (vx + vy) ** 2 / (vx ** 2 / (len(x) - 1) + vy ** 2 / (len(y) - 1))
+    return x.mean() - y.mean(), scipy.stats.t.ppf(0.975, df) * math.sqrt(vx + vy)
+
+
+def test_each_step_to_the_next_finer_one_is_a_welch_difference_in_the_tables_and_the_words():
+    """With 20, 10 and 5 ms every process also has its change 20 → 10 ms and 10 → 5 ms: Welch
+    intervals as scipy gives them, a row each in the change table, and white's in answer 1."""
+    rng = np.random.default_rng(5)
+    level = {0.02: 1.0, 0.01: 3.0, 0.005: 3.05}  # white: a clear gain, then none
+    vals, rows = {}, []
+    for dt in (0.02, 0.005, 0.01):
+        for p in es.PROCESSES:
+            vals[(dt, p)] = v = rng.normal(level[dt], 0.3, size=4)
+            rows += [{"control_dt": dt, "exploration": p, "avg_reward_per_s": x} for x in v]
+    a = xr.answers(rows, (0.02, 0.005, 0.01), es.PROCESSES)
+    got = {(tuple(x["a"]), tuple(x["b"])): x for x in a["process_step_change"]}
+    assert len(got) == 2 * len(es.PROCESSES)
+    for finer, coarser in ((0.01, 0.02), (0.005, 0.01)):
+        for p in es.PROCESSES:
+            d, h = _welch(vals[(finer, p)], vals[(coarser, p)])
+            x = got[((finer, p), (coarser, p))]
+            assert math.isclose(x["diff"], d) and math.isclose(x["ci95"], h, rel_tol=1e-9)
+    md = xr.report({"answers": a, "runs": len(rows), "finished_runs": len(rows)}, [], [], [],
+                   (0.02, 0.005, 0.01), es.PROCESSES, 16)
+    d1, h1 = _welch(vals[(0.01, "white")], vals[(0.02, "white")])
+    d2, h2 = _welch(vals[(0.005, "white")], vals[(0.01, "white")])
+    assert abs(d1) > h1 and abs(d2) < h2
+    assert f"| 10 ms − 20 ms | {d1:+.1f} ± {h1:.1f} **(significant)** |" in md
+    assert f"| 5 ms − 10 ms | {d2:+.1f} ± {h2:.1f} |" in md
+    (q1,) = [ln for ln in md.splitlines() if ln.startswith("1. ")]
+    assert f"10 ms − 20 ms: {d1:+.1f} ± {h1:.1f} per s, an improvement." in q1
+    assert f"5 ms − 10 ms: {d2:+.1f} ± {h2:.1f} per s, no significant difference." in q1
 
 
 def test_the_answers_are_made_of_finished_runs_only(tmp_path):

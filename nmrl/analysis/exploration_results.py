@@ -135,11 +135,19 @@ def interaction(rows: Sequence[dict], key: str, a: str, b: str, fine: float, coa
             "significant": bool(abs(d) > h)}
 
 
+def step_pairs(dts: Sequence[float]) -> list[tuple[float, float]]:
+    """``(finer, coarser)`` for each control step and the next coarser one, where there are more
+    than two steps (with two, the one pair is the coarsest-to-finest change itself)."""
+    d = sorted(set(dts), reverse=True)
+    return [(f, c) for c, f in zip(d, d[1:])] if len(d) > 2 else []
+
+
 def answers(rows: Sequence[dict], dts: Sequence[float], processes: Sequence[str],
             key: str = "avg_reward_per_s") -> dict:
     """The study's questions as numbers (docs/exploration-study.md): white's change from the
     coarsest to the finest control step; every process against white at each control step; every
-    process's own change, and that change against white's (:func:`interaction`); every process at
+    process's own change, from the coarsest to the finest step and from each step to the next finer
+    one (:func:`step_pairs`), and that change against white's (:func:`interaction`); every process at
     the finest step against white at the coarsest; the best process per control step (where every
     process has runs) and its lead over the second; nm-periods against each stationary correlated
     process."""
@@ -149,6 +157,8 @@ def answers(rows: Sequence[dict], dts: Sequence[float], processes: Sequence[str]
     out["process_minus_white"] = [d for dt in dts for p in processes if p != "white"
                                   for d in [diff(rows, key, (dt, p), (dt, "white"))] if d]
     out["process_fine_minus_coarse"] = [d for p in processes for d in [diff(rows, key, (fine, p), (coarse, p))] if d]
+    out["process_step_change"] = [d for finer, coarser in step_pairs(dts) for p in processes
+                                  for d in [diff(rows, key, (finer, p), (coarser, p))] if d]
     out["process_fine_minus_white_coarse"] = [d for p in processes if p != "white"
                                               for d in [diff(rows, key, (fine, p), (coarse, "white"))] if d]
     out["change_minus_white_change"] = [d for p in processes if p != "white"
@@ -191,7 +201,7 @@ def _index(a: dict) -> dict:
     differences of two cells, ``(process a, process b)`` for interactions."""
     out = {}
     for k in ("white_fine_minus_coarse", "process_minus_white", "process_fine_minus_coarse",
-              "nm_periods_minus_stationary", "process_fine_minus_white_coarse"):
+              "process_step_change", "nm_periods_minus_stationary", "process_fine_minus_white_coarse"):
         v = a.get(k)
         for x in ([v] if isinstance(v, dict) else v or []):
             out[(tuple(x["a"]), tuple(x["b"]))] = x
@@ -257,7 +267,9 @@ def plain_answers(summary: dict, dts: Sequence[float], processes: Sequence[str])
                + (f"not yet measured (`white` needs finished runs at both)." if wd is None else f"{num(w)}: " +
                                 {"significantly behind": "yes, it degrades.",
                                  "significantly ahead": "no, it improves.",
-                                 "no significant difference": "no significant change."}[_sign(wd)]))
+                                 "no significant difference": "no significant change."}[_sign(wd)])
+               + "".join(f" {ms(f)} − {ms(c)}: {said(((f, 'white'), (c, 'white')), 'an improvement', 'a degradation')}."
+                         for f, c in step_pairs(dts)))
     out.append(f"2. **Does a correlated process remove the degradation?** Each process's own change from "
                f"{ms(coarse)} to {ms(fine)}, that change against `white`'s (positive: it loses less than `white`), "
                f"and the process at {ms(fine)} against `white` at {ms(coarse)}:")
@@ -338,7 +350,8 @@ def _progress_lines(results: Sequence[dict], dts: Sequence[float], processes: Se
 def _answer_lines(a: dict, title: str, dts: Sequence[float], processes: Sequence[str]) -> list[str]:
     """One measure's tables: the cells (mean ± 95% t half-width, seeds), the differences against
     `white` and between nm-periods and the stationary processes per control step, every process's
-    change from the coarsest to the finest step, and the best process per step."""
+    change from each step to the next finer one and from the coarsest to the finest, and the best
+    process per step."""
     head, rule = _columns(dts)
     cell = {(c["control_dt"], c["exploration"]): c for c in a.get("cells", [])}
     lines = ["", f"## {title}", "", f"| process | {head} |", rule]
@@ -354,9 +367,9 @@ def _answer_lines(a: dict, title: str, dts: Sequence[float], processes: Sequence
               for p in processes if p != "white"]
     lines += [f"| nm-periods − {q} | " + " | ".join(_d(by.get(((dt, "nm-periods"), (dt, q)))) for dt in dts) + " |"
               for q in ("ou", "colored") if q in processes and "nm-periods" in processes]
-    lines += ["", f"| {fine * 1000:g} ms − {coarse * 1000:g} ms | " + " | ".join(processes) + " |",
-              "|---" * (len(processes) + 1) + "|",
-              "| | " + " | ".join(_d(by.get(((fine, p), (coarse, p)))) for p in processes) + " |"]
+    lines += ["", "| change | " + " | ".join(processes) + " |", "|---" * (len(processes) + 1) + "|"]
+    lines += [f"| {f * 1000:g} ms − {c * 1000:g} ms | " + " | ".join(_d(by.get(((f, p), (c, p)))) for p in processes)
+              + " |" for f, c in [*step_pairs(dts), (fine, coarse)]]
     best = a.get("best", {})
     named = ", ".join(f"{float(k) * 1000:g} ms: `{v}`" for k, v in sorted(best.items(), key=lambda kv: -float(kv[0])))
     return lines + ["", f"Best process per control step (highest mean, where every process has finished runs): "
@@ -633,5 +646,5 @@ def draw_gaits(gaits: Sequence[tuple[str, pathlib.Path]], path: pathlib.Path, ev
 
 
 __all__: Sequence[str] = ("RESULT_COLUMNS", "SCREEN_COLUMNS", "score", "choose", "eval_summary", "run_row", "cells",
-                          "cell_table", "diff", "answers", "finished", "report", "best_and_worst", "publish",
+                          "cell_table", "diff", "step_pairs", "answers", "finished", "report", "best_and_worst", "publish",
                           "curves", "draw", "draw_summary", "draw_gaits")
