@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 import pathlib
 import subprocess
 import sys
@@ -562,6 +563,44 @@ def test_policies_measured_side_by_side_on_two_devices_match_one_at_a_time(tmp_p
         assert (m["periods"], m["batches"]) == (q["periods"], q["batches"]) == (6, 2)
         for k in ("trcov", "trcov_ci", "mean_sq", "mean_sq_ci", "snr_per_s"):
             np.testing.assert_allclose(m[k], q[k], rtol=1e-3, atol=1e-9, err_msg=k)
+
+
+def test_a_signal_during_the_snr_phase_stops_it_after_the_measurement_in_flight(tmp_path, monkeypatch, capsys):
+    """A SIGTERM that arrives while one process's SNR is measured stops the phase as soon as that
+    measurement is written (not after the whole control step); running again measures the rest."""
+    import signal
+    import types
+
+    from nmrl.experiments import ppo_gradsnr
+    from nmrl.runs import checkpoint, signals
+
+    measured = []
+
+    def measure_many(cfg, states, batches, seed):
+        measured.append(cfg.exploration)
+        if len(measured) == 1:
+            os.kill(os.getpid(), signal.SIGTERM)  # arrives while the first process is measured
+        return [{"periods": 6, "batches": batches, "seconds_per_estimate": 1.0, "trcov": 2.0, "trcov_ci": 0.1,
+                 "mean_sq": 1.0, "mean_sq_ci": 0.1, "snr_per_s": 0.5} for _ in states]
+
+    monkeypatch.setattr(checkpoint, "has_compact", lambda d: True)
+    monkeypatch.setattr(checkpoint, "restore_compact", lambda d, learner: types.SimpleNamespace(step=80))
+    monkeypatch.setattr(ppo_gradsnr, "initial_state", lambda cfg, seed: types.SimpleNamespace(step=0))
+    monkeypatch.setattr(ppo_gradsnr, "measure_many", measure_many)
+    spec = es.StudySpec(dts=(0.02,))
+    chosen = {"nm-periods": ("period_s", 0.1), "ou": ("corr_time_s", 0.09), "colored": ("beta", 1.0)}
+    with signals.Guard(write=lambda line: None):
+        with pytest.raises(signals.Interrupted) as e:
+            es._snr(tmp_path, spec, chosen, progress=False)
+    assert e.value.exit_status == 128 + signal.SIGTERM
+    assert measured == ["white"]
+    rows = list(csv_rows(tmp_path / "snr.csv"))
+    assert [(r["exploration"], r["policy"]) for r in rows] == [("white", "initial"), ("white", "mid")]
+    assert "after the SNR of white at 0.02 s was written" in capsys.readouterr().err
+    with signals.Guard(write=lambda line: None):
+        es._snr(tmp_path, spec, chosen, progress=False)
+    assert measured == list(es.PROCESSES)
+    assert len(list(csv_rows(tmp_path / "snr.csv"))) == 2 * len(es.PROCESSES)
 
 
 @pytest.mark.slow

@@ -40,7 +40,7 @@ from typing import Sequence
 from nmrl import learners
 from nmrl.analysis import exploration_results as xr
 from nmrl.experiments import sweep
-from nmrl.runs import bounds, checkpoint, command, lock, parser, store
+from nmrl.runs import bounds, checkpoint, command, lock, parser, signals, store
 
 PPOConfig = learners.get("ppo").config
 SPEC_FILE = "study.json"
@@ -379,6 +379,9 @@ def _snr(out: pathlib.Path, spec: StudySpec, chosen: dict, progress: bool) -> li
 
     path = out / "snr.csv"
     rows = store.read_csv(path) if path.exists() else []
+    guard = signals.active()
+    if guard is not None:
+        guard.at("finishing")
     have = {(float(r["control_dt"]), r["exploration"], r["policy"]) for r in rows}
     for dt in spec.dts:
         cells = [grid_cell(spec, dt, p, chosen) for p in PROCESSES]
@@ -403,7 +406,19 @@ def _snr(out: pathlib.Path, spec: StudySpec, chosen: dict, progress: bool) -> li
                     print(f"[snr dt={dt:g} {c.process} {policy}] snr per s {r['snr_per_s']:.3e} "
                           f"({time.time() - t0:,.0f} s with {', '.join(todo)})", file=sys.stderr, flush=True)
             store.write_csv(path, SNR_COLUMNS, rows)
+            _stop_if_signalled(guard, f"the SNR of {c.process} at {dt:g} s")
     return rows
+
+
+def _stop_if_signalled(guard: "signals.Guard | None", done: str) -> None:
+    """After a measurement is written: a SIGINT/SIGTERM that came meanwhile stops the study here
+    (:class:`nmrl.runs.signals.Interrupted`), with one line naming what was saved last, so a stop waits
+    for one cell's measurement, not a whole control step's."""
+    if guard is None or guard.signal is None:
+        return
+    print(f"nmrl explore-study: stopped by signal {guard.signal} after {done} was written; run the same "
+          f"command again to continue", file=sys.stderr, flush=True)
+    guard.raise_if_stopped()
 
 
 def seed_from(published: pathlib.Path, out: pathlib.Path) -> list[pathlib.Path]:
