@@ -153,6 +153,82 @@ def test_each_step_to_the_next_finer_one_is_a_welch_difference_in_the_tables_and
     assert f"5 ms − 10 ms: {d2:+.1f} ± {h2:.1f} per s, no significant difference." in q1
 
 
+
+def test_the_control_cell_has_the_finest_steps_samples_per_adam_step_at_the_coarsest_step():
+    """The samples-per-update control: `white` at 20 ms whose every Adam step sees as many samples
+    as one at 5 ms (minibatch unrolls x unroll length), in as many Adam steps per iteration, with
+    4x the simulated time per iteration; none with one control step or a ratio that is not whole."""
+    spec = es.StudySpec()
+    c = es.control_cell(spec)
+    assert (c.phase, c.dt, c.process, c.envs_factor, c.seeds, c.iterations) == ("control", 0.02, "white", 4, 4, 16)
+    ctl = c.sweep_spec(spec).base.resolved()
+    fine = es.grid_cell(spec, 0.005, "white", {}).sweep_spec(spec).base.resolved()
+    coarse = es.grid_cell(spec, 0.02, "white", {}).sweep_spec(spec).base.resolved()
+    assert ctl.batch_size * round(ctl.unroll_s / ctl.control_dt) == fine.batch_size * round(fine.unroll_s / 0.005)
+    assert (ctl.epochs, ctl.num_minibatches) == (fine.epochs, fine.num_minibatches)
+    per_iteration_s = lambda cfg: cfg.num_envs * cfg.iteration_steps * cfg.control_dt  # noqa: E731
+    assert per_iteration_s(ctl) == pytest.approx(4 * per_iteration_s(fine))
+    assert dataclasses.replace(ctl, num_envs=64, batch_size=512) == coarse  # otherwise the 20 ms white cell
+    assert es.control_cell(es.StudySpec(dts=(0.02, 0.01))).envs_factor == 2
+    assert es.control_cell(es.StudySpec(dts=(0.02,))) is None
+    assert es.control_cell(es.StudySpec(dts=(0.015, 0.01))) is None
+
+
+def test_the_control_answers_are_welch_differences_and_its_curves_t_intervals():
+    rng = np.random.default_rng(11)
+    fine, coarse = 0.005, 0.02
+    vals = {k: rng.normal(m, 0.5, size=4) for k, m in (("ctl", 1.0), ("fine", 3.0), ("coarse", 1.2))}
+    row = lambda dt, p, v: {"control_dt": dt, "exploration": p, "avg_reward_per_s": v,  # noqa: E731
+                            "det_reward_per_s": 2 * v, "auc_reward_per_s": v / 2}
+    control = [row(coarse, "white", v) for v in vals["ctl"]]
+    grid = [row(fine, "white", v) for v in vals["fine"]] + [row(coarse, "white", v) for v in vals["coarse"]] + \
+        [row(fine, "ou", 99.0), row(fine, "ou", 98.0)]
+    a = xr.control_answers(control, grid, coarse, fine)
+    for key, scale in (("avg_reward_per_s", 1), ("det_reward_per_s", 2), ("auc_reward_per_s", 0.5)):
+        for name, other in (("minus_white_fine", "fine"), ("minus_white_coarse", "coarse")):
+            d, h = _welch(scale * vals["ctl"], scale * vals[other])
+            x = a[key][name]
+            assert math.isclose(x["diff"], d) and math.isclose(x["ci95"], h, rel_tol=1e-9)
+            assert x["significant"] == (abs(d) > h)
+        lo, hi = scipy.stats.t.interval(0.95, 3, loc=scale * vals["ctl"].mean(), scale=scipy.stats.sem(scale * vals["ctl"]))
+        assert math.isclose(a[key]["cell"]["ci95"], (hi - lo) / 2, rel_tol=1e-9) and a[key]["cell"]["n"] == 4
+    assert xr.control_answers(control[:1], grid, coarse, fine)["avg_reward_per_s"]["minus_white_fine"] is None
+
+    runs = [[{"avg_reward": float(x)} for x in rng.normal(size=n)] for n in (5, 4, 6)]  # 4 iterations in common
+    means = xr.iteration_means(runs)
+    assert [m["iteration"] for m in means] == [1, 2, 3, 4]
+    for i, m in enumerate(means):
+        v = np.array([r[i]["avg_reward"] for r in runs]) / 0.02
+        lo, hi = scipy.stats.t.interval(0.95, 2, loc=v.mean(), scale=scipy.stats.sem(v))
+        assert math.isclose(m["mean"], v.mean()) and math.isclose(m["ci95"], (hi - lo) / 2, rel_tol=1e-9)
+
+
+@pytest.mark.parametrize("ctl_mean,verdict", [(1.0, "The finer step helps beyond the samples per update."),
+                                              (3.0, "The finer step's gain may be the samples per update."),
+                                              (9.0, "the samples per update explain its gain.")])
+def test_the_control_in_words_and_tables_follows_its_interval(ctl_mean, verdict):
+    rng = np.random.default_rng(2)
+    fine, coarse = 0.005, 0.02
+    row = lambda dt, v: {"control_dt": dt, "exploration": "white", "avg_reward_per_s": v,  # noqa: E731
+                         "det_reward_per_s": v, "auc_reward_per_s": v}
+    ctl_v = rng.normal(ctl_mean, 0.3, size=4)
+    fine_v = rng.normal(3.0, 0.3, size=4)
+    grid = [row(fine, v) for v in fine_v] + [row(coarse, v) for v in rng.normal(1.0, 0.3, size=4)]
+    a = xr.control_answers([row(coarse, v) for v in ctl_v], grid, coarse, fine)
+    curve = [{"iteration": 1, "mean": 1.5, "ci95": 0.25, "runs": 4}]
+    summary = {"control": {"envs_factor": 4, "coarse": coarse, "fine": fine, "num_envs": 256, "batch_size": 2048,
+                           "runs": 4, "finished_runs": 4, "command": "nmrl sweep --num-envs 256", "answers": a,
+                           "iterations": {"control": curve, "white_fine": curve, "white_coarse": []}}}
+    md = xr.report(summary, [], [], [], (0.02, 0.005), es.PROCESSES, 16)
+    (q6,) = [ln for ln in md.splitlines() if ln.startswith("6. ")]
+    d, h = _welch(ctl_v, fine_v)
+    assert f"− `white` at 5 ms {d:+.1f} ± {h:.1f} per s" in q6 and q6.endswith(verdict)
+    assert "## The samples-per-update control" in md and "`nmrl sweep --num-envs 256`" in md
+    assert f"| exploring, last iteration | {ctl_v.mean():+.1f}" in md
+    assert "| 1 | +1.5 ± 0.2 | +1.5 ± 0.2 | – |" in md
+    assert "6. " not in xr.report({}, [], [], [], (0.02, 0.005), es.PROCESSES, 16)
+
+
 def test_the_answers_are_made_of_finished_runs_only(tmp_path):
     """summary.json's cells hold the seeds with the full budget (or diverged); a seed half way
     through is in results.csv at its iteration but not in the answers."""
@@ -388,7 +464,7 @@ def test_a_grid_cells_command_parses_back_to_its_config_through_nmrl_sweeps_pars
     spec = es.StudySpec()
     chosen = {"nm-periods": ("period_s", 0.1), "ou": ("corr_time_s", 0.045), "colored": ("beta", 0.5)}
     learner = cli._learner("ppo")
-    for c in es.grid_cells(spec, chosen):
+    for c in [*es.grid_cells(spec, chosen), es.control_cell(spec)]:
         argv = shlex.split(c.command(spec, out="/tmp/x"))
         assert argv[:2] == ["nmrl", "sweep"]
         args = cli.build_parser(learner).parse_args(argv[1:])
@@ -621,6 +697,12 @@ def test_a_tiny_study_runs_every_phase_and_continues(tmp_path):
     assert sum(x["chosen"] == "True" for x in screen) == 3
     snr = list(csv_rows(out / "snr.csv"))
     assert len(snr) == 2 * 4 * 2 and all(float(x["trcov"]) > 0 for x in snr)
+    control = list(csv_rows(out / "control.csv"))  # white at 0.02 s with 2x the environments, evaluated
+    assert [(x["exploration"], x["control_dt"], x["iterations"]) for x in control] == [("white", "0.02", "2")] * 2
+    white = [x for x in rows if x["exploration"] == "white" and x["control_dt"] == "0.02"]
+    per_run = {2 * 20 * 8}  # 2 iterations of 20 control steps, 8 environments
+    assert {int(x["control_steps"]) for x in control} == {2 * int(x["control_steps"]) for x in white} == per_run
+    assert all(x["det_reward_per_s"] not in ("", "nan") for x in control)
     chosen = {r["exploration"]: (r["field"], float(r["value"])) for r in screen if r["chosen"] == "True"}
     for c in es.grid_cells(es.StudySpec(dts=(0.02, 0.01)), chosen):
         for s in range(2):
@@ -657,7 +739,9 @@ def test_publish_then_seed_a_fresh_directory_carries_what_a_resume_needs(tmp_pat
     files = {cell / "sweep.json": "{}", pt / "config.json": "{}", pt / "metrics.jsonl": "{}\n",
              pt / "compact.npz": "npz", pt / "mid" / "compact.npz": "mid", pt / "mid" / "config.json": "{}",
              pt / "eval" / "eval.json": "{}", pt / "checkpoints" / "40960" / "state" / "x": "ckpt",
-             pt / "resumes.jsonl": "", src / "study.json": "{}", src / "results.csv": "a\n"}
+             pt / "resumes.jsonl": "", src / "study.json": "{}", src / "results.csv": "a\n",
+             src / "control.csv": "c\n", src / "control/dt0.02/white/sweep.json": "{}",
+             src / "control/dt0.02/white/points/s0/compact.npz": "ctl"}
     for f, text in files.items():
         f.parent.mkdir(parents=True, exist_ok=True)
         f.write_text(text)
@@ -665,12 +749,14 @@ def test_publish_then_seed_a_fresh_directory_carries_what_a_resume_needs(tmp_pat
     xr.publish(src, dest)
     got = {str(f.relative_to(dest)) for f in dest.rglob("*") if f.is_file()}
     rel = "runs/grid/dt0.005/ou/"
-    assert got == {"study.json", "results.csv", "runs/study.json", rel + "sweep.json",
+    assert got == {"study.json", "results.csv", "control.csv", "runs/study.json", rel + "sweep.json",
                    *(rel + "points/s0/" + n for n in ("config.json", "metrics.jsonl", "compact.npz",
-                                                      "mid/compact.npz", "mid/config.json", "eval/eval.json"))}
+                                                      "mid/compact.npz", "mid/config.json", "eval/eval.json")),
+                   "runs/control/dt0.02/white/sweep.json", "runs/control/dt0.02/white/points/s0/compact.npz"}
     fresh = tmp_path / "fresh"
     seeded = es.seed_from(dest / "runs", fresh)
-    assert seeded == [fresh / "grid" / "dt0.005" / "ou"]
+    assert seeded == [fresh / "control" / "dt0.02" / "white", fresh / "grid" / "dt0.005" / "ou"]
+    assert (fresh / "control/dt0.02/white/points/s0/compact.npz").read_text() == "ctl"
     assert (fresh / "grid/dt0.005/ou/points/s0/mid/compact.npz").read_text() == "mid"
     assert (fresh / "study.json").exists()
     (fresh / "grid/dt0.005/ou/points/s0/metrics.jsonl").write_text("newer\n")

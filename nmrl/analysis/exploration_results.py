@@ -178,6 +178,41 @@ def answers(rows: Sequence[dict], dts: Sequence[float], processes: Sequence[str]
 
 
 
+#: the control's label in its rows' ``exploration`` column while it is compared with the grid
+CONTROL = "white, more environments"
+#: the measures every comparison is made for, by their results.csv column
+KEYS = ("avg_reward_per_s", "det_reward_per_s", "auc_reward_per_s")
+
+
+def control_answers(control: Sequence[dict], grid: Sequence[dict], coarse: float, fine: float) -> dict:
+    """The samples-per-update control as numbers: `white` at the ``coarse`` control step with
+    ``coarse / fine`` times the environments and the minibatch (so each Adam step sees as many
+    samples as at ``fine``, in the same number of Adam steps, over that many times the simulated
+    time) against `white` at ``fine`` (is the finer step's gain more than the samples per update?)
+    and at ``coarse`` (do more samples per update help at the coarse step?). Per measure of
+    :data:`KEYS`: the control's cell and both Welch differences (None where a side has fewer than
+    2 finished runs)."""
+    rows = [{**r, "exploration": CONTROL} for r in control] + [r for r in grid if r["exploration"] == "white"]
+    out = {}
+    for key in KEYS:
+        cell = [c for c in cell_table(rows, key) if c["exploration"] == CONTROL]
+        out[key] = {"cell": cell[0] if cell else None,
+                    "minus_white_fine": diff(rows, key, (coarse, CONTROL), (fine, "white")),
+                    "minus_white_coarse": diff(rows, key, (coarse, CONTROL), (coarse, "white"))}
+    return out
+
+
+def iteration_means(runs: Sequence[Sequence[dict]]) -> list[dict]:
+    """Per PPO iteration (one ``metrics.jsonl`` row each) that every run of ``runs`` has reached:
+    the exploring policy's average reward per second, mean and 95% t half-width over the runs."""
+    n = min((len(m) for m in runs), default=0)
+    out = []
+    for i in range(n):
+        m, h = stats.mean_ci95(np.array([r[i]["avg_reward"] for r in runs], float) / DELTA_0)
+        out.append({"iteration": i + 1, "mean": m, "ci95": h, "runs": len(runs)})
+    return out
+
+
 def finished(rows: Sequence[dict], iterations: int) -> list[dict]:
     """The rows of runs that are over: their full ``iterations``, or diverged. The answers are made
     of these only (a run half way through is not a result)."""
@@ -328,6 +363,29 @@ def plain_answers(summary: dict, dts: Sequence[float], processes: Sequence[str])
                         for dt in dts)
         out.append(f"   * {claim}: `{p}` − `white`: {per}; its lead's change from {ms(coarse)} to {ms(fine)}: "
                    f"{said((p, 'white'), 'grows significantly', 'shrinks significantly')}.")
+    ctl = summary.get("control")
+    if ctl:
+        k = ctl["envs_factor"]
+
+        def cnum(name: str) -> str:
+            x = ctl["answers"]["avg_reward_per_s"][name]
+            if x is None:
+                return "not yet measured"
+            rest = [f"{label} {_pm(y['diff'], y['ci95'])}" for label, key in (("deterministic", "det_reward_per_s"),
+                                                                             ("whole run", "auc_reward_per_s"))
+                    for y in [ctl["answers"][key][name]] if y]
+            return _pm(x["diff"], x["ci95"]) + " per s" + (f" ({'; '.join(rest)})" if rest else "") + f", {_sign(x)}"
+
+        fine_x = ctl["answers"]["avg_reward_per_s"]["minus_white_fine"]
+        verdict = "" if fine_x is None else " " + (
+            "The finer step helps beyond the samples per update." if fine_x["significant"] and fine_x["diff"] < 0
+            else f"More samples per update at {ms(coarse)} do better than the finer step: the samples per update "
+                 f"explain its gain." if fine_x["significant"]
+            else "The finer step's gain may be the samples per update.")
+        out.append(f"6. **Is the finer step's gain only more samples per update?** `white` at {ms(coarse)} with "
+                   f"{k}× the environments and minibatch (each Adam step on as many samples as at {ms(fine)}, the "
+                   f"same Adam steps, {k}× the simulated time): − `white` at {ms(fine)} {cnum('minus_white_fine')}; "
+                   f"− `white` at {ms(coarse)} {cnum('minus_white_coarse')}.{verdict}")
     return out + [""]
 
 
@@ -374,6 +432,45 @@ def _answer_lines(a: dict, title: str, dts: Sequence[float], processes: Sequence
     named = ", ".join(f"{float(k) * 1000:g} ms: `{v}`" for k, v in sorted(best.items(), key=lambda kv: -float(kv[0])))
     return lines + ["", f"Best process per control step (highest mean, where every process has finished runs): "
                         f"{named or '–'}."]
+
+
+def _control_lines(ctl: dict | None) -> list[str]:
+    """The samples-per-update control: its cells and differences per measure, and the three
+    learning curves by PPO iteration (equal Adam steps and samples per Adam step for the control
+    and `white` at the finest step)."""
+    if not ctl:
+        return []
+    k, coarse, fine = ctl["envs_factor"], ctl["coarse"], ctl["fine"]
+    ms = lambda dt: f"{dt * 1000:g} ms"  # noqa: E731
+    lines = ["", "## The samples-per-update control", "",
+             f"`white` at {ms(coarse)} with {k}× the environments ({ctl['num_envs']}) and {k}× the minibatch "
+             f"({ctl['batch_size']} unrolls): each Adam step sees as many samples as at {ms(fine)}, in the same "
+             f"number of Adam steps, over {k}× the simulated time per iteration. "
+             f"{ctl['finished_runs']} of {ctl['runs']} runs have their budget. Command: `{ctl['command']}`.", "",
+             f"| measure (per s) | control | control − `white` {ms(fine)} | control − `white` {ms(coarse)} |",
+             "|---|---|---|---|"]
+    names = {"avg_reward_per_s": "exploring, last iteration", "det_reward_per_s": "deterministic, 10 s",
+             "auc_reward_per_s": "exploring, whole run"}
+    for key in KEYS:
+        a = ctl["answers"][key]
+        c = a["cell"]
+        lines.append(f"| {names[key]} | " + (f"{_pm(c['mean'], c['ci95'])} (n={c['n']})" if c else "–")
+                     + f" | {_d(a['minus_white_fine'])} | {_d(a['minus_white_coarse'])} |")
+    curves_ = ctl.get("iterations") or {}
+    labels = [(f"control ({ms(coarse)}, {k}× environments)", "control"), (f"`white` {ms(fine)}", "white_fine"),
+              (f"`white` {ms(coarse)}", "white_coarse")]
+    n = max((len(curves_.get(key) or []) for _, key in labels), default=0)
+    if n:
+        lines += ["", "Exploring policy's average reward per second by PPO iteration (mean ± 95% t half-width "
+                      "over seeds):", "", "| iteration | " + " | ".join(t for t, _ in labels) + " |",
+                  "|---" * (len(labels) + 1) + "|"]
+        for i in range(n):
+            row = []
+            for _, key in labels:
+                c = curves_.get(key) or []
+                row.append(_pm(c[i]["mean"], c[i]["ci95"]) if i < len(c) else "–")
+            lines.append(f"| {i + 1} | " + " | ".join(row) + " |")
+    return lines
 
 
 def _snr_lines(snr: Sequence[dict], processes: Sequence[str]) -> list[str]:
@@ -451,6 +548,7 @@ def report(summary: dict, results: Sequence[dict], screen: Sequence[dict], snr: 
     lines += _progress_lines(results, dts, processes) + [""] + plain_answers(summary, dts, processes)
     for key, title in MEASURES:
         lines += _answer_lines(summary.get(key) or {}, title, dts, processes)
+    lines += _control_lines(summary.get("control"))
     lines += _snr_lines(snr, processes) + _screen_lines(screen, summary.get("screen_from_grid") or [])
     lines += _command_lines(summary.get("commands") or {})
     return "\n".join(lines) + "\n"
@@ -476,7 +574,7 @@ def best_and_worst(rows: Sequence[dict], dt: float, processes: Sequence[str], ke
 # ------------------------------------------------------------------------------------ publishing
 #: what a fresh clone needs of every cell to continue it, and what the answers are made of
 PUBLISHED_FILES = ("sweep.json", "config.json", "metrics.jsonl", "compact.npz", "eval.json")
-TOP_FILES = ("study.json", "results.csv", "screen.csv", "snr.csv", "summary.json")
+TOP_FILES = ("study.json", "results.csv", "control.csv", "screen.csv", "snr.csv", "summary.json")
 
 
 def publish(src: pathlib.Path, dest: pathlib.Path) -> list[pathlib.Path]:
@@ -492,7 +590,7 @@ def publish(src: pathlib.Path, dest: pathlib.Path) -> list[pathlib.Path]:
             written.append(dest / name)
     if (src / "study.json").is_file():
         store.atomic_copy(src / "study.json", dest / "runs" / "study.json")
-    for phase in ("grid", "screen"):
+    for phase in ("grid", "screen", "control"):
         for f in sorted((src / phase).rglob("*")) if (src / phase).is_dir() else []:
             rel = f.relative_to(src)
             if f.is_file() and f.name in PUBLISHED_FILES and "checkpoints" not in rel.parts:

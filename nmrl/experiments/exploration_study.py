@@ -21,6 +21,9 @@ Order of work (each step a cell: an ``nmrl sweep`` directory, resumable on its o
    Every finished point is evaluated (deterministic policy, ``eval_seconds`` from seed 0).
 4. ``snr.csv``: the gradient's SNR per (delta, process) at the initial policy and at mid-training
    (seed 0), after that delta's grid cells, before the next delta's.
+5. ``control/dt{max(dts)}/white``: the samples-per-update control (:func:`control_cell`), `white`
+   at the coarsest delta with ``max(dts) / min(dts)`` times the environments and minibatch, ``seeds``
+   seeds for ``iterations``, evaluated; its rows in ``control.csv``.
 
 ``results.csv`` (one row per grid run) and ``summary.json`` (the answers) are rewritten after every
 cell. Everything resumes where it stopped: run the same command again; on a fresh clone
@@ -51,7 +54,7 @@ NM_CORR_TIME_S = 0.08963
 SCREEN = {"nm-periods": ("period_s", (0.1, 0.2, 0.4)),
           "ou": ("corr_time_s", (0.045, 0.09, 0.18)),
           "colored": ("beta", (0.5, 1.0, 2.0))}
-PHASES = ("grid", "screen", "eval", "snr")
+PHASES = ("grid", "screen", "eval", "snr", "control")
 SNR_COLUMNS = ("control_dt", "exploration", "setting", "policy", "step", "estimates", "batches",
                "seconds_per_estimate", "trcov", "trcov_ci", "mean_sq", "mean_sq_ci", "snr_per_s")
 
@@ -154,13 +157,17 @@ class Cell:
     seeds: int
     iterations: int
     setting: tuple = ()  #: the fixed (field, value) pairs of the process
+    envs_factor: int = 1  #: environments and minibatch unrolls, times the study's
+
 
     def dir(self, out: pathlib.Path) -> pathlib.Path:
         return out / self.phase / f"dt{self.dt:g}" / self.process
 
     def sweep_spec(self, spec: StudySpec, iterations: int | None = None) -> sweep.SweepSpec:
         steps = (iterations or self.iterations) * spec.iteration_steps(self.dt)
-        base = dataclasses.replace(spec.config(self.dt, self.process, **dict(self.setting)), steps=steps)
+        base = dataclasses.replace(spec.config(self.dt, self.process, **dict(self.setting)), steps=steps,
+                                   num_envs=spec.num_envs * self.envs_factor,
+                                   batch_size=spec.batch_size * self.envs_factor)
         return sweep.SweepSpec(ls=self.values, seeds=self.seeds, base=base, field=self.field)
 
     def points(self) -> list[str]:
@@ -196,6 +203,21 @@ def grid_cell(spec: StudySpec, dt: float, process: str, chosen: dict[str, tuple[
         f, v = chosen[process]
         setting = ((f, v),) + ((("corr_time_s", NM_CORR_TIME_S),) if process == "nm-periods" else ())
     return Cell("grid", dt, process, None, (None,), spec.seeds, spec.iterations, setting)
+
+
+def control_cell(spec: StudySpec) -> Cell | None:
+    """The samples-per-update control: at the finest delta an iteration's 102.4 s per environment
+    hold ``max(dts) / min(dts)`` times the samples of the coarsest, so every Adam step of the same
+    ``epochs * num_minibatches`` sees that many times more. `white` at the coarsest delta with that
+    many times the environments and minibatch unrolls has the finest delta's samples per Adam step
+    and Adam steps (and that many times the simulated time): against `white` at the finest delta it
+    separates the control step from the samples per update. None with one control step (or when
+    the ratio is not a whole number > 1)."""
+    coarse, fine = max(spec.dts), min(spec.dts)
+    k = round(coarse / fine)
+    if k < 2 or abs(coarse / fine - k) > 1e-6:
+        return None
+    return Cell("control", coarse, "white", None, (None,), spec.seeds, spec.iterations, (), k)
 
 
 def setting_label(cell: Cell) -> str:
@@ -343,30 +365,58 @@ def grid_cells(spec: StudySpec, chosen: dict | None) -> list[Cell]:
             if p == "white" or chosen is not None]
 
 
-def result_rows(out: pathlib.Path, spec: StudySpec, chosen: dict | None) -> list[dict]:
+def result_rows(out: pathlib.Path, spec: StudySpec, cells: Sequence[Cell]) -> list[dict]:
+    """One results.csv row per run of ``cells`` that has metrics."""
     rows = []
-    for c in grid_cells(spec, chosen):
+    for c in cells:
         for s in range(c.seeds):
             r = xr.run_row(c.dir(out) / "points" / sweep.point_name(None, s, None), exploration=c.process,
-                           setting=setting_label(c), control_dt=c.dt, seed=s, num_envs=spec.num_envs,
-                           iteration_steps=spec.iteration_steps(c.dt))
+                           setting=setting_label(c), control_dt=c.dt, seed=s,
+                           num_envs=spec.num_envs * c.envs_factor, iteration_steps=spec.iteration_steps(c.dt))
             if r is not None:
                 rows.append(r)
     return rows
 
 
+def control_summary(out: pathlib.Path, spec: StudySpec, cell: Cell, grid: Sequence[dict]) -> dict | None:
+    """The control's rows (``control.csv``) and its answers against `white` at the finest and the
+    coarsest delta (nmrl.analysis.exploration_results.control_answers, finished runs only), with
+    the three learning curves by iteration; None until the control has a run."""
+    rows = result_rows(out, spec, [cell])
+    if not rows:
+        return None
+    store.write_csv(out / "control.csv", xr.RESULT_COLUMNS, rows)
+    coarse, fine = max(spec.dts), min(spec.dts)
+    done = xr.finished(rows, spec.iterations)
+
+    def runs(c: Cell) -> list[list[dict]]:
+        return [m for s in range(c.seeds) for m in [store.read_metrics(c.dir(out) / "points" / f"s{s}")] if m]
+
+    white = {dt: grid_cell(spec, dt, "white", {}) for dt in (coarse, fine)}
+    base = cell.sweep_spec(spec).base
+    return {"envs_factor": cell.envs_factor, "coarse": coarse, "fine": fine, "num_envs": base.num_envs,
+            "batch_size": base.batch_size, "runs": len(rows), "finished_runs": len(done),
+            "command": cell.command(spec, out=f"runs/rerun/control/dt{coarse:g}/white"),
+            "answers": xr.control_answers(done, grid, coarse, fine),
+            "iterations": {"control": xr.iteration_means(runs(cell)),
+                           "white_fine": xr.iteration_means(runs(white[fine])),
+                           "white_coarse": xr.iteration_means(runs(white[coarse]))}}
+
+
 def write_results(out: pathlib.Path, spec: StudySpec, chosen: dict | None) -> list[dict]:
     """results.csv (every grid run so far, at its last iteration) and summary.json (the answers, of
     the finished runs only)."""
-    rows = result_rows(out, spec, chosen)
+    rows = result_rows(out, spec, grid_cells(spec, chosen))
     store.write_csv(out / "results.csv", xr.RESULT_COLUMNS, rows)
     done = xr.finished(rows, spec.iterations)
+    ctl = control_cell(spec)
     summary = {"runs": len(rows), "finished_runs": len(done),
                "answers": xr.answers(done, spec.dts, PROCESSES),
                "answers_deterministic": xr.answers(done, spec.dts, PROCESSES, key="det_reward_per_s"),
                "answers_auc": xr.answers(done, spec.dts, PROCESSES, key="auc_reward_per_s"),
                "chosen": {k: {"field": f, "value": v} for k, (f, v) in (chosen or {}).items()},
                "screen_from_grid": screen_from_grid(out, spec, chosen),
+               "control": control_summary(out, spec, ctl, done) if ctl is not None else None,
                "commands": {f"{c.dt:g}/{c.process}": c.command(spec, out=f"runs/rerun/dt{c.dt:g}/{c.process}")
                             for c in grid_cells(spec, chosen)}}
     store.atomic_write_json(out / "summary.json", summary)
@@ -489,6 +539,12 @@ def _run(spec: StudySpec, out: pathlib.Path, phases: Sequence[str], progress: bo
             write_results(out, spec, chosen)
         if "snr" in phases:
             _snr(out, spec, chosen, progress)
+    ctl = control_cell(spec)
+    if ctl is not None:
+        if "control" in phases:
+            run_cell(out, ctl, spec, progress=progress)
+        if "eval" in phases:
+            evaluate_points(out, ctl, spec, progress)
     return write_results(out, spec, chosen)
 
 
