@@ -2,11 +2,12 @@
 
     .venv/bin/python scripts/publish_exploration.py [--src runs/exploration] [--dest results/exploration]
 
-Copies the tables (study.json, results.csv, screen.csv, snr.csv, summary.json) and every cell's
+Copies the tables (study.json, results.csv, control.csv, screen.csv, snr.csv, summary.json) and every cell's
 continuation files (nmrl.analysis.exploration_results.publish: what `scripts/exploration_study.sh`
 seeds a fresh clone from), writes ``answers.md`` (the numbers as tables: progress, rewards per
-cell, the answers, the SNR, the screen), draws ``learning_curves.png`` (one panel per control step)
-and ``summary.png`` (final rewards and the gradient's SNR against the control step) and, once
+cell, the answers, the samples-per-update control, the SNR, the screen), draws ``learning_curves.png``
+(one panel per control step), ``summary.png`` (final rewards and the gradient's SNR against the
+control step) and ``control.png`` (the control's learning curves) and, once
 every run at the finest control step is over, the gaits of its best and worst process
 (``gaits/<process>/``: `nmrl eval`'s strobe picture, GIF, trajectory and JSON of the median seed,
 10 s from seed 0; evaluated once), and the two strobes one above the other at one scale in
@@ -42,6 +43,8 @@ def main() -> None:
         store.atomic_write_text(dest / "answers.md", xr.report(summary, rows, tables["screen"], tables["snr"],
                                                                spec.dts, es.PROCESSES, spec.iterations))
         xr.draw_summary(rows, tables["snr"], spec.dts, es.PROCESSES, spec.iterations, dest / "summary.png")
+        if summary.get("control"):
+            xr.draw_control(summary["control"], dest / "control.png")
         fine = min(spec.dts)
         done = [r for r in xr.finished(rows, spec.iterations) if float(r["control_dt"]) == fine]
         picks = xr.best_and_worst(done, fine, es.PROCESSES) if len(done) == spec.seeds * len(es.PROCESSES) else None

@@ -203,6 +203,29 @@ def test_the_control_answers_are_welch_differences_and_its_curves_t_intervals():
         assert math.isclose(m["mean"], v.mean()) and math.isclose(m["ci95"], (hi - lo) / 2, rel_tol=1e-9)
 
 
+def test_the_control_figure_draws_each_curve_against_iterations_and_simulated_seconds(tmp_path, saved_figures):
+    """control.png: the control's and both `white` cells' mean curves with their 95% bands, against
+    the PPO iteration and against one run's simulated seconds (iteration x seconds per iteration)."""
+    curve = lambda m: [{"iteration": i + 1, "mean": m + i, "ci95": 0.5, "runs": 4} for i in range(3)]  # noqa: E731
+    ctl = {"envs_factor": 4, "coarse": 0.02, "fine": 0.005,
+           "iterations": {"control": curve(1.0), "white_fine": curve(2.0), "white_coarse": curve(0.0)},
+           "seconds_per_iteration": {"control": 4 * 6553.6, "white_fine": 6553.6, "white_coarse": 6553.6}}
+    path = xr.draw_control(ctl, tmp_path / "control.png")
+    assert path.is_file()
+    ((saved, fig),) = saved_figures
+    assert saved == path
+    by_iteration, by_time = fig.axes
+    for ax, scale in ((by_iteration, {"control": 1, "white_fine": 1, "white_coarse": 1}),
+                      (by_time, ctl["seconds_per_iteration"])):
+        lines = {ln.get_label().split(" (")[0]: ln for ln in ax.get_lines()}
+        assert len(lines) == 3 and len(ax.collections) == 3  # a band per curve
+        for label, key, m in (("white 20 ms, 4× environments", "control", 1.0), ("white 5 ms", "white_fine", 2.0),
+                              ("white 20 ms", "white_coarse", 0.0)):
+            x, y = lines[label].get_data()
+            np.testing.assert_allclose(x, np.arange(1, 4) * scale[key])
+            np.testing.assert_allclose(y, m + np.arange(3))
+
+
 @pytest.mark.parametrize("ctl_mean,verdict", [(1.0, "The finer step helps beyond the samples per update."),
                                               (3.0, "The finer step's gain may be the samples per update."),
                                               (9.0, "the samples per update explain its gain.")])

@@ -616,6 +616,56 @@ def curves(src: pathlib.Path, rows: Sequence[dict]) -> dict[tuple[float, str], l
     return out
 
 
+def _save(fig, path: pathlib.Path) -> pathlib.Path:
+    """Write ``fig`` to ``path`` atomically (a reader never sees half a PNG) and close it."""
+    import matplotlib.pyplot as plt
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        with store.atomic_path(path) as tmp:
+            fig.savefig(tmp)
+    finally:
+        plt.close(fig)
+    return path
+
+
+def draw_control(ctl: dict, path: pathlib.Path) -> pathlib.Path:
+    """The samples-per-update control's learning curves (``control.png``): the exploring policy's
+    average reward per second of the control and of `white` at the finest and the coarsest control
+    step (mean and 95% t-band over seeds), against the PPO iteration (the same Adam steps; the
+    control's and the finest step's with the same samples per Adam step) and against one run's
+    simulated seconds (the control has ``envs_factor`` times as many per iteration)."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    ms = lambda dt: f"{dt * 1000:g} ms"  # noqa: E731
+    series = [("control", f"white {ms(ctl['coarse'])}, {ctl['envs_factor']}× environments (control)", "C3", "-"),
+              ("white_fine", f"white {ms(ctl['fine'])}", "C0", "-"),
+              ("white_coarse", f"white {ms(ctl['coarse'])}", "C0", "--")]
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), dpi=110, sharey=True)
+    for key, label, color, ls in series:
+        c = (ctl.get("iterations") or {}).get(key) or []
+        if not c:
+            continue
+        it = np.array([r["iteration"] for r in c], float)
+        m, h = np.array([r["mean"] for r in c]), np.array([r["ci95"] for r in c])
+        for ax, x in zip(axes, (it, it * ctl["seconds_per_iteration"][key])):
+            ax.plot(x, m, color=color, ls=ls, lw=2, label=f"{label} ({c[0]['runs']} seeds)")
+            ax.fill_between(x, m - h, m + h, color=color, alpha=0.15, lw=0)
+    axes[0].set_xlabel("PPO iteration (the same Adam steps)")
+    axes[1].set_xlabel("simulated seconds of one run (all environments)")
+    axes[0].set_ylabel("average reward per second (exploring)")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=8, loc="lower right")
+    fig.suptitle("The samples-per-update control", fontsize=10)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
 def draw(src: pathlib.Path, rows: Sequence[dict], dts: Sequence[float], processes: Sequence[str],
          path: pathlib.Path) -> pathlib.Path:
     """Learning curves, one panel per control step: every process's mean over seeds (thin lines:
@@ -644,10 +694,7 @@ def draw(src: pathlib.Path, rows: Sequence[dict], dts: Sequence[float], processe
             ax.legend(fontsize=8, loc="lower right")
     axes[0][0].set_ylabel("average reward per second (exploring)")
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 
@@ -706,10 +753,7 @@ def draw_summary(rows: Sequence[dict], snr: Sequence[dict], dts: Sequence[float]
         else:
             ax.text(0.5, 0.5, "nothing finished yet", ha="center", va="center", transform=ax.transAxes, color="0.4")
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 
@@ -734,15 +778,10 @@ def draw_gaits(gaits: Sequence[tuple[str, pathlib.Path]], path: pathlib.Path, ev
     for ax, (title, pos, dt, frames, _) in zip(axes[:, 0], runs):
         gait_pictures.draw_strobe(ax, pos, frames, dt, (x_lo, x_hi, y_hi), every_s, title)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    try:
-        with store.atomic_path(path) as tmp:
-            fig.savefig(tmp)
-    finally:
-        plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 __all__: Sequence[str] = ("RESULT_COLUMNS", "SCREEN_COLUMNS", "score", "choose", "eval_summary", "run_row", "cells",
                           "cell_table", "diff", "step_pairs", "answers", "finished", "report", "best_and_worst", "publish",
-                          "curves", "draw", "draw_summary", "draw_gaits")
+                          "curves", "draw", "draw_summary", "draw_gaits", "draw_control", "control_answers",
+                          "iteration_means")

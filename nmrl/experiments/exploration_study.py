@@ -396,6 +396,9 @@ def control_summary(out: pathlib.Path, spec: StudySpec, cell: Cell, grid: Sequen
     base = cell.sweep_spec(spec).base
     return {"envs_factor": cell.envs_factor, "coarse": coarse, "fine": fine, "num_envs": base.num_envs,
             "batch_size": base.batch_size, "runs": len(rows), "finished_runs": len(done),
+            "seconds_per_iteration": {"control": base.num_envs * spec.iteration_steps(coarse) * coarse,
+                                      **{k: spec.num_envs * spec.iteration_steps(dt) * dt
+                                         for k, dt in (("white_fine", fine), ("white_coarse", coarse))}},
             "command": cell.command(spec, out=f"runs/rerun/control/dt{coarse:g}/white"),
             "answers": xr.control_answers(done, grid, coarse, fine),
             "iterations": {"control": xr.iteration_means(runs(cell)),
