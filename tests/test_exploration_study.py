@@ -226,18 +226,22 @@ def test_the_control_figure_draws_each_curve_against_iterations_and_simulated_se
             np.testing.assert_allclose(y, m + np.arange(3))
 
 
-@pytest.mark.parametrize("ctl_mean,verdict", [(1.0, "The finer step helps beyond the samples per update."),
-                                              (3.0, "The finer step's gain may be the samples per update."),
-                                              (9.0, "the samples per update explain its gain.")])
-def test_the_control_in_words_and_tables_follows_its_interval(ctl_mean, verdict):
+@pytest.mark.parametrize("ctl_mean,ctl_auc_shift,verdict", [
+    (1.0, 0.0, "The finer step helps beyond the samples per update."),
+    (3.0, 0.0, "The finer step's gain may be the samples per update."),
+    (3.0, -2.0, "at the last iteration the two are not distinguishable."),
+    (9.0, 0.0, "the samples per update explain its gain.")])
+def test_the_control_in_words_and_tables_follows_its_interval(ctl_mean, ctl_auc_shift, verdict):
+    """Question 6's verdict from the control's intervals against `white` at the finest step: the
+    last iteration's first, the whole run's where the last iteration does not decide."""
     rng = np.random.default_rng(2)
     fine, coarse = 0.005, 0.02
-    row = lambda dt, v: {"control_dt": dt, "exploration": "white", "avg_reward_per_s": v,  # noqa: E731
-                         "det_reward_per_s": v, "auc_reward_per_s": v}
+    row = lambda dt, v, shift=0.0: {"control_dt": dt, "exploration": "white", "avg_reward_per_s": v,  # noqa: E731
+                                    "det_reward_per_s": v, "auc_reward_per_s": v + shift}
     ctl_v = rng.normal(ctl_mean, 0.3, size=4)
     fine_v = rng.normal(3.0, 0.3, size=4)
     grid = [row(fine, v) for v in fine_v] + [row(coarse, v) for v in rng.normal(1.0, 0.3, size=4)]
-    a = xr.control_answers([row(coarse, v) for v in ctl_v], grid, coarse, fine)
+    a = xr.control_answers([row(coarse, v, ctl_auc_shift) for v in ctl_v], grid, coarse, fine)
     curve = [{"iteration": 1, "mean": 1.5, "ci95": 0.25, "runs": 4}]
     summary = {"control": {"envs_factor": 4, "coarse": coarse, "fine": fine, "num_envs": 256, "batch_size": 2048,
                            "runs": 4, "finished_runs": 4, "command": "nmrl sweep --num-envs 256", "answers": a,

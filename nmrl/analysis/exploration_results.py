@@ -377,10 +377,14 @@ def plain_answers(summary: dict, dts: Sequence[float], processes: Sequence[str])
             return _pm(x["diff"], x["ci95"]) + " per s" + (f" ({'; '.join(rest)})" if rest else "") + f", {_sign(x)}"
 
         fine_x = ctl["answers"]["avg_reward_per_s"]["minus_white_fine"]
+        auc_x = ctl["answers"]["auc_reward_per_s"]["minus_white_fine"]
         verdict = "" if fine_x is None else " " + (
             "The finer step helps beyond the samples per update." if fine_x["significant"] and fine_x["diff"] < 0
             else f"More samples per update at {ms(coarse)} do better than the finer step: the samples per update "
                  f"explain its gain." if fine_x["significant"]
+            else f"Over the whole run the finer step learns significantly faster than more samples per update at "
+                 f"{ms(coarse)} do; at the last iteration the two are not distinguishable."
+            if auc_x is not None and auc_x["significant"] and auc_x["diff"] < 0
             else "The finer step's gain may be the samples per update.")
         out.append(f"6. **Is the finer step's gain only more samples per update?** `white` at {ms(coarse)} with "
                    f"{k}× the environments and minibatch (each Adam step on as many samples as at {ms(fine)}, the "
