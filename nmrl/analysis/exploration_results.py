@@ -219,6 +219,17 @@ def finished(rows: Sequence[dict], iterations: int) -> list[dict]:
     return [r for r in rows if int(r["iterations"]) >= iterations or r["diverged"] is True]
 
 
+def _ms(dt: float) -> str:
+    """A control step in milliseconds, as the tables and words name it."""
+    return f"{dt * 1000:g} ms"
+
+
+def _with_others(main: dict, others: Sequence[tuple[str, dict | None]]) -> str:
+    """A difference per second, then the same difference for the other measures in brackets."""
+    rest = [f"{name} {_pm(x['diff'], x['ci95'])}" for name, x in others if x]
+    return _pm(main["diff"], main["ci95"]) + " per s" + (f" ({'; '.join(rest)})" if rest else "")
+
+
 def _pm(m: float, h: float, digits: int = 1) -> str:
     if not math.isfinite(m):
         return "–"
@@ -275,16 +286,13 @@ def plain_answers(summary: dict, dts: Sequence[float], processes: Sequence[str])
     ix = {k: _index(summary.get(k) or {}) for k in ("answers", "answers_deterministic", "answers_auc")}
     dts = sorted(dts, reverse=True)
     fine, coarse = min(dts), max(dts)
-    ms = lambda dt: f"{dt * 1000:g} ms"  # noqa: E731
 
     def num(key) -> str:
         main = _get(ix["answers"], key)
         if main is None:
             return "not yet measured"
-        rest = [f"{name} {_pm(x['diff'], x['ci95'])}" for name, k in (("deterministic", "answers_deterministic"),
-                                                                      ("whole run", "answers_auc"))
-                for x in [_get(ix[k], key)] if x]
-        return _pm(main["diff"], main["ci95"]) + " per s" + (f" ({'; '.join(rest)})" if rest else "")
+        return _with_others(main, [("deterministic", _get(ix["answers_deterministic"], key)),
+                                   ("whole run", _get(ix["answers_auc"], key))])
 
     def said(key, *words) -> str:
         """The difference ``key`` and its meaning in words, or "not yet measured" once."""
@@ -298,16 +306,16 @@ def plain_answers(summary: dict, dts: Sequence[float], processes: Sequence[str])
            "and the exploring policy's mean over the whole run.", ""]
     w = ((fine, "white"), (coarse, "white"))
     wd = _get(ix["answers"], w)
-    out.append(f"1. **Does `white` PPO degrade from {ms(coarse)} to {ms(fine)}?** `white` {ms(fine)} − {ms(coarse)}: "
+    out.append(f"1. **Does `white` PPO degrade from {_ms(coarse)} to {_ms(fine)}?** `white` {_ms(fine)} − {_ms(coarse)}: "
                + (f"not yet measured (`white` needs finished runs at both)." if wd is None else f"{num(w)}: " +
                                 {"significantly behind": "yes, it degrades.",
                                  "significantly ahead": "no, it improves.",
                                  "no significant difference": "no significant change."}[_sign(wd)])
-               + "".join(f" {ms(f)} − {ms(c)}: {said(((f, 'white'), (c, 'white')), 'an improvement', 'a degradation')}."
+               + "".join(f" {_ms(f)} − {_ms(c)}: {said(((f, 'white'), (c, 'white')), 'an improvement', 'a degradation')}."
                          for f, c in step_pairs(dts)))
     out.append(f"2. **Does a correlated process remove the degradation?** Each process's own change from "
-               f"{ms(coarse)} to {ms(fine)}, that change against `white`'s (positive: it loses less than `white`), "
-               f"and the process at {ms(fine)} against `white` at {ms(coarse)}:")
+               f"{_ms(coarse)} to {_ms(fine)}, that change against `white`'s (positive: it loses less than `white`), "
+               f"and the process at {_ms(fine)} against `white` at {_ms(coarse)}:")
     removers, reducers = [], []
     for p in processes:
         if p == "white":
@@ -316,7 +324,7 @@ def plain_answers(summary: dict, dts: Sequence[float], processes: Sequence[str])
         vs = _get(ix["answers"], ((fine, p), (coarse, "white")))
         out.append(f"   * `{p}`: own change {num(((fine, p), (coarse, p)))}; against `white`'s "
                    f"{said((p, 'white'), 'loses significantly less than `white`', 'loses significantly more than `white`')}; "
-                   f"against `white` at {ms(coarse)} {said(((fine, p), (coarse, 'white')))}.")
+                   f"against `white` at {_ms(coarse)} {said(((fine, p), (coarse, 'white')))}.")
         if it and it["significant"] and it["diff"] > 0:
             (removers if vs and not (vs["significant"] and vs["diff"] < 0) else reducers).append(p)
     names = lambda ps: ", ".join(f"`{p}`" for p in ps)  # noqa: E731
@@ -329,11 +337,11 @@ def plain_answers(summary: dict, dts: Sequence[float], processes: Sequence[str])
     else:
         verdict = []
         if removers:
-            verdict.append(f"removed by {names(removers)} (less loss than `white`, and at {ms(fine)} not behind "
-                           f"`white` at {ms(coarse)})")
+            verdict.append(f"removed by {names(removers)} (less loss than `white`, and at {_ms(fine)} not behind "
+                           f"`white` at {_ms(coarse)})")
         if reducers:
             verdict.append(f"reduced but not removed by {names(reducers)} (less loss than `white`, but at "
-                           f"{ms(fine)} significantly behind `white` at {ms(coarse)})")
+                           f"{_ms(fine)} significantly behind `white` at {_ms(coarse)})")
         out.append("   * " + ("; ".join(verdict).capitalize() if verdict else
                               "No process removes or reduces it (none loses significantly less than `white`)") + ".")
     out.append("3. **Which process is best at each control step?** (highest mean; its lead over the second):")
@@ -341,10 +349,10 @@ def plain_answers(summary: dict, dts: Sequence[float], processes: Sequence[str])
     for dt in dts:
         m = margins.get(f"{dt:g}")
         if m is None:
-            out.append(f"   * {ms(dt)}: not yet measured (every process needs finished runs).")
+            out.append(f"   * {_ms(dt)}: not yet measured (every process needs finished runs).")
             continue
         a, b = m["a"][1], m["b"][1]
-        out.append(f"   * {ms(dt)}: `{a}` ({_pm(cells[(dt, a)]['mean'], cells[(dt, a)]['ci95'])} per s), ahead of "
+        out.append(f"   * {_ms(dt)}: `{a}` ({_pm(cells[(dt, a)]['mean'], cells[(dt, a)]['ci95'])} per s), ahead of "
                    f"`{b}` by {num(((dt, a), (dt, b)))}: "
                    + ("a significant lead." if m["significant"] else "not a significant lead."))
     out.append("4. **Reset or correlation?** nm-periods (correlated, reset at each period's end) against the "
@@ -352,16 +360,16 @@ def plain_answers(summary: dict, dts: Sequence[float], processes: Sequence[str])
     for dt in dts:
         parts = [f"− `{q}` {said(((dt, 'nm-periods'), (dt, q)))}"
                  for q in ("ou", "colored") if q in processes]
-        out.append(f"   * {ms(dt)}: nm-periods " + "; ".join(parts) + ".")
+        out.append(f"   * {_ms(dt)}: nm-periods " + "; ".join(parts) + ".")
     claims = (("colored", "CN-PPO (colored noise, β = 0.5 best, ahead of white in PPO)"),
               ("ou", "ARP (stationary autoregressive noise ahead of white, more so at high control rates)"))
     out.append("5. **Against CN-PPO and ARP:**")
     for p, claim in claims:
         if p not in processes:
             continue
-        per = "; ".join(f"{ms(dt)} {said(((dt, p), (dt, 'white')))}"
+        per = "; ".join(f"{_ms(dt)} {said(((dt, p), (dt, 'white')))}"
                         for dt in dts)
-        out.append(f"   * {claim}: `{p}` − `white`: {per}; its lead's change from {ms(coarse)} to {ms(fine)}: "
+        out.append(f"   * {claim}: `{p}` − `white`: {per}; its lead's change from {_ms(coarse)} to {_ms(fine)}: "
                    f"{said((p, 'white'), 'grows significantly', 'shrinks significantly')}.")
     ctl = summary.get("control")
     if ctl:
@@ -371,25 +379,26 @@ def plain_answers(summary: dict, dts: Sequence[float], processes: Sequence[str])
             x = ctl["answers"]["avg_reward_per_s"][name]
             if x is None:
                 return "not yet measured"
-            rest = [f"{label} {_pm(y['diff'], y['ci95'])}" for label, key in (("deterministic", "det_reward_per_s"),
-                                                                             ("whole run", "auc_reward_per_s"))
-                    for y in [ctl["answers"][key][name]] if y]
-            return _pm(x["diff"], x["ci95"]) + " per s" + (f" ({'; '.join(rest)})" if rest else "") + f", {_sign(x)}"
+            return _with_others(x, [("deterministic", ctl["answers"]["det_reward_per_s"][name]),
+                                    ("whole run", ctl["answers"]["auc_reward_per_s"][name])]) + f", {_sign(x)}"
 
         fine_x = ctl["answers"]["avg_reward_per_s"]["minus_white_fine"]
         auc_x = ctl["answers"]["auc_reward_per_s"]["minus_white_fine"]
-        verdict = "" if fine_x is None else " " + (
-            "The finer step helps beyond the samples per update." if fine_x["significant"] and fine_x["diff"] < 0
-            else f"More samples per update at {ms(coarse)} do better than the finer step: the samples per update "
-                 f"explain its gain." if fine_x["significant"]
-            else f"Over the whole run the finer step learns significantly faster than more samples per update at "
-                 f"{ms(coarse)} do; at the last iteration the two are not distinguishable."
-            if auc_x is not None and auc_x["significant"] and auc_x["diff"] < 0
-            else "The finer step's gain may be the samples per update.")
-        out.append(f"6. **Is the finer step's gain only more samples per update?** `white` at {ms(coarse)} with "
-                   f"{k}× the environments and minibatch (each Adam step on as many samples as at {ms(fine)}, the "
-                   f"same Adam steps, {k}× the simulated time): − `white` at {ms(fine)} {cnum('minus_white_fine')}; "
-                   f"− `white` at {ms(coarse)} {cnum('minus_white_coarse')}.{verdict}")
+        if fine_x is None:
+            verdict = ""
+        elif fine_x["significant"]:
+            verdict = (" The finer step helps beyond the samples per update." if fine_x["diff"] < 0 else
+                       f" More samples per update at {_ms(coarse)} do better than the finer step: the samples per "
+                       f"update explain its gain.")
+        elif auc_x is not None and auc_x["significant"] and auc_x["diff"] < 0:
+            verdict = (f" Over the whole run the finer step learns significantly faster than more samples per "
+                       f"update at {_ms(coarse)} do; at the last iteration the two are not distinguishable.")
+        else:
+            verdict = " The finer step's gain may be the samples per update."
+        out.append(f"6. **Is the finer step's gain only more samples per update?** `white` at {_ms(coarse)} with "
+                   f"{k}× the environments and minibatch (each Adam step on as many samples as at {_ms(fine)}, the "
+                   f"same Adam steps, {k}× the simulated time): − `white` at {_ms(fine)} {cnum('minus_white_fine')}; "
+                   f"− `white` at {_ms(coarse)} {cnum('minus_white_coarse')}.{verdict}")
     return out + [""]
 
 
@@ -445,13 +454,12 @@ def _control_lines(ctl: dict | None) -> list[str]:
     if not ctl:
         return []
     k, coarse, fine = ctl["envs_factor"], ctl["coarse"], ctl["fine"]
-    ms = lambda dt: f"{dt * 1000:g} ms"  # noqa: E731
     lines = ["", "## The samples-per-update control", "",
-             f"`white` at {ms(coarse)} with {k}× the environments ({ctl['num_envs']}) and {k}× the minibatch "
-             f"({ctl['batch_size']} unrolls): each Adam step sees as many samples as at {ms(fine)}, in the same "
+             f"`white` at {_ms(coarse)} with {k}× the environments ({ctl['num_envs']}) and {k}× the minibatch "
+             f"({ctl['batch_size']} unrolls): each Adam step sees as many samples as at {_ms(fine)}, in the same "
              f"number of Adam steps, over {k}× the simulated time per iteration. "
              f"{ctl['finished_runs']} of {ctl['runs']} runs have their budget. Command: `{ctl['command']}`.", "",
-             f"| measure (per s) | control | control − `white` {ms(fine)} | control − `white` {ms(coarse)} |",
+             f"| measure (per s) | control | control − `white` {_ms(fine)} | control − `white` {_ms(coarse)} |",
              "|---|---|---|---|"]
     names = {"avg_reward_per_s": "exploring, last iteration", "det_reward_per_s": "deterministic, 10 s",
              "auc_reward_per_s": "exploring, whole run"}
@@ -461,8 +469,8 @@ def _control_lines(ctl: dict | None) -> list[str]:
         lines.append(f"| {names[key]} | " + (f"{_pm(c['mean'], c['ci95'])} (n={c['n']})" if c else "–")
                      + f" | {_d(a['minus_white_fine'])} | {_d(a['minus_white_coarse'])} |")
     curves_ = ctl.get("iterations") or {}
-    labels = [(f"control ({ms(coarse)}, {k}× environments)", "control"), (f"`white` {ms(fine)}", "white_fine"),
-              (f"`white` {ms(coarse)}", "white_coarse")]
+    labels = [(f"control ({_ms(coarse)}, {k}× environments)", "control"), (f"`white` {_ms(fine)}", "white_fine"),
+              (f"`white` {_ms(coarse)}", "white_coarse")]
     n = max((len(curves_.get(key) or []) for _, key in labels), default=0)
     if n:
         lines += ["", "Exploring policy's average reward per second by PPO iteration (mean ± 95% t half-width "
@@ -644,10 +652,9 @@ def draw_control(ctl: dict, path: pathlib.Path) -> pathlib.Path:
     matplotlib.use("Agg", force=True)
     import matplotlib.pyplot as plt
 
-    ms = lambda dt: f"{dt * 1000:g} ms"  # noqa: E731
-    series = [("control", f"white {ms(ctl['coarse'])}, {ctl['envs_factor']}× environments (control)", "C3", "-"),
-              ("white_fine", f"white {ms(ctl['fine'])}", "C0", "-"),
-              ("white_coarse", f"white {ms(ctl['coarse'])}", "C0", "--")]
+    series = [("control", f"white {_ms(ctl['coarse'])}, {ctl['envs_factor']}× environments (control)", "C3", "-"),
+              ("white_fine", f"white {_ms(ctl['fine'])}", "C0", "-"),
+              ("white_coarse", f"white {_ms(ctl['coarse'])}", "C0", "--")]
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), dpi=110, sharey=True)
     for key, label, color, ls in series:
         c = (ctl.get("iterations") or {}).get(key) or []

@@ -159,7 +159,6 @@ class Cell:
     setting: tuple = ()  #: the fixed (field, value) pairs of the process
     envs_factor: int = 1  #: environments and minibatch unrolls, times the study's
 
-
     def dir(self, out: pathlib.Path) -> pathlib.Path:
         return out / self.phase / f"dt{self.dt:g}" / self.process
 
