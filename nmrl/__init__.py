@@ -1,7 +1,7 @@
 """nmrl: non-Markov-period actor-critic for the paper's Half-Cheetah (Wawrzynski).
 
-Layers, imports pointing down only (tests/test_structure.py): ``nmrl.paper`` (the paper's ideas,
-pure JAX) < ``nmrl.runs`` (devices, run store, checkpoints, the driver) < ``nmrl.analysis``
+Layers, imports pointing down only (tests/test_structure.py): ``nmrl.physics`` (MuJoCo C inside
+JAX) and ``nmrl.paper`` (the paper's ideas, pure JAX) < ``nmrl.runs`` (devices, run store, checkpoints, the driver) < ``nmrl.analysis``
 (statistics, figures, evaluation) < ``nmrl.experiments`` (Fig. 3 sweep, finer-delta study) <
 ``nmrl.cli``.
 """

@@ -59,8 +59,13 @@ TRAJECTORY = "trajectory.npz"  #: the deterministic rollout's joint positions, w
 
 
 @functools.lru_cache(maxsize=4)
-def _env(control_dt: float) -> HalfCheetah:
-    return HalfCheetah(EnvConfig(control_dt=control_dt, stop_prob=0.0, auto_reset=False))
+def _env(control_dt: float, physics: str = "mjx") -> HalfCheetah:
+    return HalfCheetah(EnvConfig(control_dt=control_dt, stop_prob=0.0, auto_reset=False, physics=physics))
+
+
+def _physics(config: Any) -> str:
+    """The physics a run trained on (configs that predate the field: MJX)."""
+    return getattr(config, "physics", "mjx")
 
 
 @functools.lru_cache(maxsize=8)
@@ -69,7 +74,7 @@ def _rollout_fn(program: Any, n_steps: int):
     learner's policy (nmrl/learners/contract.py, ``Policy``): ``a_t = act(params, s_t, noise_scale *
     xi_t)``, xi the learner's exploration noise. ``program``: the config with its traced fields at
     their defaults (:func:`nmrl.learners.program_key`), so every point of a sweep shares it."""
-    env = _env(float(program.control_dt))
+    env = _env(float(program.control_dt), _physics(program))
     pol = learners.of(program).policy(program, env)
 
     def run(params, key, noise_scale, noise_args):
@@ -100,7 +105,7 @@ def rollout_params(config, params: dict, *, seconds: float, seed: int, exploring
     policy or (``exploring``) the exploring one; numpy arrays per step (``pos``: (T+1, 10, 2))."""
     n_steps = _num_steps(seconds, config.control_dt)
     fn = _rollout_fn(learners.program_key(config), n_steps)
-    noise_args = learners.of(config).policy(config, _env(float(config.control_dt))).noise_args
+    noise_args = learners.of(config).policy(config, _env(float(config.control_dt), _physics(config))).noise_args
     traj, pos0, x0 = fn(params, jax.random.PRNGKey(seed), jnp.float32(1.0 if exploring else 0.0), noise_args)
     return _host_traj(traj, pos0, x0, config.control_dt)
 
@@ -112,9 +117,9 @@ def rollout(config, theta, *, seconds: float, seed: int, exploring: bool) -> dic
 
 
 @functools.lru_cache(maxsize=8)
-def _policy_rollout_fn(act: Callable, control_dt: float, n_steps: int):
+def _policy_rollout_fn(act: Callable, control_dt: float, n_steps: int, physics: str = "mjx"):
     """A jitted (params, key) -> (traj, pos0, x0) for one trial of ``a_t = act(params, s_t)``."""
-    env = _env(control_dt)
+    env = _env(control_dt, physics)
 
     def run(params, key):
         s0 = env.reset(key)
@@ -134,15 +139,15 @@ def _policy_rollout_fn(act: Callable, control_dt: float, n_steps: int):
     return jax.jit(run)
 
 
-def rollout_policy(act: Callable, params: Any, *, control_dt: float, seconds: float, seed: int = 0
-                   ) -> dict[str, np.ndarray]:
+def rollout_policy(act: Callable, params: Any, *, control_dt: float, seconds: float, seed: int = 0,
+                   physics: str = "mjx") -> dict[str, np.ndarray]:
     """One trial of ``seconds`` of any deterministic policy ``act(params, obs) -> a`` (the paper's
     action, (6,); ``act`` a module-level function, it keys the compile cache), on the env of
     :func:`rollout`: no random stop, no reset. Same arrays as :func:`rollout` (see
     :func:`summarize`). Used for policies that are not the actor of nmrl.paper.networks (the PPO
     baseline, nmrl/experiments/baseline_ppo.py)."""
     n_steps = _num_steps(seconds, control_dt)
-    traj, pos0, x0 = _policy_rollout_fn(act, float(control_dt), n_steps)(params, jax.random.PRNGKey(seed))
+    traj, pos0, x0 = _policy_rollout_fn(act, float(control_dt), n_steps, physics)(params, jax.random.PRNGKey(seed))
     return _host_traj(traj, pos0, x0, control_dt)
 
 

@@ -52,7 +52,7 @@ import numpy as np
 
 from nmrl.analysis import evaluate
 from nmrl.adapters import brax_env
-from nmrl.paper.env import EnvConfig
+from nmrl.paper.env import PHYSICS_HELP, EnvConfig
 from nmrl.runs import checkpoint, driver, store
 
 __all__ = ["PPOConfig", "BRAX_HALFCHEETAH", "CHANGES", "run", "load_config", "policy_action",
@@ -105,6 +105,7 @@ class PPOConfig:
     control_dt: float = 0.02
     stop_prob: float = 1 / 250
     eval_seconds: float = 10.0
+    physics: str = "mjx"  #: the environment's physics engine (nmrl/paper/env.py PHYSICS)
 
     @property
     def steps_per_iteration(self) -> int:
@@ -142,7 +143,7 @@ class PPOConfig:
             v = getattr(self, name)
             if not v or any(not isinstance(h, int) or h < 1 for h in v):
                 raise ValueError(f"{name}={v!r} is invalid: layer sizes must be integers >= 1")
-        EnvConfig(control_dt=self.control_dt, stop_prob=self.stop_prob).validate()
+        EnvConfig(control_dt=self.control_dt, stop_prob=self.stop_prob, physics=self.physics).validate()
 
 
 RESUMABLE = ("num_timesteps",)
@@ -232,7 +233,8 @@ def _train_kwargs(cfg: PPOConfig, tally: Callable | None = None) -> dict:
 
 
 def _env(cfg: PPOConfig) -> brax_env.BraxHalfCheetah:
-    return brax_env.BraxHalfCheetah(EnvConfig(control_dt=cfg.control_dt, stop_prob=cfg.stop_prob))
+    return brax_env.BraxHalfCheetah(EnvConfig(control_dt=cfg.control_dt, stop_prob=cfg.stop_prob,
+                                              physics=cfg.physics))
 
 
 def initial_params(cfg: PPOConfig) -> Any:
@@ -247,7 +249,8 @@ def evaluate_params(cfg: PPOConfig, params: Any, *, seconds: float | None = None
     ``nmrl eval`` (avg_reward per step, forward_speed, terms, ground shares); ``traj`` kept under
     ``"_traj"`` for pictures."""
     traj = evaluate.rollout_policy(policy_action(cfg), params, control_dt=cfg.control_dt,
-                                   seconds=cfg.eval_seconds if seconds is None else seconds, seed=seed)
+                                   seconds=cfg.eval_seconds if seconds is None else seconds, seed=seed,
+                                   physics=cfg.physics)
     out = evaluate.summarize(traj)
     out["_traj"] = traj
     return out
@@ -451,6 +454,7 @@ def main(argv: list[str] | None = None) -> int:
         p.add_argument("--" + name.replace("_", "-"), type=int, default=None, help=f"default {getattr(d, name)}")
     p.add_argument("--max-iterations", type=int, default=None,
                    help="stop after this many PPO iterations of this call (continue with --resume)")
+    p.add_argument("--physics", default=None, help=f"{PHYSICS_HELP} (default {d.physics})")
     p.add_argument("--devices", default="auto", help="CPU devices Brax splits the environments over")
     p.add_argument("--quiet", action="store_true")
     e = sub.add_parser("eval", help="evaluate a PPO baseline checkpoint like nmrl eval (JSON, strobe, GIF)")
@@ -470,7 +474,7 @@ def main(argv: list[str] | None = None) -> int:
         if a.max_iterations is not None and a.max_iterations < 1:
             raise ValueError(f"--max-iterations={a.max_iterations} is invalid: must be >= 1")
         given = {k: getattr(a, k) for k in ("seed", "num_timesteps", "num_envs", "batch_size", "num_minibatches",
-                                             "unroll_length") if getattr(a, k) is not None}
+                                             "unroll_length", "physics") if getattr(a, k) is not None}
         base = load_config(a.out) if a.resume else PPOConfig()
         cfg = dataclasses.replace(base, **given)  # a resume refuses any change but num_timesteps (run)
         run(cfg, a.out, resume=a.resume, progress=not a.quiet, max_iterations=a.max_iterations)

@@ -41,6 +41,7 @@ import time
 from typing import Sequence
 
 from nmrl import learners
+from nmrl.paper.env import PHYSICS, PHYSICS_HELP
 from nmrl.analysis import exploration_results as xr
 from nmrl.experiments import sweep
 from nmrl.runs import bounds, checkpoint, command, lock, parser, signals, store
@@ -89,10 +90,14 @@ class StudySpec:
     checkpoint_every: int = 1
     eval_seconds: float = 10.0
     snr_batches: int = 4
+    physics: str = "mjx"  #: every run's physics engine (nmrl/paper/env.py PHYSICS)
 
     def validate(self) -> None:
         def bad(name, allowed):
             return ValueError(f"{name}={getattr(self, name)!r} is invalid: {allowed}")
+
+        if self.physics not in PHYSICS:
+            raise bad("physics", f"choose one of {', '.join(PHYSICS)}")
 
         bounds.control_steps("dts", self.dts, "0.02 0.005 0.01")
         bounds.positive_ints(self, ("seeds", "iterations", "screen_seeds", "screen_iterations", "num_envs",
@@ -128,7 +133,8 @@ class StudySpec:
         extra = {"corr_time_s": NM_CORR_TIME_S} if process == "nm-periods" and "corr_time_s" not in setting else {}
         return PPOConfig(exploration=process, control_dt=dt, reward_scale=dt / xr.DELTA_0, num_envs=self.num_envs,
                          value_layers=self.value_layers, value_width=self.value_width, batch_size=self.batch_size,
-                         num_minibatches=self.num_minibatches, epochs=self.epochs, **extra, **setting)
+                         num_minibatches=self.num_minibatches, epochs=self.epochs, physics=self.physics, **extra,
+                         **setting)
 
     def iteration_steps(self, dt: float) -> int:
         return self.config(dt, "white").resolved().iteration_steps
@@ -572,12 +578,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--checkpoint-every", type=int, default=d.checkpoint_every)
     ap.add_argument("--eval-seconds", type=float, default=d.eval_seconds)
     ap.add_argument("--snr-batches", type=int, default=d.snr_batches)
+    ap.add_argument("--physics", default=d.physics, help=PHYSICS_HELP)
     ap.add_argument("--phases", nargs="+", default=list(PHASES), help=f"any of {list(PHASES)}")
     ap.add_argument("--quiet", action="store_true")
     a = ap.parse_args(argv)
 
     def body() -> None:
-        spec = StudySpec(dts=tuple(a.dt), seeds=a.seeds, iterations=a.iterations, screen_dt=a.screen_dt,
+        spec = StudySpec(physics=a.physics, dts=tuple(a.dt), seeds=a.seeds, iterations=a.iterations, screen_dt=a.screen_dt,
                          screen_seeds=a.screen_seeds, screen_iterations=a.screen_iterations, num_envs=a.num_envs,
                          value_layers=a.value_layers, value_width=a.value_width, batch_size=a.batch_size,
                          num_minibatches=a.num_minibatches, epochs=a.epochs, checkpoint_every=a.checkpoint_every,

@@ -49,6 +49,7 @@ from nmrl.analysis import stats
 from nmrl.experiments import gradvar
 from nmrl.experiments.timescale import DELTA_0, at_control_step
 from nmrl import learners
+from nmrl.paper.env import PHYSICS, PHYSICS_HELP
 from nmrl.runs import bounds, checkpoint, command, driver, lock, parser, store
 from nmrl.runs.store import read_csv, read_metrics, write_csv
 
@@ -94,10 +95,14 @@ class StudySpec:
     base: TrainConfig = TrainConfig()  #: the paper's constants at delta_0 = 0.02 s
     #: if set, the rule chooses only among grid pairs with beta^theta <= this (the same for every arm)
     beta_theta_cap: float | None = None
+    physics: str = "mjx"  #: every run's physics engine (nmrl/paper/env.py PHYSICS)
 
     def validate(self) -> None:
         def bad(name, allowed):
             return ValueError(f"{name}={getattr(self, name)!r} is invalid: {allowed}")
+
+        if self.physics not in PHYSICS:
+            raise bad("physics", f"choose one of {', '.join(PHYSICS)}")
 
         bounds.control_steps("dts", self.dts, "0.02 0.01 0.005")
         if not self.periods or any(p is not None and not (isinstance(p, (int, float)) and p > 0) for p in self.periods):
@@ -135,7 +140,7 @@ class StudySpec:
 
     def arm_config(self, dt: float, period: float | None) -> TrainConfig:
         cfg = at_control_step(self.base, dt, period)
-        return dataclasses.replace(cfg, num_envs=self.num_envs,
+        return dataclasses.replace(cfg, num_envs=self.num_envs, physics=self.physics,
                                    chunk_steps=self._steps(self.chunk_seconds, dt, "chunk_seconds"))
 
     def grid_points(self, dt: float) -> tuple[list[str], list[TrainConfig]]:
@@ -436,10 +441,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--gradvar-batches", type=int, default=d.gradvar_batches)
     ap.add_argument("--beta-theta-cap", type=float, default=None,
                     help="choose only among grid pairs with beta_theta <= this (every arm)")
+    ap.add_argument("--physics", default=d.physics, help=PHYSICS_HELP)
     ap.add_argument("--phases", nargs="+", default=list(PHASES), help=f"any of {list(PHASES)}")
     ap.add_argument("--quiet", action="store_true")
     a = ap.parse_args(argv)
-    spec = StudySpec(dts=tuple(a.dt), periods=tuple(a.periods), beta_theta_grid=tuple(a.beta_theta),
+    spec = StudySpec(physics=a.physics, dts=tuple(a.dt), periods=tuple(a.periods), beta_theta_grid=tuple(a.beta_theta),
                      beta_v_grid=tuple(a.beta_v), grid_seconds=a.grid_seconds, final_seconds=a.final_seconds,
                      chunk_seconds=a.chunk_seconds, seeds=a.seeds, num_envs=a.num_envs,
                      checkpoint_every=a.checkpoint_every, gradvar_envs=a.gradvar_envs,

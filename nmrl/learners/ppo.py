@@ -53,7 +53,7 @@ from nmrl import explore
 from nmrl.learners import ppo_losses as L
 from nmrl.learners import ppo_networks as nn_
 from nmrl.learners.contract import Learner, Policy, register
-from nmrl.paper.env import EnvConfig, HalfCheetah
+from nmrl.paper.env import PHYSICS_HELP, EnvConfig, HalfCheetah
 from nmrl.paper.learner import check_shards
 
 NAME = "ppo"
@@ -116,6 +116,7 @@ class PPOConfig:
     # environment, batching, budget (common to every learner)
     control_dt: float = 0.02
     stop_prob: float = 1 / 250
+    physics: str = "mjx"  #: "mjx" or "c" (MuJoCo C on the CPU; nmrl/physics/mujoco_c.py)
     num_envs: int = 64
     #: control steps per environment in one chunk: a multiple of one iteration's (None: one iteration)
     chunk_steps: int | None = None
@@ -144,7 +145,8 @@ class PPOConfig:
         return self.unrolls_per_env * self.unroll_length
 
     def env_config(self) -> EnvConfig:
-        return EnvConfig(control_dt=self.control_dt, stop_prob=self.stop_prob, auto_reset=True)
+        return EnvConfig(control_dt=self.control_dt, stop_prob=self.stop_prob, auto_reset=True,
+                         physics=self.physics)
 
     def validate(self) -> None:
         if self.exploration not in explore.KINDS:
@@ -567,6 +569,7 @@ LEARNER = register(Learner(
         "policy_layers": "hidden layers of the policy", "policy_width": "units per policy layer",
         "value_layers": "hidden layers of the value net", "value_width": "units per value layer",
         "control_dt": "control step [s]", "stop_prob": "probability of stopping a trial after each step",
+        "physics": PHYSICS_HELP,
         "num_envs": "environments in lock-step (must divide --batch-size)",
         "chunk_steps": "control steps per environment per chunk, a multiple of one iteration's (default: one)",
         "steps": "budget in control steps per environment (default: one iteration)",

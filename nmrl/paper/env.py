@@ -24,6 +24,12 @@ open are listed in docs/model.md; in short:
   (r_t = r(a_t, s_{t+1}), Sec. II); (9) and (10) are averaged over the substeps of the step.
 * tau^w in (10) is the joint-limit constraint force MuJoCo's solver applies to the joint; the
   per-instant term min{|tau^w_i|, 50} is averaged over the substeps, like (9).
+
+Physics (``EnvConfig.physics``): ``"mjx"`` steps the model with MJX (float32, any device);
+``"c"`` steps it with MuJoCo C (float64) through nmrl/physics/mujoco_c.py, the PD torque computed in
+NumPy before each substep and tau^w read from ``jointlimitfrc`` sensors (nmrl/paper/c_plant.py). On
+both, the observation and the reward are computed in JAX from the step's qpos/qvel and the substeps'
+reports, and a failed step (non-finite state; on C also a MuJoCo warning or error) stops the trial.
 """
 
 from __future__ import annotations
@@ -40,14 +46,19 @@ import numpy as np
 from flax import struct
 from nmrl.paper import _mjx as mjx  # quiet import (see nmrl/__init__.py)
 
+from nmrl.paper import c_plant
 from nmrl.paper import geometry as g
+from nmrl.physics import mujoco_c
 
 MODEL_PATH = pathlib.Path(__file__).resolve().parents[2] / "models" / "half_cheetah.xml"
 OBS_DIM = 31
 ACT_DIM = 6
 #: Actuator order of the MJCF (= qpos order of the hinges) mapped to the action index j - 1.
-_ACT_OF_CTRL = np.array([g.ACTUATED.index(i) for i in g.QPOS_JOINTS])
-_STRENGTH_CTRL = g.STRENGTH[_ACT_OF_CTRL]
+_ACT_OF_CTRL = c_plant.ACT_OF_CTRL
+_STRENGTH_CTRL = c_plant.STRENGTH_CTRL
+PHYSICS = ("mjx", "c")
+PHYSICS_HELP = ("physics engine: mjx (MuJoCo-MJX, any device) or c (MuJoCo C on the CPU, float64; "
+                "docs/performance.md)")
 REWARD_TERMS = ("r8_speed", "r9_torque", "r10_limit", "r11_lift", "r12_heel", "r13_knee", "r14_head")
 
 
@@ -62,8 +73,16 @@ class EnvConfig:
     solver_iterations: int | None = None  #: None = the MJCF's (4)
     ls_iterations: int | None = None  #: None = the MJCF's (4)
     auto_reset: bool = True  #: reset a stopped trial inside ``step`` (batched training)
+    physics: str = "mjx"  #: "mjx" (MJX, any device) or "c" (MuJoCo C on the CPU)
+    #: threads of each device's C batch (physics "c"; results are bit-identical at any count);
+    #: None: this process's cores divided by its JAX devices
+    threads: int | None = None
 
     def validate(self) -> None:
+        if self.physics not in PHYSICS:
+            raise ValueError(f"physics={self.physics!r} is invalid: choose one of {', '.join(PHYSICS)}")
+        if self.threads is not None and not (isinstance(self.threads, int) and self.threads >= 1):
+            raise ValueError(f"threads must be an integer >= 1 or None, got {self.threads!r}")
         if not self.control_dt > 0:
             raise ValueError(f"control_dt must be > 0 seconds, got {self.control_dt!r}")
         if not 0.0 <= self.stop_prob < 1.0:
@@ -79,10 +98,20 @@ class EnvConfig:
 
 
 @struct.dataclass
+class CData:
+    """The physics state on the C path: MuJoCo's integration state as float64 bits, and its qpos/qvel
+    in float32 for the observation (what ``State.data`` is on the MJX path's ``mjx.Data``)."""
+
+    state: jax.Array  #: (2 nstate,) uint32 (nmrl/physics/mujoco_c.py)
+    qpos: jax.Array
+    qvel: jax.Array
+
+
+@struct.dataclass
 class State:
     """Immutable environment state (a pytree)."""
 
-    data: mjx.Data
+    data: mjx.Data | CData
     obs: jax.Array  #: (31,) Table I
     reward: jax.Array  #: () sum of (8)-(14) for the step that produced this state
     done: jax.Array  #: () 1.0 if the trial was stopped after this step (or the physics failed)
@@ -190,12 +219,7 @@ class HalfCheetah:
         self.config = config = config or EnvConfig()
         config.validate()
         mj = mujoco.MjModel.from_xml_path(str(model_path))
-        if config.timestep is not None:
-            mj.opt.timestep = config.timestep
-        if config.solver_iterations is not None:
-            mj.opt.iterations = config.solver_iterations
-        if config.ls_iterations is not None:
-            mj.opt.ls_iterations = config.ls_iterations
+        self._set_options(mj)
         n_sub = config.control_dt / mj.opt.timestep
         if abs(n_sub - round(n_sub)) > 1e-6 or round(n_sub) < 1:
             raise ValueError(
@@ -204,6 +228,17 @@ class HalfCheetah:
             )
         self.n_substeps = int(round(n_sub))
         self.mj_model = mj
+        self.c = None
+        if config.physics == "c":
+            cm = c_plant.with_limit_sensors(mujoco.MjSpec.from_file(str(model_path)))
+            self._set_options(cm)
+            self.c = mujoco_c.CPhysics(c_plant.plant(cm, self.n_substeps),
+                                       threads=config.threads or mujoco_c.threads_per_device())
+            s0 = self.c.initial_state()
+            q0, v0 = self.c.split(s0)
+            self._data0 = CData(state=jnp.asarray(mujoco_c.to_bits(s0)), qpos=jnp.asarray(q0, jnp.float32),
+                                qvel=jnp.asarray(v0, jnp.float32))
+            return
         # This process's own device: MJX's default, jax.devices()[0], belongs to process 0 in a
         # multi-process run (nmrl/runs/distributed.py); in a 1-process run the two are the same.
         dev = jax.local_devices()[0]
@@ -214,6 +249,15 @@ class HalfCheetah:
         efc_type = np.asarray(d._impl.efc_type)
         self._limit_rows = np.nonzero(efc_type == int(mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT))[0]
         self._data0 = d
+
+    def _set_options(self, mj: mujoco.MjModel) -> None:
+        cfg = self.config
+        if cfg.timestep is not None:
+            mj.opt.timestep = cfg.timestep
+        if cfg.solver_iterations is not None:
+            mj.opt.iterations = cfg.solver_iterations
+        if cfg.ls_iterations is not None:
+            mj.opt.ls_iterations = cfg.ls_iterations
 
     # ------------------------------------------------------------------ reset
     def reset(self, key: jax.Array) -> State:
@@ -234,15 +278,21 @@ class HalfCheetah:
         cfg = self.config
         a0 = 0.1 * action[_ACT_OF_CTRL]
 
-        def substep(carry, _):
-            data = carry
-            tau, pre = pd_torque(data.qpos, data.qvel, a0)
-            data = mjx.step(self.model, data.replace(ctrl=tau))
-            tau_w = self._limit_torque(data)
-            return data, (jnp.maximum(jnp.abs(pre) - 1.0, 0.0), tau_w)
+        if self.c is None:
+            def substep(carry, _):
+                data = carry
+                tau, pre = pd_torque(data.qpos, data.qvel, a0)
+                data = mjx.step(self.model, data.replace(ctrl=tau))
+                tau_w = self._limit_torque(data)
+                return data, (jnp.maximum(jnp.abs(pre) - 1.0, 0.0), tau_w)
 
-        data, (over, tau_w) = jax.lax.scan(substep, state.data, None, length=self.n_substeps)
-        finite = jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel))
+            data, (over, tau_w) = jax.lax.scan(substep, state.data, None, length=self.n_substeps)
+            ok = True
+        else:
+            adv = self.c.advance(state.data.state, action)
+            data = CData(state=adv.state, qpos=adv.qpos, qvel=adv.qvel)
+            over, tau_w, ok = adv.reports[:, :ACT_DIM], adv.reports[:, ACT_DIM:], adv.ok
+        finite = ok & jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel))
         # Non-finite physics is flagged and replaced by the reset state (it forces a trial stop).
         data = jax.tree.map(lambda a, b: jnp.where(finite, a, b), data, self._data0)
         p, v, phi, dphi = kinematics(data.qpos, data.qvel)

@@ -245,6 +245,7 @@ class TrainConfig:
     # environment
     control_dt: float = 0.02
     stop_prob: float = 1 / 250
+    physics: str = "mjx"  #: "mjx" or "c" (MuJoCo C on the CPU; nmrl/physics/mujoco_c.py)
     # batching and budget
     num_envs: int = 256  #: N environments in lock-step
     chunk_steps: int = 250  #: control steps per environment in one jitted chunk
@@ -312,7 +313,8 @@ class TrainConfig:
         self.env_config().validate()
 
     def env_config(self) -> EnvConfig:
-        return EnvConfig(control_dt=self.control_dt, stop_prob=self.stop_prob, auto_reset=True)
+        return EnvConfig(control_dt=self.control_dt, stop_prob=self.stop_prob, auto_reset=True,
+                         physics=self.physics)
 
 
 class Hyper(NamedTuple):
