@@ -301,6 +301,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     from nmrl.runs import checkpoint, driver as run, store
 
     def check() -> tuple[dict, object]:
+        store.out_path(args.out)
         given, cfg = given_options(args), config_from_args(args)
         run.check_config(cfg)
         if args.step is not None and args.step < 0:
@@ -346,9 +347,14 @@ def cmd_eval(args: argparse.Namespace) -> int:
         return _fail(f"--seed={args.seed} is invalid: must be an integer in [0, {SEED_MAX}]")
     if args.step is not None and args.step < 0:
         return _fail(f"--step={args.step} is invalid: a checkpoint step is >= 0")
-    if args.out is not None and os.path.exists(args.out) and not os.path.isdir(args.out):
-        return _fail(f"--out={args.out!r} is invalid: it exists and is not a directory")
-    from nmrl.runs import checkpoint, io_errors, lock
+    from nmrl.runs import checkpoint, io_errors, lock, store
+
+    try:
+        store.out_path(args.run, "RUN")
+        if args.out is not None:
+            store.out_path(args.out)
+    except ValueError as e:
+        return _fail(str(e))
     from nmrl.analysis import evaluate
 
     out_dir = args.out if args.out is not None else os.path.join(args.run, evaluate.EVAL_DIR)
@@ -380,12 +386,13 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     from nmrl.experiments import sweep
-    from nmrl.runs import checkpoint, driver
+    from nmrl.runs import checkpoint, driver, store
 
     learner = _learner(args.learner)
     field = learner.sweep_field
 
     def check() -> "sweep.SweepSpec":
+        store.out_path(args.out)
         if field is not None and getattr(args, "x_period_s", None) is not None:
             raise ValueError(f"give the swept period lengths as --{field}, not --period-s")
         base = config_from_args(args, skip=_sweep_skip(learner))

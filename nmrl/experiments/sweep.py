@@ -77,6 +77,10 @@ class SweepSpec:
     field: str | None = "l"
 
     def validate(self) -> None:
+        """ValueError naming the first bad value: the field, its values, the seed count, ``first``,
+        and every point's config held to the bounds of ``nmrl train`` (nmrl.runs.driver.check_config).
+        The points are not enumerated: their count is bounded by the memory pre-flight of
+        :func:`run_sweep`."""
         learner = learners.of(self.base)
         f = self.field
         if f is None:
@@ -94,14 +98,16 @@ class SweepSpec:
         dup = sorted({l for l in self.ls if self.ls.count(l) > 1})
         if dup:
             raise ValueError(f"duplicate {f} values {dup}: each value may appear once")
-        if not isinstance(self.seeds, int) or isinstance(self.seeds, bool) or self.seeds < 1:
-            raise ValueError(f"seeds={self.seeds!r} is invalid: must be an integer >= 1")
+        if not isinstance(self.seeds, int) or isinstance(self.seeds, bool) or not 1 <= self.seeds <= driver.SEED_MAX + 1:
+            raise ValueError(f"seeds={self.seeds!r} is invalid: must be an integer in [1, {driver.SEED_MAX + 1}] (the "
+                             f"seeds 0..seeds-1 are 32-bit PRNG seeds)")
         bad = [l for l in self.first if l not in self.ls]
         if bad or len(set(self.first)) != len(self.first):
             raise ValueError(f"first={list(self.first)} is invalid: the {f} values that run first must be "
                              f"distinct values of the sweep's {f} list {list(self.ls)}")
-        for cfg in self.point_configs():
-            learner.validate(cfg)
+        for v in self.ls:  # the points differ in the value and the seed, whose bounds are checked above
+            cfg = self.base if f is None else dataclasses.replace(self.base, **{f: v})
+            driver.check_config(dataclasses.replace(cfg, seed=0))  # the bounds of ``nmrl train``
 
     def stages(self) -> list[list[int]] | None:
         """Point indices by stage: the points of ``first`` (every seed), then the rest."""
@@ -228,6 +234,11 @@ def _run_sweep(spec, out, resume, progress, keep, max_chunks, plot, checkpoint_e
         spec.validate()
     elif (out / SPEC_FILE).exists():
         raise SweepError(f"{out} already holds a sweep; continue it with --resume or choose another --out")
+    elif store.foreign_entries(out, ("points",)):
+        other = store.foreign_entries(out, ("points",))
+        raise SweepError(f"--out={str(out)!r} is invalid: it holds {len(other)} entries that are no sweep's "
+                         f"({', '.join(other[:3])}{', ...' if len(other) > 3 else ''}); a fresh sweep starts in a "
+                         f"new or empty directory")
     elif (out / "points").is_dir():
         for d in sorted((out / "points").iterdir()):
             held = [n for n in store.RUN_FILES if (d / n).exists()] if d.is_dir() else []
@@ -248,6 +259,8 @@ def _run_sweep(spec, out, resume, progress, keep, max_chunks, plot, checkpoint_e
             draw(out, results)
             last_plot[0] = time.time()
 
+    # the memory of every point before the points are enumerated (a count of billions is refused here)
+    env = driver.preflight_points(base, len(spec.ls) * spec.seeds)
     names = [point_name(l, s, spec.field) for l, s in spec.points()]
     begun: list[bool] = []
 
@@ -260,7 +273,7 @@ def _run_sweep(spec, out, resume, progress, keep, max_chunks, plot, checkpoint_e
     try:
         driver.run_points(out, names, spec.point_configs(), resume=resume, progress=progress, keep=keep,
                           max_chunks=max_chunks, checkpoint_every=checkpoint_every, on_chunk=on_chunk,
-                          priority=spec.stages(), group=group, devices=devices, before_start=before_start)
+                          priority=spec.stages(), group=group, devices=devices, before_start=before_start, env=env)
     finally:
         if begun and writer:
             results = write_results(out, spec)

@@ -14,7 +14,7 @@ import pathlib
 import sys
 from typing import Callable, Sequence
 
-from nmrl.runs import checkpoint, driver, exits, io_errors, lock, signals
+from nmrl.runs import checkpoint, driver, exits, io_errors, lock, signals, store
 
 
 def run(prog: str, body: Callable[[], object], bad_input: tuple[type[BaseException], ...] = ()) -> int:
@@ -49,11 +49,13 @@ def run(prog: str, body: Callable[[], object], bad_input: tuple[type[BaseExcepti
 def study_dir(out: str | os.PathLike, phases: Sequence[str], allowed: Sequence[str],
               error: type[Exception] = ValueError) -> pathlib.Path:
     """A study command's directory, absolute, once its ``phases`` are among ``allowed`` (ValueError
-    naming the others) and ``out`` is not an existing file (``error``); nothing is created."""
+    naming the others) and ``out`` is a path a command may write (nmrl.runs.store.out_path: not
+    empty, not the root, not too long, not a file or below one; ``error`` naming it); nothing is
+    created."""
     bad = [p for p in phases if p not in allowed]
     if bad:
         raise ValueError(f"unknown phase(s) {bad}: choose from {list(allowed)}")
-    out = pathlib.Path(out).absolute()
-    if out.exists() and not out.is_dir():
-        raise error(f"--out={str(out)!r} is invalid: it exists and is not a directory")
-    return out
+    try:
+        return store.out_path(out).absolute()
+    except ValueError as e:
+        raise error(str(e)) from None

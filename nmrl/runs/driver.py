@@ -126,13 +126,22 @@ def check_config(cfg: Config) -> None:
     if abs(n - round(n)) > 1e-6 or round(n) < 1:
         raise ValueError(f"control_dt={cfg.control_dt!r} is invalid: must be a whole multiple of the physics "
                          f"timestep {ts:g} s (e.g. {ts:g}, {2 * ts:g}, {4 * ts:g})")
+    if getattr(cfg, "physics", "mjx") == "c":
+        import mujoco
+
+        from nmrl.paper.env import MODEL_PATH
+        from nmrl.physics.mujoco_c import check_supported
+
+        check_supported(mujoco.MjModel.from_xml_path(str(MODEL_PATH)))
     if cfg.trials is not None and cfg.stop_prob == 0:
         raise ValueError(f"trials={cfg.trials} is invalid with stop_prob=0: no trial would ever end; "
                          f"give the budget as --steps")
 
 
 def _fresh_out(out: pathlib.Path) -> None:
-    """Refuse an ``--out`` that holds (part of) a run, is not a directory, or cannot be created."""
+    """Refuse an ``--out`` that holds (part of) a run or anything else (a fresh run starts in a new or
+    empty directory, so that no file of another kind is mixed with it), is not a directory, or
+    cannot be created."""
     if out.exists() and not out.is_dir():
         raise RunError(f"--out={str(out)!r} is invalid: it exists and is not a directory")
     if out.is_dir():
@@ -140,6 +149,11 @@ def _fresh_out(out: pathlib.Path) -> None:
         if held:
             raise RunError(f"{out} already holds a run ({', '.join(held)}); continue it with --resume or "
                            f"choose another --out")
+        other = store.foreign_entries(out)
+        if other:
+            raise RunError(f"--out={str(out)!r} is invalid: it holds {len(other)} entries that are no run's "
+                           f"({', '.join(other[:3])}{', ...' if len(other) > 3 else ''}); a fresh run starts in a new "
+                           f"or empty directory")
         return
     if out.is_symlink():
         raise RunError(f"--out={str(out)!r} is invalid: a broken symbolic link")
@@ -180,6 +194,15 @@ def _preflight(cfg: Config, trainer, points: int = 1) -> None:
                          warn=lambda m: print(f"nmrl: warning: {m}", file=sys.stderr, flush=True))
     except memory.TooLarge as e:
         raise RunError(str(e)) from None
+
+
+def preflight_points(cfg: Config, points: int):
+    """Refuse ``points`` runs of ``cfg``'s sizes whose memory estimate exceeds the machine's
+    (RunError naming both), before the points' configs exist; returns the environment built for
+    the estimate, for :func:`run_points` to share."""
+    trainer = learners.of(cfg).make(cfg)
+    _preflight(cfg, trainer, points=points)
+    return trainer.env
 
 
 def _out_of_memory(e: BaseException) -> bool:
@@ -834,7 +857,7 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[C
                checkpoint_every: int = 1, on_chunk: Callable[[], None] | None = None,
                table: bool = True, priority: Sequence[Sequence[int]] | None = None, group: int = 1,
                devices: int | None = None, before_start: Callable[[], None] | None = None,
-               known: Sequence[str] = ()) -> list[dict]:
+               known: Sequence[str] = (), env=None) -> list[dict]:
     """Train every config as one compiled program; point ``names[i]`` lives in ``out/points/<name>/``.
 
     The configs are of one learner and may differ only in its traced ``hyper_fields`` and the seed
@@ -859,7 +882,8 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[C
     points' files are written. ``out/points/`` may hold only these points and those named in
     ``known`` (points of the same experiment not run in this call, e.g. finished ones): any other
     run there is refused, as is (a fresh start) a point holding a saved run or another config.
-    ``out`` and every point are locked (nmrl/runs/lock.py) for the call.
+    ``out`` and every point are locked (nmrl/runs/lock.py) for the call. ``env``: the learner's
+    environment when the caller has built it (:func:`preflight_points`), else built here.
     """
     if not (isinstance(checkpoint_every, int) and checkpoint_every >= 1):
         raise ValueError(f"checkpoint_every={checkpoint_every!r} is invalid: must be an integer >= 1")
@@ -894,7 +918,6 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[C
             holds.append(_hold(out, create=False))  # the sweep's directory, before any of it is read
         _foreign_points(out, names, dirs, configs, resume, known)
         holds += [_hold(d, create=False) for d in dirs if d.is_dir()]  # each existing point, too
-        env = None
         ps: list[_Point] = []
         if resume:
             for n, d, c in zip(names, dirs, configs):
@@ -913,7 +936,7 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[C
             _preflight(ps[0].cfg, ps[0].trainer, points=P_)
         else:
             learner = learners.of(configs[0])
-            trainers = [learner.make(configs[0])]
+            trainers = [learner.make(configs[0], env=env)]
             trainers += [learner.make(c, env=trainers[0].env) for c in configs[1:]]
             _preflight(configs[0], trainers[0], points=P_)
             init = jax.jit(jax.vmap(trainers[0].init))

@@ -46,6 +46,67 @@ COMPACT_FILE = "compact.npz"
 RUN_FILES = (CONFIG_FILE, METRICS_FILE, CHECKPOINTS, COMPACT_FILE, RESUMES_FILE)
 
 
+# ----------------------------------------------------------------------------- the directory a command writes
+
+#: Entries a directory may hold and still count as empty for a fresh start: the lock (nmrl/runs/lock.py).
+IGNORED_ENTRIES = (".nmrl.lock",)
+
+
+def _short(value: str, n: int = 60) -> str:
+    return value if len(value) <= n else value[:n - 1] + "…"
+
+
+def _exists(p: pathlib.Path) -> bool:
+    try:
+        return p.exists()
+    except OSError:  # a name too long, a loop of links
+        return False
+
+
+def out_path(value: str | os.PathLike, option: str = "--out") -> pathlib.Path:
+    """``value`` as the directory a command writes, or a one-line ValueError naming it and what is
+    allowed: an empty path (it would be the current directory), one that resolves to the file
+    system's root, a name or path longer than the file system takes (checked by length, before
+    anything is created), an existing file, or a path below a file. Nothing is created."""
+    text = os.fspath(value)
+    if text == "":
+        raise ValueError(f"{option}='' is invalid: give a directory path, e.g. runs/l10 (an empty path would "
+                         f"write into the current directory)")
+    if os.path.realpath(text) == os.path.realpath(os.sep):
+        raise ValueError(f"{option}={text!r} is invalid: it is the file system's root; give a directory of its own, "
+                         f"e.g. runs/l10")
+    path = pathlib.Path(text)
+    anchor = path.absolute()  # the nearest existing directory above (or at) the path
+    while not _exists(anchor) and anchor != anchor.parent:
+        anchor = anchor.parent
+    name_max, path_max = 255, 4096
+    with contextlib.suppress(OSError, ValueError):
+        name_max = os.pathconf(anchor, "PC_NAME_MAX")
+        path_max = os.pathconf(anchor, "PC_PATH_MAX")
+    long = next((c for c in path.parts if len(os.fsencode(c)) > name_max), None)
+    if long is not None:
+        raise ValueError(f"{option}={_short(text)!r} is invalid: its name {_short(long, 40)!r} is "
+                         f"{len(os.fsencode(long))} bytes long; the file system takes at most {name_max}")
+    if len(os.fsencode(os.path.abspath(text))) >= path_max:
+        raise ValueError(f"{option}={_short(text)!r} is invalid: the path is {len(os.fsencode(os.path.abspath(text)))} "
+                         f"bytes long; the file system takes at most {path_max - 1}")
+    if anchor == path.absolute() and not path.is_dir():
+        raise ValueError(f"{option}={_short(text)!r} is invalid: it exists and is not a directory")
+    if not anchor.is_dir():
+        raise ValueError(f"{option}={_short(text)!r} is invalid: {anchor} is not a directory")
+    return path
+
+
+def foreign_entries(d: str | os.PathLike, allowed: Sequence[str] = ()) -> list[str]:
+    """The entries of the directory ``d`` (sorted) that are neither ``allowed`` nor ignored
+    (:data:`IGNORED_ENTRIES`); [] when ``d`` does not exist."""
+    try:
+        names = os.listdir(d)
+    except (FileNotFoundError, NotADirectoryError):
+        return []
+    return sorted(n for n in names if n not in IGNORED_ENTRIES and n not in allowed)
+
+
 # ----------------------------------------------------------------------------- atomic files
 
 

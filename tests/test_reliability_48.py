@@ -1,0 +1,136 @@
+"""Values, paths and directories that must not slip through, as a user meets them on the command line.
+
+Black-box: each case runs the ``nmrl`` command (in-process through ``cli.main``, or as a real
+process where the case is about processes or memory) and checks its exit status, its one line
+and the files of the directories involved. A refusal writes nothing.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+import pathlib
+import resource
+import subprocess
+import sys
+import time
+
+import pytest
+
+from nmrl import cli
+from nmrl.runs import exits
+
+T = ["--preset", "fast", "--num-envs", "4", "--chunk-steps", "100", "--hidden-actor", "8", "--hidden-critic", "8"]
+
+
+def _main(argv: list[str]) -> tuple[int, str, str]:
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            rc = cli.main(argv)
+        except SystemExit as e:  # argparse
+            rc = e.code
+    return rc, out.getvalue(), err.getvalue()
+
+
+def _limited_memory() -> None:
+    """A child process's address space capped at 8 GiB: a run that enumerates billions of points
+    fails there instead of taking the machine."""
+    resource.setrlimit(resource.RLIMIT_AS, (8 << 30, 8 << 30))
+
+
+def _run(argv: list[str], timeout: float = 300, cwd: str | None = None) -> subprocess.CompletedProcess:
+    env = dict(os.environ)
+    env.pop("XLA_FLAGS", None)
+    return subprocess.run([sys.executable, "-m", "nmrl.cli", *argv], env=env, capture_output=True, text=True,
+                          timeout=timeout, cwd=cwd)
+
+
+def one_line(err: str, prefix: str = "nmrl: error: ") -> str:
+    lines = [x for x in err.splitlines() if x.strip()]
+    assert len(lines) == 1 and lines[0].startswith(prefix), err[-3000:]
+    return lines[0]
+
+
+# ----------------------------------------------------------------------------- sweep values within bounds
+
+
+@pytest.mark.parametrize("opts, needle", [
+    (["--vary", "sigma", "1", "11", "--l", "10"], "sigma=11.0 is invalid: must be in (0, 10]"),
+    (["--vary", "sigma", "1e300", "--l", "10"], "sigma=1e+300 is invalid: must be a finite number in float32"),
+    (["--vary", "beta_theta", "2", "--l", "10"], "beta_theta=2.0 is invalid: must be in [0, 1]"),
+    (["--sigma", "11", "--l", "10"], "sigma=11.0 is invalid: must be in (0, 10]"),
+    (["--l", "10", "--seeds", "99999999999"], "seeds=99999999999 is invalid"),
+])
+def test_sweep_values_are_held_to_the_bounds_of_train(tmp_path, opts, needle):
+    out = tmp_path / "S"
+    rc, _, err = _main(["sweep", *T, "--steps", "100", "--quiet", *opts, "--out", str(out)])
+    line = one_line(err)
+    assert rc == exits.BAD_INPUT and needle in line, line
+    assert not out.exists()
+
+
+def test_a_sweep_of_billions_of_points_is_refused_by_the_memory_estimate(tmp_path):
+    out = tmp_path / "S"
+    t0 = time.time()
+    env = dict(os.environ)
+    env.pop("XLA_FLAGS", None)
+    p = subprocess.run([sys.executable, "-m", "nmrl.cli", "sweep", *T, "--steps", "100", "--quiet", "--l", "10",
+                        "--seeds", str(2**32), "--out", str(out)], env=env, capture_output=True, text=True,
+                       timeout=300, preexec_fn=_limited_memory)
+    line = one_line(p.stderr)
+    assert p.returncode == exits.BAD_INPUT and "4294967296 points" in line and "GiB" in line, line
+    assert time.time() - t0 < 120
+    assert not out.exists()
+
+
+# ----------------------------------------------------------------------------- paths a command may write
+
+
+def _listing(d: pathlib.Path) -> list[str]:
+    return sorted(p.relative_to(d).as_posix() for p in d.rglob("*"))
+
+
+@pytest.mark.parametrize("cmd", [["train", *T, "--steps", "100"], ["sweep", *T, "--steps", "100", "--l", "10",
+                                                                    "--seeds", "1"],
+                                 ["study", "--phases", "plot"]])
+@pytest.mark.parametrize("out, needle", [("", "--out='' is invalid: give a directory path"),
+                                         ("/", "--out='/' is invalid: it is the file system's root")])
+def test_an_empty_out_and_the_root_are_refused(tmp_path, monkeypatch, cmd, out, needle):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "mine.txt").write_text("a user's file\n")
+    root = set(os.listdir("/"))
+    rc, _, err = _main([*cmd, "--quiet", "--out", out])
+    line = one_line(err, prefix="nmrl")
+    assert rc == exits.BAD_INPUT and needle in line, line
+    assert _listing(tmp_path) == ["mine.txt"] and set(os.listdir("/")) == root
+
+
+@pytest.mark.parametrize("cmd", [["train", *T, "--steps", "100"], ["sweep", *T, "--steps", "100", "--l", "10",
+                                                                    "--seeds", "1"]])
+def test_a_fresh_start_refuses_a_directory_holding_other_files(tmp_path, cmd):
+    out = tmp_path / "photos"
+    out.mkdir()
+    (out / "holiday.jpg").write_bytes(b"\xff\xd8")
+    rc, _, err = _main([*cmd, "--quiet", "--out", str(out)])
+    line = one_line(err)
+    assert rc == exits.BAD_INPUT and "holiday.jpg" in line and "new or empty directory" in line, line
+    assert _listing(out) == ["holiday.jpg"]
+
+
+@pytest.mark.parametrize("argv", [
+    ["train", *T, "--steps", "100", "--out", "{tmp}/" + "d/" * 2500],
+    ["train", *T, "--steps", "100", "--out", "{tmp}/" + "n" * 300],
+    ["sweep", *T, "--steps", "100", "--l", "10", "--seeds", "1", "--out", "{tmp}/" + "n" * 300],
+    ["eval", "{tmp}/" + "n" * 300],
+    ["eval", "{tmp}", "--out", "{tmp}/" + "n" * 300],
+    ["study", "--phases", "plot", "--out", "{tmp}/file/sub"],
+    ["explore-study", "--phases", "eval", "--out", "{tmp}/file/sub"],
+])
+def test_paths_the_file_system_cannot_take_are_one_line(tmp_path, argv):
+    (tmp_path / "file").write_text("a file\n")
+    rc, _, err = _main([a.replace("{tmp}", str(tmp_path)) for a in argv])
+    line = one_line(err, prefix="nmrl")
+    assert rc == exits.BAD_INPUT and "is invalid" in line and len(line) < 400, line
+    assert _listing(tmp_path) == ["file"]
