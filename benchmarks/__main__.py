@@ -22,6 +22,8 @@ Benchmarks (each a module ``benchmarks/bench_<name>.py`` with ``run(quick, smoke
                  nm-period actor-critic (``nmrl train``), both on 2 devices (bench_baseline.py; needs Brax).
 * ``ppo``        native PPO vs Brax PPO at the Brax settings, control steps/s with learning, and the
                  native iteration's profile (bench_ppo.py; the Brax half needs Brax).
+* ``physics_c``  ``--physics c``: the C env in the program vs ``mujoco.batch`` alone, the 24-point sweep
+                 with learning on C vs MJX vs MuJoCo C alone, native PPO on C vs MJX (bench_physics_c.py).
 
 Every comparison is a ratio measured within one run, the contenders interleaved, so that a
 background load affects both alike; absolute numbers are reported beside the machine description
@@ -57,7 +59,8 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # see benchmarks/bench_likel
 HERE = pathlib.Path(__file__).resolve().parent
 ROOT = HERE.parent
 
-SECTIONS = ("env", "learning", "likelihood", "sweep", "scaling", "distributed", "baseline", "explore", "ppo")
+SECTIONS = ("env", "learning", "likelihood", "sweep", "scaling", "distributed", "baseline", "explore", "ppo",
+            "physics_c")
 SIZES = ("full", "quick", "smoke")
 TOP_KEYS = ("meta", "machine", *SECTIONS, "summary")
 
@@ -223,6 +226,14 @@ def summary(res: dict) -> dict:
     if pp and "runs" in pp:
         s["ppo_native_over_brax"] = pp.get("native_over_brax")
         s["ppo_native_share_of_iteration"] = _get(pp, "profile", "share_of_iteration")
+    pc = res.get("physics_c")
+    if pc and "worker" in pc:
+        w = pc["worker"]
+        s["physics_c_env_over_batch_alone"] = w["a_env"]["ratio"]
+        s["physics_c_sweep_over_mjx"] = w["b_sweep"]["c_over_mjx"]
+        s["physics_c_sweep_over_mujoco_c"] = w["c_limit"]["sweep_c_over_limit"]
+        s["physics_c_ppo_over_mjx"] = {k: v["c_over_mjx"] for k, v in w["d_ppo"].items()}
+        s["physics_c_goal_met"] = pc.get("goal_met")
     li = res.get("likelihood")
     if li and "results" in li:
         by = {(r["method"], r["l"]): r["median_s"] for r in li["results"]}
@@ -293,6 +304,25 @@ def table(res: dict) -> str:
                      f"(physics only); 10⁵ trials × 24 points: {sw['hours_for_1e5_trials_x_24_points']:.1f} h",
                      _f(a["control_steps_per_s"]), _f(sw["mujoco_c"]["control_steps_per_s"]),
                      _f(sw["sweep_over_mujoco_c"], 2, "×"), "–"))
+    pc = res.get("physics_c")
+    if pc and "worker" in pc:
+        w = pc["worker"]
+        a, sw, lim = w["a_env"], w["b_sweep"], w["c_limit"]
+        rows.append(("C env ctrl steps/s, in the program", f"jit(scan(vmap(step))) vs mujoco.batch alone, B={a['batch']}, "
+                     f"{a['threads']} threads", _f(a["in_program"]), _f(a["batch_alone"]), _f(a["ratio"], 2, "×"), "–"))
+        rows.append(("sweep ctrl steps/s, --physics c", f"{sw['points']} points with learning, {w['devices']} dev: C vs MJX",
+                     _f(sw["rates"]["c"]), _f(sw["rates"]["mjx"]), _f(sw["c_over_mjx"], 2, "×"),
+                     f"{sw['compile_s']['c']:.1f} / {sw['compile_s']['mjx']:.1f}"))
+        rows.append(("sweep ctrl steps/s, --physics c", f"C on {w['devices']} dev × {w['threads_per_device']} thread vs "
+                     f"1 dev × {w['cores']} threads", _f(sw["rates"]["c"]), _f(sw["rates"]["c_one_device"]),
+                     _f(sw["rates"]["c"] / sw["rates"]["c_one_device"], 2, "×"), "–"))
+        rows.append(("sweep vs MuJoCo C, --physics c", f"the C sweep (with learning) vs mujoco.batch alone, "
+                     f"B={lim['batch']}, {lim['threads']} threads", _f(sw["rates"]["c"]), _f(lim["batch_alone"]),
+                     _f(lim["sweep_c_over_limit"], 2, "×"), "–"))
+        for k, v in w["d_ppo"].items():
+            rows.append((f"native PPO ctrl steps/s, {k}", f"one iteration ({v['num_minibatches']} minibatches), "
+                         "64 envs, value 2×64: C vs MJX", _f(v["rates"]["c"]), _f(v["rates"]["mjx"]),
+                         _f(v["c_over_mjx"], 2, "×"), f"{v['compile_s']['c']:.1f} / {v['compile_s']['mjx']:.1f}"))
     sc = res.get("scaling")
     if sc and "two_device_process" in sc:
         two = sc["two_device_process"]

@@ -32,7 +32,7 @@ from benchmarks.__main__ import SECTIONS, errors_in  # noqa: E402
 
 #: sections whose smoke run compiles MJX or Brax programs (minutes on a cold cache); every other
 #: section, present or added later, runs in the default suite
-SLOW = {"env", "learning", "sweep", "scaling", "distributed", "baseline", "ppo"}
+SLOW = {"env", "learning", "sweep", "scaling", "distributed", "baseline", "ppo", "physics_c"}
 BENCH = ROOT / "benchmarks"
 
 

@@ -126,7 +126,8 @@ def test_c_and_mjx_agree_before_chaos_parts_them(c_env):
     np.testing.assert_allclose(np.asarray(rc), np.asarray(rm), atol=1e-3, rtol=1e-4)
 
 
-def test_an_unstable_state_stops_the_trial_and_restarts(c_env):
+def test_an_unstable_state_stops_the_trial_and_restarts(c_env, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # MuJoCo logs its warnings to MUJOCO_LOG.TXT in the working directory
     env = HalfCheetah(EnvConfig(physics="c", stop_prob=0.0, auto_reset=True))
     s = env.reset(jax.random.PRNGKey(0))
     bad = mujoco_c.from_bits(np.asarray(s.data.state)[None])[0].copy()
@@ -139,6 +140,7 @@ def test_an_unstable_state_stops_the_trial_and_restarts(c_env):
     huge[10 + 3] = 1e30
     out, _, ok = env.c.host_step(huge[None], np.zeros((1, 6)))
     assert not ok[0]
+    assert "unstable" in (tmp_path / "MUJOCO_LOG.TXT").read_text()  # it was MuJoCo's warning that stopped it
 
 
 def test_unsupported_device_and_model_are_refused(monkeypatch):

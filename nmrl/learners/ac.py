@@ -26,7 +26,7 @@ import jax.numpy as jnp
 from nmrl import explore
 from nmrl.learners.contract import Learner, Policy, register
 from nmrl.paper import networks, noise
-from nmrl.paper.env import PHYSICS_HELP
+from nmrl.paper.env import PHYSICS_HELP, TRIAL_S_HELP
 from nmrl.paper.learner import OPT_FIELDS, OPT_HELP, PRESETS, Hyper, TrainConfig, make_train
 
 NAME = "ac"
@@ -118,7 +118,7 @@ LEARNER = register(Learner(
     help={"preset": f"step-size and update-rule preset: {', '.join(sorted(PRESETS))}",
           "actor_opt": f"actor update rule: {OPT_HELP} (default: the preset's)",
           "critic_opt": "critic update rule, as --actor-opt (default: the preset's)",
-          "physics": PHYSICS_HELP},
+          "physics": PHYSICS_HELP, "trial_s": TRIAL_S_HELP},
     hidden=("grad_stats",),
     restorable=OPT_FIELDS,
     fill=_fill,

@@ -53,7 +53,7 @@ from nmrl import explore
 from nmrl.learners import ppo_losses as L
 from nmrl.learners import ppo_networks as nn_
 from nmrl.learners.contract import Learner, Policy, register
-from nmrl.paper.env import PHYSICS_HELP, EnvConfig, HalfCheetah
+from nmrl.paper.env import PHYSICS_HELP, TRIAL_S_HELP, EnvConfig, HalfCheetah
 from nmrl.paper.learner import check_shards
 
 NAME = "ppo"
@@ -116,6 +116,7 @@ class PPOConfig:
     # environment, batching, budget (common to every learner)
     control_dt: float = 0.02
     stop_prob: float = 1 / 250
+    trial_s: float | None = None  #: mean trial length [s] (stop_prob = control_dt / trial_s); None: stop_prob
     physics: str = "mjx"  #: "mjx" or "c" (MuJoCo C on the CPU; nmrl/physics/mujoco_c.py)
     num_envs: int = 64
     #: control steps per environment in one chunk: a multiple of one iteration's (None: one iteration)
@@ -146,7 +147,7 @@ class PPOConfig:
 
     def env_config(self) -> EnvConfig:
         return EnvConfig(control_dt=self.control_dt, stop_prob=self.stop_prob, auto_reset=True,
-                         physics=self.physics)
+                         physics=self.physics, trial_s=self.trial_s)
 
     def validate(self) -> None:
         if self.exploration not in explore.KINDS:
@@ -569,7 +570,7 @@ LEARNER = register(Learner(
         "policy_layers": "hidden layers of the policy", "policy_width": "units per policy layer",
         "value_layers": "hidden layers of the value net", "value_width": "units per value layer",
         "control_dt": "control step [s]", "stop_prob": "probability of stopping a trial after each step",
-        "physics": PHYSICS_HELP,
+        "physics": PHYSICS_HELP, "trial_s": TRIAL_S_HELP,
         "num_envs": "environments in lock-step (must divide --batch-size)",
         "chunk_steps": "control steps per environment per chunk, a multiple of one iteration's (default: one)",
         "steps": "budget in control steps per environment (default: one iteration)",

@@ -68,6 +68,9 @@ class EnvConfig:
 
     control_dt: float = 0.02  #: control step delta [s]
     stop_prob: float = 1 / 250  #: probability of stopping the trial after each step
+    #: mean trial length [s]; when set, the stop probability per step is control_dt / trial_s, so a
+    #: trial lasts trial_s seconds on average at every control step (None: stop_prob as given)
+    trial_s: float | None = None
     contact_tol: float = 0.005  #: a joint "stands on the ground" when its height <= this [m]
     timestep: float | None = None  #: physics timestep [s]; None = the MJCF's (0.005)
     solver_iterations: int | None = None  #: None = the MJCF's (4)
@@ -87,6 +90,7 @@ class EnvConfig:
             raise ValueError(f"control_dt must be > 0 seconds, got {self.control_dt!r}")
         if not 0.0 <= self.stop_prob < 1.0:
             raise ValueError(f"stop_prob must be in [0, 1), got {self.stop_prob!r}")
+        check_trial_s(self.trial_s, self.stop_prob, self.control_dt)
         if not (np.isfinite(self.contact_tol) and self.contact_tol >= 0):
             raise ValueError(f"contact_tol must be a finite number >= 0 metres, got {self.contact_tol!r}")
         if self.timestep is not None and not self.timestep > 0:
@@ -95,6 +99,30 @@ class EnvConfig:
             v = getattr(self, name)
             if v is not None and (not isinstance(v, int) or v < 1):
                 raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
+
+
+    @property
+    def step_stop_prob(self) -> float:
+        """The probability of stopping the trial after a control step (see ``trial_s``)."""
+        return self.stop_prob if self.trial_s is None else self.control_dt / self.trial_s
+
+
+DEFAULT_STOP_PROB = EnvConfig.stop_prob
+TRIAL_S_HELP = ("mean trial length [s]: the stop probability per step becomes control_dt / trial_s, "
+                "the same trial length at every control step (default: --stop-prob per step)")
+
+
+def check_trial_s(trial_s, stop_prob, control_dt) -> None:
+    """``trial_s`` None, or a finite time longer than one control step given without a stop_prob of
+    its own (ValueError naming the value)."""
+    if trial_s is None:
+        return
+    if isinstance(trial_s, bool) or not isinstance(trial_s, (int, float)) or not np.isfinite(trial_s) \
+            or not trial_s > control_dt:
+        raise ValueError(f"trial_s={trial_s!r} is invalid: must be a finite time in seconds longer than the "
+                         f"control step ({control_dt!r} s)")
+    if stop_prob != DEFAULT_STOP_PROB:
+        raise ValueError(f"trial_s={trial_s!r} and stop_prob={stop_prob!r}: give the stop rule as one of them")
 
 
 @struct.dataclass
@@ -303,7 +331,7 @@ class HalfCheetah:
         reward = sum(terms[k] for k in REWARD_TERMS)  # the learner scales it (TrainConfig.reward_scale)
         obs = observation(p, v, phi, dphi, cfg.contact_tol)
         key, k_stop = jax.random.split(state.info["key"])
-        stopped = (jax.random.uniform(k_stop) < cfg.stop_prob) | ~finite
+        stopped = (jax.random.uniform(k_stop) < cfg.step_stop_prob) | ~finite
         metrics = dict(terms)
         metrics.update(self._extra_metrics(p, v, ~finite))
         info = {"key": key, "steps": state.info["steps"] + 1, "terminal_obs": obs}

@@ -245,6 +245,7 @@ class TrainConfig:
     # environment
     control_dt: float = 0.02
     stop_prob: float = 1 / 250
+    trial_s: float | None = None  #: mean trial length [s] (stop_prob = control_dt / trial_s); None: stop_prob
     physics: str = "mjx"  #: "mjx" or "c" (MuJoCo C on the CPU; nmrl/physics/mujoco_c.py)
     # batching and budget
     num_envs: int = 256  #: N environments in lock-step
@@ -314,7 +315,7 @@ class TrainConfig:
 
     def env_config(self) -> EnvConfig:
         return EnvConfig(control_dt=self.control_dt, stop_prob=self.stop_prob, auto_reset=True,
-                         physics=self.physics)
+                         physics=self.physics, trial_s=self.trial_s)
 
 
 class Hyper(NamedTuple):

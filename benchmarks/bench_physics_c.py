@@ -1,0 +1,212 @@
+"""MuJoCo C physics inside the jitted program (``--physics c``) against MJX and against MuJoCo C alone.
+
+In one worker subprocess with one host device per core (``nmrl sweep``'s layout), contenders
+interleaved round by round so that a background load touches them alike:
+
+* (a) the C environment in the program: a jitted ``lax.scan`` of ``vmap(env.step)`` (B = 64, the
+  PD torque per substep, observation and reward in JAX) on one device, against ``mujoco.batch``
+  alone stepping the same B simulations with the same PD law in a Python loop, both with the same
+  threads: the ratio is what the callback boundary costs;
+* (b) the paper's 24-point sweep with learning (l in {1, 2, 3, 5, 10, 15, 20, 30} x 3 seeds, 32
+  environments per point, ``nmrl.runs.points.points_program`` over every device) on C against the
+  same on MJX, and the C sweep laid out on one device with a batch of ``cores`` threads;
+* (c) the C sweep against MuJoCo C's own throughput at the same batch (32) and threads (``cores``,
+  ``mujoco.batch`` with the PD law): the share of the limit the program reaches;
+* (d) the native PPO at the exploration study's settings (64 environments, value 2x64), one
+  iteration (rollout + update) on C against MJX, at 20 and 5 ms.
+
+Control steps per second of the whole machine; compile times apart. ``--quick`` fewer rounds and
+steps; ``smoke`` the smallest setting. ``run(quick, smoke=False) -> dict``;
+``python -m benchmarks --only physics_c``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+
+LS = (1, 2, 3, 5, 10, 15, 20, 30)
+SEEDS = 3
+NUM_ENVS = 32
+ENV_BATCH = 64
+SMOKE = {"ls": (1, 10), "seeds": 1, "num_envs": 4, "chunk_steps": 4, "rounds": 1, "env_steps": 8}
+
+
+def batch_alone(n: int, threads: int, steps: int) -> float:
+    """Control steps/s of ``mujoco.batch`` stepping n simulations of the paper's robot with the PD
+    law of Sec. V-A per substep (zero action), no JAX."""
+    import mujoco
+    import mujoco.batch
+    import numpy as np
+
+    from nmrl.paper import c_plant
+    from nmrl.paper.env import MODEL_PATH
+
+    m = c_plant.with_limit_sensors(mujoco.MjSpec.from_file(str(MODEL_PATH)))
+    b = mujoco.batch.Batch(m, n, threads)
+    qpos, qvel, ctrl = b.bind("qpos"), b.bind("qvel"), b.bind("ctrl")
+    act = np.zeros((n, 6))
+    n_sub = 4
+
+    def go(k):
+        for _ in range(k):
+            for _ in range(n_sub):
+                ctrl[:], _over = c_plant.pd_law(qpos, qvel, act)
+                b.step()
+                _ = b.sensordata
+
+    go(5)
+    t0 = time.perf_counter()
+    go(steps)
+    return n * steps / (time.perf_counter() - t0)
+
+
+def _worker(quick: bool, smoke: bool) -> dict:
+    import jax
+    import jax.numpy as jnp
+
+    from benchmarks.bench_learning import interleave, timing
+    from nmrl.learners.ppo import PPOConfig, make_ppo
+    from nmrl.paper.env import EnvConfig, HalfCheetah
+    from nmrl.paper.learner import Hyper, TrainConfig, make_train
+    from nmrl.physics.mujoco_c import threads_per_device
+    from nmrl.runs import points
+    from nmrl.runs.devices import cpu_cores
+
+    n_dev, cores = len(jax.local_devices()), cpu_cores()
+    rounds = SMOKE["rounds"] if smoke else 2 if quick else 4
+    out: dict = {"devices": n_dev, "cores": cores, "threads_per_device": threads_per_device()}
+
+    # (a) the environment in the program vs mujoco.batch alone, one device, `cores` threads
+    n_steps = SMOKE["env_steps"] if smoke else 100 if quick else 400
+    env = HalfCheetah(EnvConfig(physics="c", threads=cores))
+    s0 = jax.device_put(jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), ENV_BATCH)),
+                        jax.local_devices()[0])
+    zero = jnp.zeros((ENV_BATCH, 6))
+    f = jax.jit(lambda s: jax.lax.scan(lambda s, _: (jax.vmap(env.step)(s, zero), ()), s, None,
+                                       length=n_steps)[0])
+    box = {"s": jax.block_until_ready(f(s0))}
+
+    def do_env():
+        box["s"] = jax.block_until_ready(f(box["s"]))
+
+    alone: list[float] = []
+    times = interleave({"env": do_env, "alone": lambda: alone.append(batch_alone(ENV_BATCH, cores, n_steps))},
+                       rounds)
+    env_rate = timing(times["env"], ENV_BATCH * n_steps)["control_steps_per_s"]
+    out["a_env"] = {"batch": ENV_BATCH, "threads": cores, "in_program": env_rate,
+                    "batch_alone": statistics.median(alone), "ratio": env_rate / statistics.median(alone)}
+
+    # (b) the 24-point sweep with learning: C over the devices, MJX over the devices, C on one device
+    ls, seeds = (SMOKE["ls"], SMOKE["seeds"]) if smoke else (LS, SEEDS)
+    num_envs = SMOKE["num_envs"] if smoke else NUM_ENVS
+    T = SMOKE["chunk_steps"] if smoke else 10 if quick else 40
+
+    def sweep(physics: str, n_use: int):
+        cfgs = [TrainConfig(num_envs=num_envs, chunk_steps=T, l=l, seed=s, physics=physics).resolved()
+                for l in ls for s in range(seeds)]
+        env_cfg = dataclasses.replace(cfgs[0].env_config(), threads=max(1, cores // n_use))
+        tr = make_train(cfgs[0], HalfCheetah(env_cfg))
+        keys = jnp.stack([jax.random.PRNGKey(c.seed) for c in cfgs])
+        ts = jax.jit(jax.vmap(tr.init))(keys, points.stack_trees([Hyper.from_config(c) for c in cfgs]))
+        slots = points.slot_order(len(cfgs), n_use)
+        ts = points.place_points(points.stack_trees([points.unstack(ts, max(i, 0)) for i in slots]), n_use)
+        act = points.place_points(jnp.asarray([i >= 0 for i in slots]), n_use)
+        t0 = time.perf_counter()
+        fn = jax.jit(points.points_program(tr.chunk, n_use), donate_argnums=0).lower(ts, act).compile()
+        compile_s = time.perf_counter() - t0
+        b = {"ts": ts}
+
+        def call():
+            b["ts"], m = fn(b["ts"], act)
+            jax.block_until_ready(m)
+
+        call()
+        return call, compile_s, len(cfgs) * num_envs * T
+
+    calls, compiles, work = {}, {}, 0
+    for name, physics, n_use in (("c", "c", n_dev), ("mjx", "mjx", n_dev), ("c_one_device", "c", 1)):
+        calls[name], compiles[name], work = sweep(physics, n_use)
+    times = interleave(calls, rounds)
+    rates = {k: timing(v, work)["control_steps_per_s"] for k, v in times.items()}
+    per_round = [(work / c) / (work / m) for c, m in zip(times["c"], times["mjx"])]
+    out["b_sweep"] = {"points": len(ls) * seeds, "num_envs_per_point": num_envs, "chunk_steps": T,
+                      "rates": rates, "compile_s": compiles, "c_over_mjx": statistics.median(per_round),
+                      "c_over_mjx_per_round": per_round}
+
+    # (c) the limit: MuJoCo C alone at the sweep's batch and threads
+    limit = statistics.median(batch_alone(num_envs, cores, n_steps) for _ in range(rounds))
+    out["c_limit"] = {"batch": num_envs, "threads": cores, "batch_alone": limit,
+                      "sweep_c_over_limit": rates["c"] / limit}
+
+    # (d) native PPO, one iteration (rollout + update), 64 environments, value 2x64, at 20 and 5 ms
+    out["d_ppo"] = {}
+    for dt in (0.02, 0.005):
+        mb = 2 if smoke else 4 if quick else 32
+        ppo = {}
+        for physics in ("c", "mjx"):
+            cfg = PPOConfig(num_envs=ENV_BATCH, control_dt=dt, reward_scale=dt / 0.02, value_layers=2,
+                            value_width=64, num_minibatches=mb, physics=physics).resolved()
+            tr = make_ppo(cfg)
+            st = jax.jit(tr.init)(jax.random.PRNGKey(0))
+            t0 = time.perf_counter()
+            fn = jax.jit(tr.chunk, donate_argnums=0).lower(st).compile()
+            b2 = {"st": st, "compile_s": time.perf_counter() - t0, "work": ENV_BATCH * cfg.chunk_steps}
+
+            def call(fn=fn, b2=b2):
+                b2["st"], m = fn(b2["st"])
+                jax.block_until_ready(m)
+
+            call()
+            ppo[physics] = (call, b2)
+        t = interleave({k: v[0] for k, v in ppo.items()}, max(1, rounds // 2) if not smoke else 1)
+        r = {k: timing(t[k], ppo[k][1]["work"])["control_steps_per_s"] for k in t}
+        out["d_ppo"][f"{dt * 1000:g}ms"] = {"num_minibatches": mb, "rates": r, "c_over_mjx": r["c"] / r["mjx"],
+                                            "compile_s": {k: ppo[k][1]["compile_s"] for k in ppo}}
+    return out
+
+
+def run(quick: bool = False, smoke: bool = False, timeout: float = 3600) -> dict:
+    from benchmarks.bench_learning import load_avg
+    from nmrl.runs.devices import cpu_cores
+
+    t0 = time.perf_counter()
+    load = [load_avg()]
+    env = dict(os.environ)
+    flags = " ".join(f for f in env.get("XLA_FLAGS", "").split()
+                     if not f.startswith("--xla_force_host_platform_device_count"))
+    env["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={cpu_cores()}".strip()
+    size = ["--smoke"] if smoke else ["--quick"] if quick else []
+    p = subprocess.run([sys.executable, "-m", "benchmarks.bench_physics_c", "--worker", *size],
+                       env=env, capture_output=True, text=True, timeout=timeout)
+    if p.returncode != 0:
+        raise RuntimeError(f"bench_physics_c worker failed (rc {p.returncode}): {p.stderr[-2000:]}")
+    w = json.loads(p.stdout.strip().splitlines()[-1])
+    load.append(load_avg())
+    sw = w["b_sweep"]
+    res = {
+        "benchmark": "--physics c: the C env in the program vs mujoco.batch alone; the 24-point sweep with "
+                     "learning on C vs MJX vs MuJoCo C alone; native PPO one iteration on C vs MJX",
+        "quick": quick, "smoke": smoke, "worker": w,
+        "goal": "the sweep with learning on C >= 0.6x MuJoCo C alone at the same batch and threads",
+        "goal_met": bool(w["c_limit"]["sweep_c_over_limit"] >= 0.6),
+        "load_avg": load, "wall_s": time.perf_counter() - t0,
+    }
+    print(f"physics_c: env in program {w['a_env']['ratio']:.2f}x mujoco.batch alone; sweep C "
+          f"{sw['rates']['c']:,.0f} vs MJX {sw['rates']['mjx']:,.0f} ctrl steps/s ({sw['c_over_mjx']:.2f}x), "
+          f"C on one device {sw['rates']['c_one_device']:,.0f}; sweep C / MuJoCo C alone "
+          f"{w['c_limit']['sweep_c_over_limit']:.2f}; PPO C/MJX "
+          + ", ".join(f"{k} {v['c_over_mjx']:.2f}x" for k, v in w["d_ppo"].items()), file=sys.stderr, flush=True)
+    return res
+
+
+if __name__ == "__main__":
+    if "--worker" in sys.argv:
+        print(json.dumps(_worker("--quick" in sys.argv, "--smoke" in sys.argv)))
+    else:
+        print(json.dumps(run("--quick" in sys.argv, "--smoke" in sys.argv), indent=1))
