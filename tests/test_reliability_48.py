@@ -134,3 +134,54 @@ def test_paths_the_file_system_cannot_take_are_one_line(tmp_path, argv):
     line = one_line(err, prefix="nmrl")
     assert rc == exits.BAD_INPUT and "is invalid" in line and len(line) < 400, line
     assert _listing(tmp_path) == ["file"]
+
+
+# ----------------------------------------------------------------------------- a run of another learner
+
+
+def _started(d: pathlib.Path, cfg) -> pathlib.Path:
+    """A run directory as a start killed before its first chunk leaves it: config.json alone."""
+    from nmrl.runs import store
+
+    store.write_config(d, cfg.resolved())
+    return d
+
+
+def _snapshot(d: pathlib.Path) -> dict[str, bytes]:
+    return {p.relative_to(d).as_posix(): p.read_bytes() for p in sorted(d.rglob("*")) if p.is_file()}
+
+
+@pytest.mark.parametrize("run, opts", [("ppo", ["--learner", "ac", "--l", "5"]),
+                                       ("ac", ["--learner", "ppo", "--epochs", "2"])])
+def test_a_resume_with_another_learners_options_is_one_line(tmp_path, run, opts):
+    from nmrl.learners.ppo import PPOConfig
+    from nmrl.paper.learner import TrainConfig
+
+    d = _started(tmp_path / run, PPOConfig(num_envs=4) if run == "ppo" else TrainConfig(preset="fast", num_envs=4))
+    before = _snapshot(d)
+    rc, _, err = _main(["train", "--resume", *opts, "--quiet", "--out", str(d)])
+    line = one_line(err)
+    assert rc == exits.BAD_INPUT and f"its own learner {run!r}" in line, line
+    assert _snapshot(d) == before
+
+
+def test_a_sweep_resume_with_a_point_of_another_learner_is_one_line(tmp_path):
+    from nmrl.learners.ppo import PPOConfig
+
+    s = tmp_path / "S"
+    rc, _, err = _main(["sweep", *T, "--steps", "100", "--l", "10", "--seeds", "1", "--quiet", "--out", str(s)])
+    assert rc == 0, err
+    point = s / "points" / "l10_s0"
+    for f in point.iterdir():
+        if f.is_file():
+            f.unlink()
+        else:
+            import shutil
+
+            shutil.rmtree(f)
+    _started(point, PPOConfig(num_envs=4))
+    before = _snapshot(s)
+    rc, _, err = _main(["sweep", "--resume", "--steps", "200", "--quiet", "--out", str(s)])
+    line = one_line(err)
+    assert rc == exits.BAD_INPUT and str(point) in line and "'ppo'" in line, line
+    assert _snapshot(s) == before

@@ -363,8 +363,13 @@ def _given_changes(ident: Config, given: dict, out: pathlib.Path) -> None:
     """Refuse options given with ``--resume`` that would change the run's identity, naming them all."""
     base = ident.resolved()
     bad = []
+    fields = {f.name for f in dataclasses.fields(ident)}
     for k, v in given.items():
         if k in BUDGET_FIELDS:
+            continue
+        if k not in fields:
+            bad.append(f"--{k.replace('_', '-')} {v!r} (the run's learner {learners.of(ident).name!r} has no such "
+                       f"option)")
             continue
         try:
             new = getattr(dataclasses.replace(ident, **{k: v}).resolved(), k)
@@ -415,6 +420,9 @@ def _resume(cfg: Config, out: pathlib.Path, given: dict | None, step: int | None
                 if s == steps[0]:
                     raise
     has_config = (out / CONFIG_FILE).is_file()
+    if type(cfg) is not type(run_cfg):  # before the options, which are the other learner's
+        raise RunError(f"--resume continues the run in {out} with its own learner {learners.of(run_cfg).name!r}; "
+                       f"--learner {learners.of(cfg).name} would change it")
     if given is not None:
         _given_changes(run_cfg, given, out)
         new_budget = {k: given.get(k) for k in BUDGET_FIELDS}
@@ -422,9 +430,6 @@ def _resume(cfg: Config, out: pathlib.Path, given: dict | None, step: int | None
         new_budget = _budget(cfg)
     if all(v is None for v in new_budget.values()):
         new_budget = None
-    if type(cfg) is not type(run_cfg):
-        raise RunError(f"--resume continues the run in {out} with its own learner {learners.of(run_cfg).name!r}; "
-                       f"--learner {learners.of(cfg).name} would change it")
     trainer = learners.of(run_cfg).make(run_cfg, env=env)
     _preflight(run_cfg, trainer)  # before the state is restored or made: sizes beyond the machine
 
