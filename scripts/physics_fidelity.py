@@ -56,6 +56,8 @@ CANDIDATES = {
     "B: iter 2, ls 2": {"solver_iterations": 2, "ls_iterations": 2},
     "C: dt 0.01": {"timestep": 0.01},
 }
+#: ``--physics-c``: MuJoCo C inside the program (nmrl/physics/mujoco_c.py) against the MJX reference
+C_CANDIDATES = {"D: MuJoCo C": {"physics": "c"}}
 REFERENCE = "reference"
 NOISE_FLOOR = "noise floor"
 HORIZONS_S = (1.0, 2.0, 5.0)
@@ -73,6 +75,9 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 #: is measured on it.
 DEFAULT_RUN = ROOT / "results" / "fig3_paper" / "points" / "l10_s2"
 DEFAULT_OUT = ROOT / "results" / "physics_fidelity" / "fidelity.json"
+C_OUT = ROOT / "results" / "physics_c" / "fidelity.json"
+#: a trajectory has parted from the reference once its trunk is this far from it [m] or a joint angle [rad]
+PARTED_M, PARTED_RAD = 0.01, 0.01
 QUICK_OUT = ROOT / "results" / "physics_fidelity" / "fidelity_quick.json"
 
 
@@ -94,6 +99,9 @@ def _positive(kind):
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--physics-c", action="store_true",
+                   help=f"the candidate is MuJoCo C (--physics c) instead of the cheaper MJX options "
+                        f"(writes {C_OUT.relative_to(ROOT)} by default)")
     p.add_argument("--quick", action="store_true",
                    help="a short test: 1 s rollouts, small timing (writes fidelity_quick.json by default)")
     p.add_argument("--run-dir", type=pathlib.Path, default=DEFAULT_RUN, help="trained policy (run directory)")
@@ -113,7 +121,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         a.open_seconds = a.stand_seconds = a.policy_seconds = 1.0
         a.timing_batch, a.timing_steps, a.timing_repeats = 4, 10, 2
     if a.out is None:
-        a.out = QUICK_OUT if a.quick else DEFAULT_OUT
+        a.out = C_OUT if a.physics_c and not a.quick else QUICK_OUT if a.quick else DEFAULT_OUT
     if not (a.run_dir / "checkpoints").is_dir() and not checkpoint.has_compact(a.run_dir):
         p.error(f"--run-dir {a.run_dir}: neither a checkpoints/ folder nor a compact.npz (give a training "
                 f"run directory or a published point, e.g. results/fig3_paper/points/l10_s0)")
@@ -184,6 +192,13 @@ def open_loop_deviation(q: np.ndarray, q_ref: np.ndarray, steps_at: dict[str, in
                 "joint_max_rad": float(np.max(joints[:n]))} for h, n in steps_at.items()}
 
 
+def parted_after(q: np.ndarray, q_ref: np.ndarray, dt: float) -> float | None:
+    """Seconds until the trunk is PARTED_M from the reference or a joint PARTED_RAD (None: never)."""
+    far = (np.linalg.norm(q[1:, :2] - q_ref[1:, :2], axis=1) > PARTED_M) | \
+        (np.max(np.abs(q[1:, 3:] - q_ref[1:, 3:]), axis=1) > PARTED_RAD)
+    return float((np.argmax(far) + 1) * dt) if far.any() else None
+
+
 def standing(q: np.ndarray, q_ref: np.ndarray) -> dict:
     fin, ref = q[-1], q_ref[-1]
     return {
@@ -241,7 +256,8 @@ def main(argv: list[str] | None = None) -> dict:
     acts3, pol3 = jnp.stack([open_actions, zeros, zeros]), jnp.array([0.0, 0.0, 1.0])
     dq = jnp.zeros((9,)).at[PERTURBED_QPOS].set(args.perturb)
 
-    options = {REFERENCE: {}, **CANDIDATES}
+    candidates = C_CANDIDATES if args.physics_c else CANDIDATES
+    options = {REFERENCE: {}, **candidates}
     results, timers, compile_s = {}, {}, {}
     for name, physics in options.items():
         t0 = time.perf_counter()
@@ -274,12 +290,13 @@ def main(argv: list[str] | None = None) -> dict:
     ref_policy = policy_summary(ref_pol, n_pol)
     ref_time = statistics.median(times[REFERENCE])
     rows = {}
-    for name in (REFERENCE, NOISE_FLOOR, *CANDIDATES):
+    for name in (REFERENCE, NOISE_FLOOR, *candidates):
         o, st, po = results[name]
         row = {
             "physics": options.get(name, {}),
             "open_loop": open_loop_deviation(o["qpos"][: n_open + 1], ref_open["qpos"][: n_open + 1], steps_at),
             "open_loop_nonfinite_steps": int(np.sum(o["nonfinite"][:n_open] > 0)),
+            "open_loop_parted_after_s": parted_after(o["qpos"][: n_open + 1], ref_open["qpos"][: n_open + 1], dt),
             "standing": standing(st["qpos"][: n_stand + 1], ref_stand["qpos"][: n_stand + 1]),
             "standing_nonfinite_steps": int(np.sum(st["nonfinite"][:n_stand] > 0)),
             "policy": policy_summary(po, n_pol),
@@ -295,7 +312,7 @@ def main(argv: list[str] | None = None) -> dict:
 
     floor = rows[NOISE_FLOOR]["open_loop"][first_horizon]
     verdicts = {}
-    for name in CANDIDATES:
+    for name in candidates:
         r = rows[name]
         dev = r["open_loop"][first_horizon]
         reasons = []
@@ -334,6 +351,7 @@ def main(argv: list[str] | None = None) -> dict:
         "timing": {"batch": args.timing_batch, "steps": args.timing_steps, "repeats": args.timing_repeats,
                    "backend": jax.default_backend(), "machine": platform.node(),
                    "load_avg": os.getloadavg()},
+        "parted": {"trunk_m": PARTED_M, "joint_rad": PARTED_RAD},
         "decision_rule": {"policy_rel_tol": REL_TOL, "standing_drift_m": STAND_TOL_M,
                           "open_loop_floor_factor": FLOOR_FACTOR, "open_loop_horizon": first_horizon},
         "options": rows,

@@ -346,6 +346,25 @@ class HalfCheetah:
             )
         return new
 
+    # ---------------------------------------------------------------- perturbed start
+    def perturb(self, state: State, key: jax.Array, scale: float) -> State:
+        """``state`` with every hinge angle moved by U(-scale, scale) rad and every hinge velocity by
+        scale * N(0, 1) rad/s (Gymnasium's reset noise, on the joints only: the trunk keeps its pose),
+        its observation recomputed: a start that differs between rollouts of a deterministic policy."""
+        k_q, k_v = jax.random.split(key)
+        nq, nv = self.mj_model.nq, self.mj_model.nv
+        dq = jnp.zeros(nq).at[3:].set(jax.random.uniform(k_q, (nq - 3,), minval=-scale, maxval=scale))
+        dv = jnp.zeros(nv).at[3:].set(scale * jax.random.normal(k_v, (nv - 3,)))
+        if self.c is None:
+            data = state.data.replace(qpos=state.data.qpos + dq, qvel=state.data.qvel + dv)
+        else:
+            bits, qpos, qvel = self.c.shift(state.data.state, dq, dv)
+            data = CData(state=bits, qpos=qpos, qvel=qvel)
+        p, v, phi, dphi = kinematics(data.qpos, data.qvel)
+        metrics = {**state.metrics, **self._extra_metrics(p, v, jnp.zeros((), bool))}
+        obs = observation(p, v, phi, dphi, self.config.contact_tol)
+        return state.replace(data=data, obs=obs, metrics=metrics, info={**state.info, "terminal_obs": obs})
+
     # --------------------------------------------------------------- helpers
     def _limit_torque(self, data: mjx.Data) -> jax.Array:
         """tau^w: the joint-limit constraint force on each actuated joint (actuator order)."""

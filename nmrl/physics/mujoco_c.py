@@ -206,6 +206,24 @@ class CPhysics:
         out = jax.pure_callback(self._callback, tuple(shapes), state, action, vmap_method="broadcast_all")
         return Advanced(*out)
 
+    def shift(self, state: jax.Array, dq: jax.Array, dv: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+        """(state, qpos, qvel) with ``dq`` added to qpos and ``dv`` to qvel (in float64, on the host)."""
+        m = self.plant.model
+        shapes = (jax.ShapeDtypeStruct((2 * self.nstate,), jnp.uint32), jax.ShapeDtypeStruct((m.nq,), jnp.float32),
+                  jax.ShapeDtypeStruct((m.nv,), jnp.float32))
+        return jax.pure_callback(lambda b, q, v: _shift_host(self, b, q, v), shapes, state, dq, dv,
+                                 vmap_method="broadcast_all")
+
+
+def _shift_host(self, bits, dq, dv):
+    lead = bits.shape[:-1]
+    state = from_bits(bits.reshape(-1, 2 * self.nstate)).copy()
+    state[:, self._qpos] += np.asarray(dq, np.float64).reshape(len(state), -1)
+    state[:, self._qvel] += np.asarray(dv, np.float64).reshape(len(state), -1)
+    qpos, qvel = self.split(state)
+    return (to_bits(state).reshape(*lead, -1), qpos.astype(np.float32).reshape(*lead, -1),
+            qvel.astype(np.float32).reshape(*lead, -1))
+
 
 def _component(model: mujoco.MjModel, part: mujoco.mjtState) -> tuple[int, int]:
     """[start, stop) of one state component inside the ``mjSTATE_INTEGRATION`` vector."""
