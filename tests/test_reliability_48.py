@@ -185,3 +185,48 @@ def test_a_sweep_resume_with_a_point_of_another_learner_is_one_line(tmp_path):
     line = one_line(err)
     assert rc == exits.BAD_INPUT and str(point) in line and "'ppo'" in line, line
     assert _snapshot(s) == before
+
+
+# ----------------------------------------------------------------------------- directories that can be continued
+
+
+def test_a_run_killed_during_its_first_save_is_continued_by_resume_from_the_start(tmp_path):
+    out = tmp_path / "R"
+    rc, _, err = _main(["train", *T, "--steps", "100", "--quiet", "--out", str(out)])
+    assert rc == 0, err
+    first = (out / "metrics.jsonl").read_text().splitlines()
+    # what a kill during the first save leaves: config.json, the chunk's row, orbax's unfinished step
+    (out / "checkpoints" / "100").rename(out / "checkpoints" / "100.orbax-checkpoint-tmp")
+    rc, _, err = _main(["train", *T, "--steps", "100", "--quiet", "--out", str(out)])
+    assert rc == exits.BAD_INPUT and "--resume" in one_line(err)
+    rc, _, err = _main(["train", "--resume", "--steps", "200", "--quiet", "--out", str(out)])
+    assert rc == 0, err
+    assert "no checkpoint yet" in err and "starts again from step 0" in err
+    rows = (out / "metrics.jsonl").read_text().splitlines()
+    assert len(rows) == 2 and _drop_times(rows[0]) == _drop_times(first[0])  # the same first chunk, again
+    assert sorted(p.name for p in (out / "checkpoints").iterdir()) == ["100", "200"]
+
+
+def _drop_times(line: str) -> dict:
+    import json
+
+    return {k: v for k, v in json.loads(line).items() if k not in ("wall_s", "steps_per_s")}
+
+
+def test_a_sweep_resume_starts_a_deleted_point_fresh_and_continues_the_others(tmp_path):
+    import json
+    import shutil
+
+    s = tmp_path / "S"
+    rc, _, err = _main(["sweep", *T, "--steps", "100", "--l", "10", "--seeds", "2", "--quiet", "--out", str(s)])
+    assert rc == 0, err
+    kept = (s / "points" / "l10_s0" / "metrics.jsonl").read_text()
+    gone = (s / "points" / "l10_s1" / "metrics.jsonl").read_text().splitlines()
+    shutil.rmtree(s / "points" / "l10_s1")
+    rc, _, err = _main(["sweep", "--resume", "--steps", "200", "--quiet", "--out", str(s)])
+    assert rc == 0, err
+    assert "l10_s1" in err and "starts fresh" in err
+    assert (s / "points" / "l10_s0" / "metrics.jsonl").read_text().startswith(kept)
+    again = (s / "points" / "l10_s1" / "metrics.jsonl").read_text().splitlines()
+    assert [json.loads(r)["step"] for r in again] == [100, 200]
+    assert _drop_times(again[0]) == _drop_times(gone[0])

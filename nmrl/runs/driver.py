@@ -406,10 +406,14 @@ def _resume(cfg: Config, out: pathlib.Path, given: dict | None, step: int | None
     compact = not steps and checkpoint.has_compact(out)
     if not steps:
         rows = read_metrics(out)
-        if run_cfg is None or (rows and not compact) or step is not None:
+        if run_cfg is None or step is not None:
             why = (f"; its {METRICS_FILE} has {len(rows)} row(s) that cannot be continued: choose another --out"
                    if rows else "")
             raise RunError(f"--resume: no checkpoint found in {out}" + why)
+        if rows and not compact and dist.is_writer():  # stopped before its first save: it starts again
+            print(f"nmrl: note: the run in {out} has no checkpoint yet (it was stopped before its first save): it "
+                  f"starts again from step 0 with its own config, and its {len(rows)} metrics row(s) are replaced",
+                  file=sys.stderr, flush=True)
     if run_cfg is None:  # a run directory without config.json (written by checkpoint.save alone)
         source = f"the newest checkpoint ({out / checkpoint.CHECKPOINTS / str(steps[-1])})"
         for s in reversed(steps):
@@ -442,7 +446,7 @@ def _resume(cfg: Config, out: pathlib.Path, given: dict | None, step: int | None
         meta = {"path": str(checkpoint.compact_path(out))}
         ts = checkpoint.restore_compact(out, trainer)
         old_budget = _budget(run_cfg)
-    elif not steps:  # created, stopped before its first checkpoint: start it again, as it would have
+    elif not steps:  # created, stopped before its first checkpoint: start it again, as it would have run
         meta, ts = None, jax.jit(trainer.init)(jax.random.PRNGKey(run_cfg.seed))
         old_budget = _budget(run_cfg)
     else:
@@ -926,6 +930,14 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[C
         ps: list[_Point] = []
         if resume:
             for n, d, c in zip(names, dirs, configs):
+                if not any((d / f).exists() for f in RUN_FILES):  # deleted, or never begun: a fresh point
+                    if writer:
+                        print(f"nmrl: note: point {n} has no run in {d}: it starts fresh", file=sys.stderr, flush=True)
+                    tr = learners.of(c).make(c, env=env)
+                    env = env or tr.env
+                    ts = jax.jit(tr.init)(jax.random.PRNGKey(c.seed))
+                    ps.append(_Point(n, d, c, tr, ts))
+                    continue
                 # a diverged point stopped saving at its last good step and stays frozen there
                 frozen = any(is_diverged(r) for r in read_metrics(d))
                 cfg, tr, ts, record = _resume(c, d, dataclasses.asdict(c), None, env=env)
@@ -982,7 +994,7 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[C
             before_start()
         if writer:
             for p in ps:
-                if resume:
+                if p.record is not None:
                     _begin_resumed(p)
                 else:
                     _begin_fresh(p)
