@@ -406,7 +406,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         if field is not None and values is None and not args.resume:
             raise ValueError(f"--{field} is required (the values of the sweep, e.g. --l 1 2 3 5 10 15 20 30)")
         spec = sweep.SweepSpec(ls=tuple(values or (1,)) if field is not None else (None,), seeds=args.seeds,
-                               base=base, first=tuple(args.first or ()), field=field)
+                               base=base, first=tuple(args.first or ()), field=field, seed0=args.seed0)
         spec.validate()
         if args.checkpoint_every < 1:
             raise ValueError(f"--checkpoint-every={args.checkpoint_every} is invalid: must be >= 1")
@@ -476,7 +476,7 @@ def _varied_spec(args: argparse.Namespace, learner, base):
             raise ValueError(f"--{sf} takes one value when --vary {name} is the swept field, got {one}")
         base = dataclasses.replace(base, **{sf: one[0]})
     first = tuple(t(x) for x in (args.first or ()))
-    spec = sweep.SweepSpec(ls=values, seeds=args.seeds, base=base, first=first, field=name)
+    spec = sweep.SweepSpec(ls=values, seeds=args.seeds, base=base, first=first, field=name, seed0=args.seed0)
     spec.validate()
     return spec
 
@@ -521,7 +521,8 @@ def build_parser(learner=None) -> argparse.ArgumentParser:
                    help=f"--vary FIELD V1 V2 ...: sweep one traced hyperparameter of the learner "
                         f"({', '.join(learner.hyper_fields)}) instead" +
                         (f" of --{field}" if field else " of the seeds alone"))
-    p.add_argument("--seeds", type=int, default=3, help="seeds per value (0..seeds-1)")
+    p.add_argument("--seeds", type=int, default=3, help="seeds per value (seed0..seed0+seeds-1)")
+    p.add_argument("--seed0", type=int, default=0, help="the first seed (default 0)")
     p.add_argument("--checkpoint-every", type=int, default=1, help="checkpoint the points every K chunks")
     p.add_argument("--first", type=_field_type(learner.config, next(f for f in dataclasses.fields(learner.config)
                                                                     if f.name == field)) if field else int,

@@ -75,6 +75,9 @@ class SweepSpec:
     #: the traced hyperparameter the sweep varies (one of the learner's ``hyper_fields``); None:
     #: the points differ in the seed only (``ls`` must then be ``(None,)``)
     field: str | None = "l"
+    #: the first seed: the points' seeds are seed0 .. seed0 + seeds - 1 (a study keeps its screen's
+    #: seeds apart from its grid's)
+    seed0: int = 0
 
     def validate(self) -> None:
         """ValueError naming the first bad value: the field, its values, the seed count, ``first``,
@@ -101,6 +104,10 @@ class SweepSpec:
         if not isinstance(self.seeds, int) or isinstance(self.seeds, bool) or not 1 <= self.seeds <= driver.SEED_MAX + 1:
             raise ValueError(f"seeds={self.seeds!r} is invalid: must be an integer in [1, {driver.SEED_MAX + 1}] (the "
                              f"seeds 0..seeds-1 are 32-bit PRNG seeds)")
+        if not isinstance(self.seed0, int) or isinstance(self.seed0, bool) or \
+                not 0 <= self.seed0 <= driver.SEED_MAX + 1 - self.seeds:
+            raise ValueError(f"seed0={self.seed0!r} is invalid: must be an integer >= 0 with seed0 + seeds - 1 <= "
+                             f"{driver.SEED_MAX} (32-bit PRNG seeds)")
         bad = [l for l in self.first if l not in self.ls]
         if bad or len(set(self.first)) != len(self.first):
             raise ValueError(f"first={list(self.first)} is invalid: the {f} values that run first must be "
@@ -117,7 +124,7 @@ class SweepSpec:
         return [[i for i, (l, _) in enumerate(pts) if l in self.first]]
 
     def points(self) -> list[tuple[int, int]]:
-        return [(l, s) for l in self.ls for s in range(self.seeds)]
+        return [(l, s) for l in self.ls for s in range(self.seed0, self.seed0 + self.seeds)]
 
     def point_configs(self) -> list:
         if self.field is None:
@@ -173,7 +180,8 @@ def draw(out: pathlib.Path, results: list[dict], path: str | os.PathLike | None 
 
 def _write_spec(out: pathlib.Path, spec: SweepSpec) -> None:
     out.mkdir(parents=True, exist_ok=True)
-    store.atomic_write_json(out / SPEC_FILE, {"ls": list(spec.ls), "seeds": spec.seeds, "first": list(spec.first),
+    store.atomic_write_json(out / SPEC_FILE, {"ls": list(spec.ls), "seeds": spec.seeds,
+                                              **({"seed0": spec.seed0} if spec.seed0 else {}), "first": list(spec.first),
                                               "base": dataclasses.asdict(spec.base),
                                               learners.KEY: learners.of(spec.base).name, "field": spec.field})
 
@@ -183,7 +191,7 @@ def load_spec(out: str | os.PathLike) -> SweepSpec:
     saved = json.loads((pathlib.Path(out) / SPEC_FILE).read_text())
     base = learners.config_from_dict(saved["base"], saved.get(learners.KEY))
     return SweepSpec(ls=tuple(saved["ls"]), seeds=saved["seeds"], base=base, first=tuple(saved.get("first", ())),
-                     field=saved.get("field", "l"))
+                     field=saved.get("field", "l"), seed0=saved.get("seed0", 0))
 
 
 def run_sweep(spec: SweepSpec, out: str | os.PathLike, *, resume: bool = False, progress: bool = True,
