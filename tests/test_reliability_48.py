@@ -230,3 +230,69 @@ def test_a_sweep_resume_starts_a_deleted_point_fresh_and_continues_the_others(tm
     again = (s / "points" / "l10_s1" / "metrics.jsonl").read_text().splitlines()
     assert [json.loads(r)["step"] for r in again] == [100, 200]
     assert _drop_times(again[0]) == _drop_times(gone[0])
+
+
+# ----------------------------------------------------------------------------- one eval, one set of outputs
+
+SET = ["eval.json", "gait.gif", "strobe.png", "trajectory.npz"]
+
+
+@pytest.fixture(scope="module")
+def run2(tmp_path_factory) -> pathlib.Path:
+    """A finished run with checkpoints at steps 100 and 200."""
+    d = tmp_path_factory.mktemp("run2") / "R"
+    rc, _, err = _main(["train", *T, "--steps", "200", "--quiet", "--out", str(d)])
+    assert rc == 0, err
+    return d
+
+
+def _eval_set(d: pathlib.Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(d.iterdir()) if p.is_file()}
+
+
+def test_an_eval_without_pictures_leaves_no_pictures_of_an_earlier_eval(run2, tmp_path):
+    import shutil
+
+    run = tmp_path / "R"
+    shutil.copytree(run2, run)
+    rc, _, err = _main(["eval", str(run), "--step", "100", "--seconds", "1"])
+    assert rc == 0, err
+    assert sorted(os.listdir(run / "eval")) == SET
+    rc, _, err = _main(["eval", str(run), "--step", "200", "--seconds", "1", "--no-render"])
+    assert rc == 0, err
+    assert sorted(os.listdir(run / "eval")) == ["eval.json"]
+
+
+@pytest.mark.slow  # three evals, one of them a real process killed while it writes (~1 min)
+def test_an_eval_killed_while_it_writes_leaves_one_set_and_the_next_eval_cleans_up(run2, tmp_path):
+    import json
+    import shutil
+    import signal
+
+    run = tmp_path / "R"
+    shutil.copytree(run2, run)
+    ev = run / "eval"
+    rc, _, err = _main(["eval", str(run), "--step", "100", "--seconds", "2"])
+    assert rc == 0, err
+    old = _eval_set(ev)
+    env = dict(os.environ)
+    env.pop("XLA_FLAGS", None)
+    p = subprocess.Popen([sys.executable, "-m", "nmrl.cli", "eval", str(run), "--step", "200", "--seconds", "2"],
+                         env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        t0 = time.time()
+        while not [n for n in os.listdir(ev) if n.startswith(".") and n != ".nmrl.lock"]:  # it writes
+            assert p.poll() is None and time.time() - t0 < 300
+            time.sleep(0.005)
+        time.sleep(0.05)
+        p.send_signal(signal.SIGKILL)
+    finally:
+        p.kill()
+        p.wait()
+    left = _eval_set(ev)
+    if "eval.json" in left:  # the old set, whole
+        assert {k: v for k, v in left.items() if k in SET} == old
+    rc, _, err = _main(["eval", str(run), "--step", "200", "--seconds", "2"])
+    assert rc == 0, err
+    assert sorted(os.listdir(ev)) == SET
+    assert json.loads((ev / "eval.json").read_text())["step"] == 200

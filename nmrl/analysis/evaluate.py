@@ -15,7 +15,10 @@ JSON-able dict (see :func:`evaluate`) written to ``RUN_DIR/eval/eval.json``; wit
 deterministic rollout is drawn as a Fig.-4-like strobe (``strobe.png``) and an animation
 (``gait.gif``, real time, camera following the trunk; :mod:`nmrl.analysis.gait_pictures`), and its
 joint positions are kept in ``trajectory.npz`` to redraw.
-Same checkpoint and seed give the identical JSON.
+Same checkpoint and seed give the identical JSON. The outputs of one eval are one set: they are
+written into a staging directory and put in place together, ``eval.json`` last, after the last
+eval's ``eval.json`` and the outputs the new set lacks are removed; what a stopped eval left
+(staging, temporary files) is removed by the next one.
 
 The checkpoint must be of the run (its identity, ``RUN_DIR/config.json``: nmrl/runs/checkpoint.py);
 without ``step`` a corrupted newest checkpoint is skipped with a warning naming it, and the newest
@@ -29,6 +32,7 @@ import json
 import math
 import os
 import pathlib
+import shutil
 import sys
 from typing import Any, Callable
 
@@ -40,7 +44,7 @@ from nmrl import learners
 from nmrl.analysis.gait_pictures import plot_strobe, write_gif
 from nmrl.paper.env import REWARD_TERMS, EnvConfig, HalfCheetah, forward_kinematics
 from nmrl.runs import checkpoint, io_errors
-from nmrl.runs.store import atomic_path, atomic_write_text
+from nmrl.runs.store import atomic_path, atomic_write_text, fsync_path
 
 __all__ = ["evaluate", "rollout", "rollout_params", "rollout_policy", "summarize", "plot_strobe", "write_gif", "GROUND_KEYS"]
 
@@ -53,6 +57,11 @@ WRIST = 8
 GAIT_FROM_S = 1.0
 EVAL_DIR = "eval"
 TRAJECTORY = "trajectory.npz"  #: the deterministic rollout's joint positions, written with the pictures
+EVAL_JSON, STROBE, GIF = "eval.json", "strobe.png", "gait.gif"
+#: the files of one eval's set (eval.json names the others when they were drawn)
+OUTPUTS = (EVAL_JSON, STROBE, GIF, TRAJECTORY)
+#: an eval's outputs are written into ``OUT_DIR/.staging.<pid>`` first, then put in place as one set
+STAGING = ".staging."
 
 
 # ----------------------------------------------------------------------------- rollout
@@ -274,16 +283,54 @@ def evaluate(
         "exploring": summarize(exp),
     }
     out_dir.mkdir(parents=True, exist_ok=True)
-    if render:
-        title = f"{run.name}, step {step}, deterministic policy"
-        strobe = plot_strobe(det["pos"], config.control_dt, out_dir / "strobe.png", title=title)
-        gif = write_gif(det["pos"], config.control_dt, out_dir / "gait.gif")
-        traj = out_dir / TRAJECTORY
-        with atomic_path(traj) as tmp:
-            np.savez(tmp, pos=np.asarray(det["pos"], np.float32), control_dt=np.float64(config.control_dt))
-        result["files"] = {"strobe": str(strobe), "gif": str(gif), "trajectory": str(traj)}
-    atomic_write_text(out_dir / "eval.json", json.dumps(result, indent=2, allow_nan=False) + "\n")
+    remove_stale(out_dir)
+    stage = out_dir / f"{STAGING}{os.getpid()}"
+    stage.mkdir()
+    try:
+        if render:
+            title = f"{run.name}, step {step}, deterministic policy"
+            plot_strobe(det["pos"], config.control_dt, stage / STROBE, title=title)
+            write_gif(det["pos"], config.control_dt, stage / GIF)
+            with atomic_path(stage / TRAJECTORY) as tmp:
+                np.savez(tmp, pos=np.asarray(det["pos"], np.float32), control_dt=np.float64(config.control_dt))
+            result["files"] = {"strobe": str(out_dir / STROBE), "gif": str(out_dir / GIF),
+                               "trajectory": str(out_dir / TRAJECTORY)}
+        atomic_write_text(stage / EVAL_JSON, json.dumps(result, indent=2, allow_nan=False) + "\n")
+        _commit(stage, out_dir)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
     return result
+
+
+def _commit(stage: pathlib.Path, out_dir: pathlib.Path) -> None:
+    """Put the staged outputs of one eval in place of the last eval's, eval.json last: the old
+    eval.json goes first, then every old output the new set lacks (e.g. the pictures, for an eval
+    without them), then the new files are renamed in, so that eval.json always stands beside
+    outputs of its own eval (a stop in between leaves the new files without eval.json)."""
+    new = {p.name for p in stage.iterdir()}
+    (out_dir / EVAL_JSON).unlink(missing_ok=True)
+    for name in OUTPUTS:
+        if name not in new:
+            (out_dir / name).unlink(missing_ok=True)
+    for name in sorted(new - {EVAL_JSON}) + [EVAL_JSON]:
+        os.replace(stage / name, out_dir / name)
+    fsync_path(out_dir)
+
+
+def remove_stale(out_dir: pathlib.Path) -> list[pathlib.Path]:
+    """Remove what an eval stopped while it wrote ``out_dir`` left: its staging directory and the
+    temporary files of its outputs (atomic writes: ``.<name>.<pid>.tmp<suffix>``). Called by the
+    one writer of ``out_dir`` (``nmrl eval`` holds its lock), so no other eval is writing them."""
+    gone = []
+    stems = {pathlib.Path(n).stem for n in OUTPUTS}
+    for p in out_dir.iterdir():
+        if p.name.startswith(STAGING) and p.is_dir():
+            shutil.rmtree(p, ignore_errors=True)
+            gone.append(p)
+        elif p.name.startswith(".") and ".tmp" in p.name and p.name[1:].split(".", 1)[0] in stems:
+            p.unlink(missing_ok=True)
+            gone.append(p)
+    return gone
 
 
 def select_policy(run: pathlib.Path, step: int | None = None):
