@@ -339,7 +339,7 @@ def test_checkpoints_without_an_identity_field_still_restore(base, tmp_path):
 
 @pytest.mark.parametrize("argv,message", [
     (["--control-dt", "0.007"], "control_dt=0.007 is invalid: must be a whole multiple of the physics timestep "
-                                "0.005 s (e.g. 0.005, 0.01, 0.02)"),
+                                "0.005 s (e.g. 0.005, 0.01, 0.02; --physics-timestep sets it)"),
     (["--control-dt", "inf"], "control_dt=inf is invalid: must be a finite number"),
     (["--control-dt", "nan"], "control_dt=nan is invalid: must be a finite number"),
     (["--sigma", "inf"], "sigma=inf is invalid: must be a finite number"),

@@ -118,6 +118,7 @@ class PPOConfig:
     stop_prob: float = 1 / 250
     trial_s: float | None = None  #: mean trial length [s] (stop_prob = control_dt / trial_s); None: stop_prob
     physics: str = "mjx"  #: "mjx" or "c" (MuJoCo C on the CPU; nmrl/physics/mujoco_c.py)
+    physics_timestep: float | None = None  #: MuJoCo's timestep [s]; None: the model's (0.005 s)
     num_envs: int = 64
     #: control steps per environment in one chunk: a multiple of one iteration's (None: one iteration)
     chunk_steps: int | None = None
@@ -147,7 +148,7 @@ class PPOConfig:
 
     def env_config(self) -> EnvConfig:
         return EnvConfig(control_dt=self.control_dt, stop_prob=self.stop_prob, auto_reset=True,
-                         physics=self.physics, trial_s=self.trial_s)
+                         physics=self.physics, trial_s=self.trial_s, timestep=self.physics_timestep)
 
     def validate(self) -> None:
         if self.exploration not in explore.KINDS:
@@ -570,7 +571,7 @@ LEARNER = register(Learner(
         "policy_layers": "hidden layers of the policy", "policy_width": "units per policy layer",
         "value_layers": "hidden layers of the value net", "value_width": "units per value layer",
         "control_dt": "control step [s]", "stop_prob": "probability of stopping a trial after each step",
-        "physics": PHYSICS_HELP, "trial_s": TRIAL_S_HELP,
+        "physics": PHYSICS_HELP, "trial_s": TRIAL_S_HELP, "physics_timestep": "MuJoCo's timestep [s] (default: the model's 0.005 s); the control step must be a multiple",
         "num_envs": "environments in lock-step (must divide --batch-size)",
         "chunk_steps": "control steps per environment per chunk, a multiple of one iteration's (default: one)",
         "steps": "budget in control steps per environment (default: one iteration)",

@@ -247,6 +247,7 @@ class TrainConfig:
     stop_prob: float = 1 / 250
     trial_s: float | None = None  #: mean trial length [s] (stop_prob = control_dt / trial_s); None: stop_prob
     physics: str = "mjx"  #: "mjx" or "c" (MuJoCo C on the CPU; nmrl/physics/mujoco_c.py)
+    physics_timestep: float | None = None  #: MuJoCo's timestep [s]; None: the model's (0.005 s)
     # batching and budget
     num_envs: int = 256  #: N environments in lock-step
     chunk_steps: int = 250  #: control steps per environment in one jitted chunk
@@ -315,7 +316,7 @@ class TrainConfig:
 
     def env_config(self) -> EnvConfig:
         return EnvConfig(control_dt=self.control_dt, stop_prob=self.stop_prob, auto_reset=True,
-                         physics=self.physics, trial_s=self.trial_s)
+                         physics=self.physics, trial_s=self.trial_s, timestep=self.physics_timestep)
 
 
 class Hyper(NamedTuple):

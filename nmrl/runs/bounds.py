@@ -52,6 +52,7 @@ class Range:
 RANGES: dict[str, Range] = {
     "control_dt": Range(0.0, 1.0, open_lo=True, why="seconds per control step, at most 1 s"),
     "stop_prob": Range(0.0, 1.0, why="a probability per control step"),
+    "physics_timestep": Range(0.0, 0.1, open_lo=True, why="MuJoCo's timestep in seconds"),
     "trial_s": Range(0.0, 1e6, open_lo=True, why="a mean trial length in seconds"),
     "sigma": Range(0.0, 10.0, open_lo=True,
                    why="the exploration noise's standard deviation; actions are clipped to [-1, 1]"),

@@ -121,11 +121,11 @@ def check_config(cfg: Config) -> None:
     if not (isinstance(cfg.seed, int) and not isinstance(cfg.seed, bool) and 0 <= cfg.seed <= SEED_MAX):
         raise ValueError(f"seed={cfg.seed!r} is invalid: must be an integer in [0, {SEED_MAX}] "
                          f"(JAX's PRNG seeds are 32-bit; others wrap around to another seed)")
-    ts = physics_timestep()
+    ts = getattr(cfg, "physics_timestep", None) or physics_timestep()
     n = cfg.control_dt / ts
     if abs(n - round(n)) > 1e-6 or round(n) < 1:
         raise ValueError(f"control_dt={cfg.control_dt!r} is invalid: must be a whole multiple of the physics "
-                         f"timestep {ts:g} s (e.g. {ts:g}, {2 * ts:g}, {4 * ts:g})")
+                         f"timestep {ts:g} s (e.g. {ts:g}, {2 * ts:g}, {4 * ts:g}; --physics-timestep sets it)")
     if getattr(cfg, "physics", "mjx") == "c":
         import mujoco
 
@@ -288,6 +288,13 @@ def stop_on_signals() -> tuple[dict, Callable[[], None]]:
             signal.signal(sg, h)
 
     return stop, restore
+
+
+def _compile_needed(guard: signals.Guard) -> bool:
+    """Whether to compile the chunk: not when one process was already stopped by a signal (it stops
+    at once, before anything of the run is written, instead of after a compile of tens of seconds);
+    several processes compile and then agree on the signal (nmrl/runs/distributed.py)."""
+    return guard.signal is None or dist.active()
 
 
 def compile_chunk(fn, ts, donate: bool = True):
@@ -813,10 +820,11 @@ def train(cfg: Config, out: str | os.PathLike, *, resume: bool = False, progress
                   f"({len(jax.local_devices())} local {jax.local_devices()[0].platform} device(s){procs})",
                   file=sys.stderr, flush=True)
         guard.at("compiling")
-        compile_s = _allocate(layout.compile, "compiling the chunk", cfg)
-        if progress:
-            print(f"compiled the training chunk ({cfg.num_envs} environments on {n_dev} device(s)) in "
-                  f"{compile_s:.1f} s", file=sys.stderr, flush=True)
+        if _compile_needed(guard):
+            compile_s = _allocate(layout.compile, "compiling the chunk", cfg)
+            if progress:
+                print(f"compiled the training chunk ({cfg.num_envs} environments on {n_dev} device(s)) in "
+                      f"{compile_s:.1f} s", file=sys.stderr, flush=True)
         signum, _ = _agreed(guard.signal, np.zeros(0, bool))
         if signum is not None:  # stopped before the first chunk: nothing of this session is written
             what = ("nothing of the run was written" if not resume else
@@ -975,9 +983,10 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[C
                   f"({configs[0].num_envs * min(group, layout.per_dev)} environments per device at a time)",
                   file=sys.stderr, flush=True)
         guard.at("compiling")
-        compile_s = _allocate(layout.compile, "compiling the chunk", configs[0])
-        if progress:
-            print(f"compiled the sweep chunk in {compile_s:.1f} s", file=sys.stderr, flush=True)
+        if _compile_needed(guard):
+            compile_s = _allocate(layout.compile, "compiling the chunk", configs[0])
+            if progress:
+                print(f"compiled the sweep chunk in {compile_s:.1f} s", file=sys.stderr, flush=True)
         signum, _ = _agreed(guard.signal, np.zeros(0, bool))
         if signum is not None:  # stopped before the first chunk: nothing of this session is written
             what = "nothing was written" if not resume else f"{out} is as it was; continue with --resume"

@@ -84,7 +84,8 @@ def _check_config(meta: dict, config: Config) -> None:
 #: had: a field at that value is left out of the identity, so their digests (and identity
 #: comparisons) stay what they are (such runs used the paper's rule, plain sgd, and the actor-critic).
 LATER_FIELDS: dict[str, object] = {"actor_opt": "sgd", "critic_opt": "sgd", learners.KEY: learners.DEFAULT,
-                                   "physics": "mjx", "trial_s": None}
+                                   "physics": "mjx", "trial_s": None,
+                                   "physics_timestep": None}
 
 
 def identity_config(config: Config) -> dict:
