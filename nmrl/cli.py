@@ -192,13 +192,18 @@ def _failure(e: BaseException) -> int | None:
     return None
 
 
-def _guard(what: str, out: str | None) -> "_signals.Guard":
-    """The command's signal handling for its whole life (nmrl/runs/signals.py); a second signal
-    exits at once naming what is intact."""
+def _guard(what: str, out: str | None, resume: bool) -> "_signals.Guard":
+    """The command's signal handling for its whole life (nmrl/runs/signals.py), installed before JAX
+    is imported; a second signal exits at once naming what is intact: before the run's files are
+    written (a fresh run), nothing; else the newest checkpoint."""
     def second(signum: int, moment: str) -> str:
+        head = f"nmrl: stopped at once by a second signal {signum} while {moment}"
+        written = out and any(os.path.exists(os.path.join(out, f)) for f in ("config.json", "sweep.json"))
+        if not resume and not written and moment in ("starting", "compiling"):
+            return f"{head}; nothing of the run was written"
         where = f" in {out}" if out else ""
-        return (f"nmrl: stopped at once by a second signal {signum} while {moment}; the newest checkpoint{where} is "
-                f"intact (saves are atomic); continue with: nmrl {what} --resume --out {out}")
+        return (f"{head}; the newest checkpoint{where} is intact (saves are atomic); continue with: nmrl {what} "
+                f"--resume --out {out}")
 
     return _signals.Guard(on_second=second).install()
 
@@ -597,6 +602,27 @@ def main(argv: list[str] | None = None) -> int:
 
         io_errors.mute_after_report = True
     argv = sys.argv[1:] if argv is None else list(argv)
+    trains = argv[:1] in (["train"], ["sweep"])
+    # this process runs the command (a distributed one's watcher forwards signals instead): from its
+    # first line on, before JAX is imported, a signal never raises inside JAX (nmrl/runs/signals.py)
+    watcher = trains and _flag(argv, "--coordinator") is not None and os.environ.get(_launch.CHILD_ENV) != "1"
+    guard = _guard(argv[0], _flag(argv, "--out"), "--resume" in argv) if trains and not watcher else None
+    try:
+        return _command(argv, guard)
+    except _signals.Interrupted as e:
+        return e.exit_status
+    finally:
+        if guard is not None:
+            guard.restore()
+
+
+def _command(argv: list[str], guard: "_signals.Guard | None") -> int:
+    """The command ``argv`` under ``guard`` (train and sweep; None for the others). A signal before
+    the command starts its run stops it there (one process; several processes stop together at the
+    driver's agreed points)."""
+    early = guard if guard is not None and _flag(argv, "--coordinator") is None else None
+    if early is not None:
+        early.raise_if_stopped(_stopped_early)
     if argv[:1] in (["train"], ["sweep"]):
         try:
             _devices.configure(_devices.requested(argv))  # before JAX is imported
@@ -632,18 +658,14 @@ def main(argv: list[str] | None = None) -> int:
         watched = _watch(argv)
         if watched is not None:
             return watched
-    # this process runs the command (a distributed one's watcher forwards signals instead): from here
-    # on a signal never raises inside JAX (nmrl/runs/signals.py)
-    guard = _guard(argv[0], _flag(argv, "--out")) if argv[:1] in (["train"], ["sweep"]) else None
+    args = build_parser(learner).parse_args(argv)
+    args.argv = argv
+    if early is not None:
+        early.raise_if_stopped(_stopped_early)
     try:
-        args = build_parser(learner).parse_args(argv)
-        args.argv = argv
         status = args.func(args)
     except _signals.Interrupted as e:
         status = e.exit_status
-    finally:
-        if guard is not None:
-            guard.restore()
     if getattr(args, "coordinator", None) is not None and "jax" in sys.modules:
         from nmrl.runs import distributed
 
@@ -653,6 +675,11 @@ def main(argv: list[str] | None = None) -> int:
             os._exit(status)
         distributed.leave()  # every process leaves here together (the end, a signal, a refusal)
     return status
+
+
+def _stopped_early(signum: int) -> str:
+    print(f"stopped by signal {signum} before the run started; nothing was written", file=sys.stderr, flush=True)
+    return f"stopped by signal {signum} before the run started"
 
 
 def _watch(argv: list[str]) -> int | None:

@@ -296,3 +296,73 @@ def test_an_eval_killed_while_it_writes_leaves_one_set_and_the_next_eval_cleans_
     assert rc == 0, err
     assert sorted(os.listdir(ev)) == SET
     assert json.loads((ev / "eval.json").read_text())["step"] == 200
+
+
+# ----------------------------------------------------------------------------- a signal in the first seconds
+
+
+def _signalled(argv: list[str], delays: list[float], sig: int) -> tuple[int, str, float]:
+    """Start ``nmrl argv`` and send ``sig`` after each of ``delays`` seconds (from the start);
+    returns the exit status, stderr and the seconds from the last signal to the exit."""
+    import signal as _  # noqa: F401
+
+    env = dict(os.environ)
+    env.pop("XLA_FLAGS", None)
+    t0 = time.time()
+    p = subprocess.Popen([sys.executable, "-m", "nmrl.cli", *argv], env=env, stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True)
+    for d in delays:
+        time.sleep(max(0.0, t0 + d - time.time()))
+        p.send_signal(sig)
+    t1 = time.time()
+    _, err = p.communicate(timeout=300)
+    return p.returncode, err, time.time() - t1
+
+
+def _check_stopped_early(rc: int, err: str, out: pathlib.Path, sig: int) -> None:
+    assert rc == 128 + sig, err
+    assert "Traceback" not in err and "Exception ignored" not in err, err
+    assert len([x for x in err.splitlines() if x.strip()]) <= 4, err
+    assert "nothing" in err.splitlines()[-1] and "was written" in err.splitlines()[-1], err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("cmd", [["train"], ["sweep", "--l", "10", "--seeds", "1"]])
+def test_a_signal_in_the_first_second_stops_the_command_at_once(tmp_path, cmd):
+    import signal
+
+    out = tmp_path / "R"
+    rc, err, took = _signalled([*cmd, *T, "--steps", "100", "--out", str(out)], [1.0], signal.SIGINT)
+    _check_stopped_early(rc, err, out, signal.SIGINT)
+    assert took < 30  # not after a compile
+
+
+@pytest.mark.slow  # ten starts stopped early, and one stopped twice during its compile (~1-2 min)
+def test_signals_at_any_moment_of_the_start_never_train_and_never_print_a_traceback(tmp_path):
+    import signal
+
+    for i, (d, sig) in enumerate([(0.2, signal.SIGINT), (0.5, signal.SIGTERM), (0.8, signal.SIGINT),
+                                  (1.2, signal.SIGINT), (1.6, signal.SIGTERM), (2.0, signal.SIGINT),
+                                  (2.5, signal.SIGINT), (3.0, signal.SIGTERM), (4.0, signal.SIGINT),
+                                  (6.0, signal.SIGINT)]):
+        out = tmp_path / f"R{i}"
+        rc, err, _ = _signalled(["train", *T, "--steps", "100", "--out", str(out)], [d], sig)
+        _check_stopped_early(rc, err, out, sig)
+    out = tmp_path / "twice"
+    argv = ["train", "--preset", "fast", "--num-envs", "4", "--chunk-steps", "100", "--hidden-actor", "5",
+            "--hidden-critic", "11", "--steps", "100", "--out", str(out)]  # sizes no other test compiles
+    env = dict(os.environ, JAX_COMPILATION_CACHE_DIR=str(tmp_path / "cold-cache"))
+    env.pop("XLA_FLAGS", None)
+    p = subprocess.Popen([sys.executable, "-m", "nmrl.cli", *argv], env=env, stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True)
+    for line in p.stderr:
+        if line.startswith("train:"):
+            break
+    time.sleep(1)
+    p.send_signal(signal.SIGINT)
+    time.sleep(1)
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=300)
+    assert p.returncode == 130, err
+    assert "second signal 2 while compiling; nothing of the run was written" in err and "checkpoint" not in err
+    assert not out.exists()
