@@ -1,0 +1,87 @@
+"""The second exploration x control-step study (docs/exploration-study-2.md) as data on the kit.
+
+Every cell is the native PPO at the first study's settings (64 environments, value net 2x64, Brax's
+unroll 0.4 s, 32 minibatches of 512 unrolls, 8 epochs: 102.4 simulated seconds per environment
+and 256 Adam steps per iteration at every control step), with the reward scale delta / 20 ms,
+trials of 5 s on average at every delta (``--trial-s 5``), MuJoCo C physics at a 2.5 ms timestep
+in every cell (``--physics c --physics-timestep 0.0025``).
+
+The screen's first phase (:data:`SIGMA_SCREEN`): the noise scale sigma in {0.064, 0.16, 0.4, 1.0}
+x 2 seeds (100, 101: never grid seeds) x 4 iterations per arm and control step, each arm's time
+constant at the middle of its screened range; scored by the deterministic endpoint (8 rollouts of
+10 s from perturbed starts). The later phases (time constants at the chosen sigma, the grid) are
+made from these rows by the rules the pre-registration states.
+
+    python -m nmrl.experiments.exploration2 run --out runs/exploration2 [--published results/exploration2/runs]
+    python -m nmrl.experiments.exploration2 publish --out runs/exploration2 --dest results/exploration2/runs
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from nmrl.experiments import kit
+
+ITERATION_S = 102.4  #: simulated seconds per environment in one PPO iteration (256 unrolls of 0.4 s)
+SIGMAS = (0.064, 0.16, 0.4, 1.0)
+SCREEN_SEED0, SCREEN_SEEDS, SCREEN_ITERATIONS = 100, 2, 4
+NM_CORR_TIME_S = 0.08963  #: the paper's alpha = 0.8 per 20 ms step as a correlation time
+#: each arm's exploration options at the middle of its screened time constant
+ARMS = {
+    "white": ("--exploration", "white"),
+    "ou": ("--exploration", "ou", "--corr-time-s", "0.03"),
+    "colored": ("--exploration", "colored", "--beta", "0.5"),
+    "nm-steps": ("--exploration", "nm-periods", "--period-s", "0.06", "--corr-time-s", str(NM_CORR_TIME_S)),
+}
+
+
+def base(dt: float, iterations: int) -> tuple[str, ...]:
+    """The options every cell at control step ``dt`` shares (module docstring)."""
+    steps = round(iterations * ITERATION_S / dt)
+    return ("--learner", "ppo", "--num-envs", "64", "--value-layers", "2", "--value-width", "64",
+            "--batch-size", "512", "--num-minibatches", "32", "--epochs", "8", "--reward-scale", f"{dt / 0.02:g}",
+            "--control-dt", f"{dt:g}", "--trial-s", "5", "--physics", "c", "--physics-timestep", "0.0025",
+            "--steps", str(steps))
+
+
+def sigma_cell(arm: str, dt: float) -> kit.Cell:
+    return kit.Cell(f"screen/sigma/dt{dt:g}/{arm}",
+                    (*base(dt, SCREEN_ITERATIONS), *ARMS[arm], "--vary", "sigma", *map(str, SIGMAS),
+                     "--seeds", str(SCREEN_SEEDS), "--seed0", str(SCREEN_SEED0)))
+
+
+#: the sigma screen in run order: white at 20 ms (cheap; scaled white follows from it), then every
+#: arm at 2.5 ms
+SIGMA_SCREEN = (sigma_cell("white", 0.02),
+                *(sigma_cell(arm, 0.0025) for arm in ("white", "ou", "colored", "nm-steps")))
+
+STUDY = kit.Study(name="exploration2", cells=SIGMA_SCREEN, endpoint=kit.Endpoint(seconds=10.0, rollouts=8,
+                                                                                 start_noise=0.05, seed=0))
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m nmrl.experiments.exploration2", description=__doc__.split("\n\n")[0])
+    ap.add_argument("action", choices=("run", "publish", "rows"))
+    ap.add_argument("--out", required=True, help="the study's run directory")
+    ap.add_argument("--published", default=None, help="a published copy: cells missing in --out start from it")
+    ap.add_argument("--dest", default=None, help="publish: where the copy goes")
+    ap.add_argument("--only", nargs="*", default=(), help="cells whose names start with one of these")
+    a = ap.parse_args(argv)
+    if a.action == "run":
+        try:
+            kit.run(STUDY, a.out, published=a.published, only=a.only)
+        except kit.StudyStopped as e:
+            print(f"exploration2: {e}; run again to continue", file=sys.stderr)
+            return e.status
+    elif a.action == "publish":
+        if not a.dest:
+            ap.error("publish needs --dest")
+        kit.publish(STUDY, a.out, a.dest)
+    else:
+        kit.write_rows(STUDY, __import__("pathlib").Path(a.out))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,219 @@
+"""A study as data: cells that are ``nmrl sweep`` commands, an endpoint, and one runner.
+
+A :class:`Study` names its cells in run order; a :class:`Cell` is a directory under the study's
+(``screen/dt0.0025/white``) and the options of one ``nmrl sweep`` (every point of a cell is one
+compiled program: the values of one traced field x seeds). :func:`run` brings every cell to its
+budget and scores it:
+
+* a cell with a ``sweep.json`` is continued (``nmrl sweep --resume``, its budget given again);
+  one missing but present in ``published`` (a committed copy made by :func:`publish`) is first
+  seeded from there (sweep.json, every point's config.json, metrics.jsonl and compact.npz: the
+  compact continuation states, every environment starting a new trial); any other starts fresh;
+* each sweep runs as its own ``nmrl sweep`` process (niced by the caller), so that its devices,
+  memory and signals are its own; a signal stops the study after the sweep saves, with its status;
+* every point at its budget gets ``endpoint.json``: the deterministic policy's reward per second
+  over the study's rollouts from perturbed starts (nmrl/analysis/endpoint.py), once per step;
+* ``rows.csv``: one row per point with its cell, seed, the varied field's value, budget, whether it
+  diverged, the exploring reward per second of its last chunk and its mean over chunks (the area
+  under the learning curve), and the endpoint.
+
+:func:`publish` copies what continues and re-scores a study (no full checkpoints) into a folder
+small enough to commit. A study's own module (e.g. nmrl/experiments/exploration2.py) holds its
+cells as data and any rule that makes later cells from earlier rows.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import os
+import pathlib
+import shutil
+import subprocess
+import sys
+from typing import Sequence
+
+from nmrl.runs import store
+
+ROWS = "rows.csv"
+ENDPOINT = "endpoint.json"
+DELTA_0 = 0.02  #: reward per second = mean r_t / DELTA_0 (nmrl/experiments/timescale.py)
+COLUMNS = ("cell", "point", "seed", "field", "value", "control_dt", "steps", "budget", "diverged",
+           "avg_reward_per_s", "auc_reward_per_s", "det_reward_per_s", "det_forward_speed")
+_PUBLISHED_POINT_FILES = ("config.json", "metrics.jsonl", "compact.npz", ENDPOINT)
+
+
+class StudyStopped(RuntimeError):
+    """A cell's sweep ended without finishing (a signal, an error); ``status`` is its exit status."""
+
+    def __init__(self, cell: str, status: int):
+        super().__init__(f"cell {cell} stopped with status {status}")
+        self.cell, self.status = cell, status
+
+
+@dataclasses.dataclass(frozen=True)
+class Cell:
+    name: str  #: directory under the study's, e.g. "screen/dt0.0025/white"
+    sweep: tuple[str, ...]  #: ``nmrl sweep`` options that define the points (not --out/--resume)
+
+    def budget(self) -> tuple[str, ...]:
+        """The budget options among :attr:`sweep` (given again on a resume)."""
+        out, a = [], list(self.sweep)
+        for i, x in enumerate(a):
+            if x in ("--steps", "--trials") and i + 1 < len(a):
+                out += [x, a[i + 1]]
+        return tuple(out)
+
+
+@dataclasses.dataclass(frozen=True)
+class Endpoint:
+    seconds: float = 10.0
+    rollouts: int = 8
+    start_noise: float = 0.05
+    seed: int = 0
+
+
+@dataclasses.dataclass(frozen=True)
+class Study:
+    name: str
+    cells: tuple[Cell, ...]
+    endpoint: Endpoint = Endpoint()
+    #: ``nmrl sweep`` options of how a cell runs (not what it computes)
+    run_options: tuple[str, ...] = ("--checkpoint-every", "1", "--quiet")
+
+
+def _nmrl() -> list[str]:
+    return [sys.executable, "-m", "nmrl.cli"]
+
+
+def seed_from(published: pathlib.Path, d: pathlib.Path) -> bool:
+    """Copy a published cell's continuation state into ``d`` (which holds no sweep); True if done."""
+    if (d / "sweep.json").exists() or not (published / "sweep.json").exists():
+        return False
+    d.mkdir(parents=True, exist_ok=True)
+    shutil.copy2(published / "sweep.json", d / "sweep.json")
+    for p in sorted((published / "points").glob("*/")):
+        q = d / "points" / p.name
+        q.mkdir(parents=True, exist_ok=True)
+        for f in _PUBLISHED_POINT_FILES:
+            if (p / f).is_file():
+                shutil.copy2(p / f, q / f)
+    return True
+
+
+def run_cell(study: Study, cell: Cell, out: pathlib.Path, published: pathlib.Path | None = None) -> None:
+    """Bring one cell to its budget (see the module docstring); StudyStopped if its sweep did not end."""
+    d = out / cell.name
+    if published is not None:
+        seed_from(published / cell.name, d)
+    if (d / "sweep.json").exists():
+        argv = ["sweep", "--resume", *cell.budget(), *study.run_options, "--out", str(d)]
+    else:
+        argv = ["sweep", *cell.sweep, *study.run_options, "--out", str(d)]
+    rc = subprocess.call([*_nmrl(), *argv])
+    if rc != 0:
+        raise StudyStopped(cell.name, rc)
+
+
+def _points(d: pathlib.Path) -> list[pathlib.Path]:
+    return sorted(p for p in (d / "points").glob("*/") if (p / "config.json").exists())
+
+
+def score_point(study: Study, p: pathlib.Path) -> dict | None:
+    """``endpoint.json`` of a point (computed once per saved step); None if it has no saved policy."""
+    from nmrl.analysis import endpoint
+    from nmrl.runs import checkpoint
+
+    try:
+        meta, config, params = checkpoint.restore_params(p)
+    except checkpoint.CheckpointError:
+        return None
+    f = p / ENDPOINT
+    if f.exists():
+        old = json.loads(f.read_text())
+        if old.get("step") == int(meta["step"]):
+            return old
+    e = study.endpoint
+    res = endpoint.deterministic_endpoint(config, params, seconds=e.seconds, rollouts=e.rollouts,
+                                          start_noise=e.start_noise, seed=e.seed)
+    res = {"step": int(meta["step"]), **res}
+    store.atomic_write_json(f, res)
+    return res
+
+
+def rows(study: Study, out: pathlib.Path) -> list[dict]:
+    """One row per point of every cell that exists (see the module docstring)."""
+    res = []
+    for cell in study.cells:
+        d = out / cell.name
+        if not (d / "sweep.json").exists():
+            continue
+        spec = json.loads((d / "sweep.json").read_text())
+        field = spec.get("field")
+        for p in _points(d):
+            cfg = json.loads((p / "config.json").read_text())
+            m = store.read_metrics(p)
+            e = json.loads((p / ENDPOINT).read_text()) if (p / ENDPOINT).exists() else {}
+            res.append({
+                "cell": cell.name, "point": p.name, "seed": cfg.get("seed"), "field": field or "",
+                "value": cfg.get(field) if field else "", "control_dt": cfg.get("control_dt"),
+                "steps": m[-1]["step"] if m else 0, "budget": cfg.get("steps"),
+                "diverged": bool(any(r.get("diverged") for r in m)),
+                "avg_reward_per_s": m[-1]["avg_reward"] / DELTA_0 if m else "",
+                "auc_reward_per_s": sum(r["avg_reward"] for r in m) / len(m) / DELTA_0 if m else "",
+                "det_reward_per_s": e.get("reward_per_s", "") if e.get("step") == (m[-1]["step"] if m else None)
+                else "",
+                "det_forward_speed": (sum(e["forward_speed"]) / len(e["forward_speed"]))
+                if e.get("forward_speed") and e.get("step") == (m[-1]["step"] if m else None) else "",
+            })
+    return res
+
+
+def write_rows(study: Study, out: pathlib.Path) -> list[dict]:
+    r = rows(study, out)
+    out.mkdir(parents=True, exist_ok=True)
+    tmp = out / f".{ROWS}.{os.getpid()}.tmp"
+    with open(tmp, "w", newline="") as fh:
+        w = csv.DictWriter(fh, COLUMNS)
+        w.writeheader()
+        w.writerows(r)
+    os.replace(tmp, out / ROWS)
+    return r
+
+
+def run(study: Study, out: str | os.PathLike, *, published: str | os.PathLike | None = None,
+        only: Sequence[str] = ()) -> list[dict]:
+    """Every cell (or those whose name starts with one of ``only``) to its budget, scored; the rows."""
+    out = pathlib.Path(out)
+    pub = pathlib.Path(published) if published is not None else None
+    for cell in study.cells:
+        if only and not any(cell.name.startswith(o) for o in only):
+            continue
+        run_cell(study, cell, out, pub)
+        for p in _points(out / cell.name):
+            score_point(study, p)
+        write_rows(study, out)
+    return write_rows(study, out)
+
+
+def publish(study: Study, out: str | os.PathLike, dest: str | os.PathLike) -> None:
+    """Copy every cell's sweep.json, results.csv and points' continuation files, and rows.csv, to ``dest``."""
+    out, dest = pathlib.Path(out), pathlib.Path(dest)
+    for cell in study.cells:
+        d = out / cell.name
+        if not (d / "sweep.json").exists():
+            continue
+        t = dest / cell.name
+        t.mkdir(parents=True, exist_ok=True)
+        for f in ("sweep.json", "results.csv"):
+            if (d / f).is_file():
+                shutil.copy2(d / f, t / f)
+        for p in _points(d):
+            q = t / "points" / p.name
+            q.mkdir(parents=True, exist_ok=True)
+            for f in _PUBLISHED_POINT_FILES:
+                if (p / f).is_file():
+                    shutil.copy2(p / f, q / f)
+    write_rows(study, out)
+    shutil.copy2(out / ROWS, dest / ROWS)
