@@ -32,7 +32,9 @@ ARMS = {
     "white": ("--exploration", "white"),
     "ou": ("--exploration", "ou", "--corr-time-s", "0.03"),
     "colored": ("--exploration", "colored", "--beta", "0.5"),
-    "nm-steps": ("--exploration", "nm-periods", "--period-s", "0.06", "--corr-time-s", str(NM_CORR_TIME_S)),
+    "nms": ("--exploration", "nm-periods", "--period-s", "0.06", "--corr-time-s", str(NM_CORR_TIME_S)),
+    "nmp": ("--exploration", "nm-periods", "--period-s", "0.06", "--corr-time-s", str(NM_CORR_TIME_S),
+            "--period-wise", "true"),
 }
 
 
@@ -51,10 +53,11 @@ def sigma_cell(arm: str, dt: float) -> kit.Cell:
                      "--seeds", str(SCREEN_SEEDS), "--seed0", str(SCREEN_SEED0)))
 
 
-#: the sigma screen in run order: white at 20 ms (cheap; scaled white follows from it), then every
-#: arm at 2.5 ms
-SIGMA_SCREEN = (sigma_cell("white", 0.02),
-                *(sigma_cell(arm, 0.0025) for arm in ("white", "ou", "colored", "nm-steps")))
+#: the sigma screen in run order (docs/exploration-study-2.md): white and nm-periods learned as wholes
+#: (nmp) at 20 ms (cheap; scaled white follows from white's), then every arm at 2.5 ms; nms is
+#: nm-periods with per-step conditional ratios
+SIGMA_SCREEN = (sigma_cell("white", 0.02), sigma_cell("nmp", 0.02),
+                *(sigma_cell(arm, 0.0025) for arm in ("white", "ou", "colored", "nms", "nmp")))
 
 STUDY = kit.Study(name="exploration2", cells=SIGMA_SCREEN, endpoint=kit.Endpoint(seconds=10.0, rollouts=8,
                                                                                  start_noise=0.05, seed=0))

@@ -94,6 +94,9 @@ class PPOConfig:
     learn_std: bool = True  #: std_theta(s) = softplus(net) + min_std (Brax); False: std_theta = 1
     min_std: float = 1e-3
     squash: str = "tanh"  #: env action = ACTION_SCALE * tanh(x) (Brax) or ACTION_SCALE * clip(x, -1, 1)
+    #: learn on the exploration's periods as wholes (nm-periods): one ratio per period from its density
+    #: (eq. (7)), the advantage and the critic at period starts (ppo_losses.period_gae)
+    period_wise: bool = False
     # PPO, times in seconds
     discount_horizon_s: float = BRAX_HORIZON_S  #: gamma = exp(-control_dt / discount_horizon_s)
     gae_horizon_s: float = BRAX_HORIZON_S  #: lambda = exp(-control_dt / gae_horizon_s)
@@ -158,6 +161,9 @@ class PPOConfig:
         self.spec().validate(self.control_dt)
         if self.squash not in SQUASHES:
             raise _bad("squash", self.squash, f"choose one of {', '.join(SQUASHES)}")
+        if self.period_wise is not False and not (self.period_wise is True and self.exploration == "nm-periods"):
+            raise _bad("period_wise", self.period_wise, "true only with --exploration nm-periods (a process whose "
+                                                        "noise restarts at period starts), else false")
         for name in ("learn_std", "normalize_obs", "normalize_advantage"):
             if not isinstance(getattr(self, name), bool):
                 raise _bad(name, getattr(self, name), "must be true or false")
@@ -369,18 +375,33 @@ def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None
         values = nn_.value(nets, params["value"], obs_n)
         boot = nn_.value(nets, params["value"], norm(stats, b.next_obs))
         tm = lambda a: jnp.swapaxes(a, 0, 1)  # noqa: E731  (B, T) -> (T, B)
-        vs, adv = L.gae(tm(b.reward * h.reward_scale), tm(values), boot, tm(b.termination), tm(b.truncation),
-                        h.gamma, h.lam)
-        vs, adv = tm(vs), tm(adv)
-        if cfg.normalize_advantage:
-            adv = L.normalize_advantages(adv, psum(jnp.sum(adv)), count, psum(jnp.sum(adv * adv)))
-        pl, diag = L.clipped_surrogate(logp, b.logp, adv, h.clip_eps)
-        vl = L.value_loss(values, vs, h.vf_coef)
         std_x = h.process.sigma * std  # marginal std of x
         ent = nn_.entropy(std_x, mu + std_x * eps, cfg.squash)
-        total = (jnp.sum(pl) + jnp.sum(vl) - h.entropy_cost * jnp.sum(ent)) / count
-        sums = {"policy_loss": jnp.sum(pl), "value_loss": jnp.sum(vl), "entropy": jnp.sum(ent),
-                "approx_kl": jnp.sum(diag["approx_kl"]), "clip_frac": jnp.sum(diag["clipped"]),
+        if cfg.period_wise:  # one sample per period (segment) of the unroll, at its start
+            start = tm(b.fresh).at[0].set(True)
+            vs, adv = L.period_gae(tm(b.reward * h.reward_scale), tm(values), boot, tm(b.termination),
+                                   tm(b.truncation), start, h.gamma, h.lam)
+            log_ratio = L.segment_sums(tm(logp - b.logp), start)
+            w, vs, adv, log_ratio = tm(start.astype(values.dtype)), tm(vs), tm(adv), tm(log_ratio)
+            logp_new, logp_old = log_ratio, jnp.zeros_like(log_ratio)
+        else:
+            vs, adv = L.gae(tm(b.reward * h.reward_scale), tm(values), boot, tm(b.termination), tm(b.truncation),
+                            h.gamma, h.lam)
+            w, vs, adv, logp_new, logp_old = jnp.ones_like(values), tm(vs), tm(adv), logp, b.logp
+        n = psum(jnp.sum(w)) if cfg.period_wise else count  # the samples of the minibatch (all shards)
+        if cfg.normalize_advantage:
+            adv = L.normalize_advantages(adv, psum(jnp.sum(adv * w)), n, psum(jnp.sum(adv * adv * w)))
+        pl, diag = L.clipped_surrogate(logp_new, logp_old, adv, h.clip_eps)
+        vl = L.value_loss(values, vs, h.vf_coef)
+        if cfg.period_wise:
+            pl, vl = pl * w, vl * w
+        if cfg.period_wise:
+            total = (jnp.sum(pl) + jnp.sum(vl)) / n - h.entropy_cost * jnp.sum(ent) / count
+        else:
+            total = (jnp.sum(pl) + jnp.sum(vl) - h.entropy_cost * jnp.sum(ent)) / count
+        per = count / n  # the sums are reported per sample: per period when period-wise
+        sums = {"policy_loss": jnp.sum(pl) * per, "value_loss": jnp.sum(vl) * per, "entropy": jnp.sum(ent),
+                "approx_kl": jnp.sum(diag["approx_kl"] * w) * per, "clip_frac": jnp.sum(diag["clipped"] * w) * per,
                 "std": jnp.sum(jnp.mean(std_x, axis=-1))}
         return total, jax.lax.stop_gradient(sums)
 
@@ -571,6 +592,8 @@ LEARNER = register(Learner(
         "policy_layers": "hidden layers of the policy", "policy_width": "units per policy layer",
         "value_layers": "hidden layers of the value net", "value_width": "units per value layer",
         "control_dt": "control step [s]", "stop_prob": "probability of stopping a trial after each step",
+        "period_wise": "learn on nm-periods as wholes: one ratio per period (eq. (7)), advantage and critic at "
+                       "period starts (default: per-step conditional ratios)",
         "physics": PHYSICS_HELP, "trial_s": TRIAL_S_HELP, "physics_timestep": "MuJoCo's timestep [s] (default: the model's 0.005 s); the control step must be a multiple",
         "num_envs": "environments in lock-step (must divide --batch-size)",
         "chunk_steps": "control steps per environment per chunk, a multiple of one iteration's (default: one)",
