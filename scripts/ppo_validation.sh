@@ -10,6 +10,8 @@
 # $PUBLISHED (sweep.json, every point's config, metrics and compact continuation state: parameters,
 # Adam state and observation statistics; every environment starts a new trial).
 # Publish the progress with: .venv/bin/python scripts/publish_ppo_validation.py
+# PHYSICS=c runs the same on MuJoCo C (issue 44's learning check):
+#   OUT=runs/ppo_validation_c PUBLISHED=results/physics_c/ppo_validation PHYSICS=c scripts/ppo_validation.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
 # shellcheck source=scripts/lower_priority.sh
@@ -18,10 +20,11 @@ lower_priority  # a background launch (setsid) yields the CPUs to interactive wo
 OUT=${OUT:-runs/ppo_validation}
 PUBLISHED=${PUBLISHED:-results/ppo/validation}
 STEPS=${STEPS:-81920}
+PHYSICS=${PHYSICS:-mjx}
 . scripts/seed_run.sh
 seed_run "$OUT" "$PUBLISHED"
 if [ -f "$OUT/sweep.json" ]; then
   exec nice -n "${NICE:-19}" .venv/bin/nmrl sweep --resume --out "$OUT" --steps "$STEPS" --checkpoint-every 1
 fi
 exec nice -n "${NICE:-19}" .venv/bin/nmrl sweep --learner ppo --exploration white --seeds 3 \
-  --num-envs 64 --chunk-steps 5120 --steps "$STEPS" --checkpoint-every 1 --out "$OUT"
+  --num-envs 64 --chunk-steps 5120 --steps "$STEPS" --checkpoint-every 1 --physics "$PHYSICS" --out "$OUT"
