@@ -122,7 +122,7 @@ def test_models_are_gymnasiums_files():
     for name, spec in TASKS.items():
         env = _gym(name).unwrapped
         assert env.fullpath == str(model_path(spec))
-        assert env.frame_skip == spec.frame_skip
+        assert (env.frame_skip, env.model.opt.timestep) == (spec.frame_skip, spec.timestep)
         assert Task(name, TaskConfig(physics="c")).control_dt == env.dt
         assert _gym(name).spec.max_episode_steps == spec.max_episode_steps
 
@@ -199,6 +199,46 @@ def test_auto_reset_keeps_the_terminal_observation_and_the_flags_apart():
     assert float(st.metrics["reward_survive"][i]) == 0.0  # Gymnasium: healthy_reward * is_healthy
     with pytest.raises(ValueError, match="choose one of halfcheetah-v5, hopper-v5, walker2d-v5"):
         Task("ant-v5")
+
+
+# ------------------------------------------------------------------------- --env (the learners)
+def test_make_env_and_its_refusals():
+    from nmrl.paper.env import EnvConfig, HalfCheetah
+    from nmrl.tasks import ENVS, make_env
+
+    assert ENVS == ("paper-cheetah", "halfcheetah-v5", "hopper-v5", "walker2d-v5")
+    assert isinstance(make_env("paper-cheetah", EnvConfig(physics="c")), HalfCheetah)
+    env = make_env("walker2d-v5", EnvConfig(control_dt=0.02, physics="c", auto_reset=False))
+    assert isinstance(env, Task) and (env.n_substeps, env.max_steps, env.config.auto_reset) == (10, 400, False)
+    with pytest.raises(ValueError, match="stop_prob, timestep are options of paper-cheetah only"):
+        make_env("hopper-v5", EnvConfig(stop_prob=0.01, timestep=0.001))
+
+
+def test_ppo_takes_env_into_its_config_and_identity(tmp_path, capsys):
+    from nmrl import cli
+    from nmrl.learners.ppo import PPOConfig
+    from nmrl.runs import identity
+
+    assert "env" not in identity.identity_config(PPOConfig())  # runs made before the option keep their digest
+    assert identity.identity_config(PPOConfig(env="hopper-v5"))["env"] == "hopper-v5"
+    out = tmp_path / "r"
+    assert cli.main(["train", "--learner", "ppo", "--env", "ant-v5", "--steps", "10", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["nmrl: error: env='ant-v5' is unknown: choose one of paper-cheetah, halfcheetah-v5, hopper-v5, "
+                   "walker2d-v5"] and not out.exists()
+
+
+@pytest.mark.slow
+def test_ppo_trains_on_a_task(tmp_path):
+    import json
+
+    from nmrl import cli
+
+    out = tmp_path / "r"
+    assert cli.main(["train", "--learner", "ppo", "--env", "hopper-v5", "--physics", "c", "--num-envs", "4",
+                     "--batch-size", "4", "--num-minibatches", "2", "--epochs", "1", "--policy-layers", "1",
+                     "--value-layers", "1", "--steps", "40", "--out", str(out)]) == 0
+    assert json.loads((out / "config.json").read_text())["env"] == "hopper-v5"
 
 
 # ------------------------------------------------------------------------------------- MJX

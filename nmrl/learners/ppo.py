@@ -49,11 +49,11 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from nmrl import explore
+from nmrl import explore, tasks
 from nmrl.learners import ppo_losses as L
 from nmrl.learners import ppo_networks as nn_
 from nmrl.learners.contract import Learner, Policy, register
-from nmrl.paper.env import PHYSICS_HELP, TRIAL_S_HELP, EnvConfig, HalfCheetah
+from nmrl.paper.env import PHYSICS_HELP, TRIAL_S_HELP, EnvConfig
 from nmrl.paper.learner import check_shards
 
 NAME = "ppo"
@@ -117,6 +117,7 @@ class PPOConfig:
     value_layers: int = 5
     value_width: int = 256
     # environment, batching, budget (common to every learner)
+    env: str = "paper-cheetah"  #: the environment (nmrl.tasks.ENVS; docs/tasks.md)
     control_dt: float = 0.02
     stop_prob: float = 1 / 250
     trial_s: float | None = None  #: mean trial length [s] (stop_prob = control_dt / trial_s); None: stop_prob
@@ -201,6 +202,7 @@ class PPOConfig:
         if not (_is_int(self.seed) and 0 <= self.seed < 2**31):
             raise _bad("seed", self.seed, "must be an integer in [0, 2^31 - 1]")
         self.env_config().validate()
+        tasks.check_env(self.env, self.env_config())
 
     def resolved(self) -> "PPOConfig":
         """Validated, with the exploration's defaults, one iteration per chunk and a budget of
@@ -309,13 +311,13 @@ def _sample_per_env(proc: explore.Process, ns: explore.NoiseState, keys: jax.Arr
 
 def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None, num_shards: int = 1) -> PPOTrainer:
     """Build the pure functions of a PPO run (module docstring; ``env`` as for the actor-critic:
-    ``HalfCheetah(config.env_config())`` by default). With ``num_shards`` > 1, ``chunk`` is written
+    ``tasks.make_env(config.env, config.env_config())`` by default). With ``num_shards`` > 1, ``chunk`` is written
     for ``jax.shard_map`` over the environment axis of ``env`` and ``noise``: every draw is made per
     environment from the shared key, the minibatches take the same unrolls, and the sums behind the
     losses, gradients and statistics are ``psum``-ed over ``axis_name``."""
     check_shards(config.num_envs, num_shards, axis_name)
     cfg = config.resolved()
-    env = env or HalfCheetah(cfg.env_config())
+    env = env or tasks.make_env(cfg.env, cfg.env_config())
     OBS, ACT = env.obs_dim, env.act_dim
     TERMS = tuple(env.reward_terms)
     N, NL = cfg.num_envs, cfg.num_envs // num_shards
@@ -595,6 +597,7 @@ LEARNER = register(Learner(
         "period_wise": "learn on nm-periods as wholes: one ratio per period (eq. (7)), advantage and critic at "
                        "period starts (default: per-step conditional ratios)",
         "physics": PHYSICS_HELP, "trial_s": TRIAL_S_HELP, "physics_timestep": "MuJoCo's timestep [s] (default: the model's 0.005 s); the control step must be a multiple",
+        "env": f"the environment: {', '.join(tasks.ENVS)} (docs/tasks.md)",
         "num_envs": "environments in lock-step (must divide --batch-size)",
         "chunk_steps": "control steps per environment per chunk, a multiple of one iteration's (default: one)",
         "steps": "budget in control steps per environment (default: one iteration)",

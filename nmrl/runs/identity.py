@@ -85,7 +85,7 @@ def _check_config(meta: dict, config: Config) -> None:
 #: comparisons) stay what they are (such runs used the paper's rule, plain sgd, and the actor-critic).
 LATER_FIELDS: dict[str, object] = {"actor_opt": "sgd", "critic_opt": "sgd", learners.KEY: learners.DEFAULT,
                                    "physics": "mjx", "trial_s": None,
-                                   "physics_timestep": None}
+                                   "physics_timestep": None, "env": "paper-cheetah"}
 
 
 def identity_config(config: Config) -> dict:

@@ -51,7 +51,7 @@ import numpy as np
 from nmrl.paper import _mjx as mjx  # quiet import (see nmrl/__init__.py)
 from nmrl.paper.env import CData, State
 from nmrl.physics import mujoco_c
-from nmrl.tasks import doubles
+import nmrl.tasks.doubles as doubles  # (not ``from nmrl.tasks``: the package imports this module)
 from nmrl.tasks.gym_v5 import TASKS, TaskSpec, model_path
 
 PHYSICS = ("mjx", "c")
@@ -76,6 +76,18 @@ class TaskConfig:
             raise ValueError(f"control_dt={self.control_dt!r} is invalid: must be a finite time > 0 s")
 
 
+def control_steps(spec: TaskSpec, control_dt: float | None) -> int:
+    """MuJoCo steps per control step of ``control_dt`` (None: the task's frame skip); ValueError in
+    one line unless it is a positive multiple of the task's physics timestep."""
+    if control_dt is None:
+        return spec.frame_skip
+    n = control_dt / spec.timestep
+    if abs(n - round(n)) > 1e-6 or round(n) < 1:
+        raise ValueError(f"control_dt={control_dt!r} is invalid: must be a positive multiple of "
+                         f"{spec.gym_id}'s physics timestep {spec.timestep:g} s")
+    return int(round(n))
+
+
 def _law(lo: np.ndarray, hi: np.ndarray):
     """The C plant's per-substep law: ctrl = the action clipped to ctrlrange; it reports nothing
     (the reward reads x before and after from the float64 state, not from float32 reports)."""
@@ -95,16 +107,12 @@ class Task:
         self.config = config = config or TaskConfig()
         config.validate()
         path = model_path(self.spec)
-        mj = mujoco.MjModel.from_xml_path(str(path))
-        self.mj_model = mj
+        self.mj_model = mj = mujoco.MjModel.from_xml_path(str(path))
         self.timestep = float(mj.opt.timestep)
         self.task_dt = self.spec.frame_skip * self.timestep  #: dt0, Gymnasium's ``env.dt``
-        dt = self.task_dt if config.control_dt is None else float(config.control_dt)
-        n_sub = dt / self.timestep
-        if abs(n_sub - round(n_sub)) > 1e-6 or round(n_sub) < 1:
-            raise ValueError(f"control_dt={config.control_dt!r} is invalid: must be a positive multiple of "
-                             f"{self.spec.gym_id}'s physics timestep {self.timestep:g} s")
-        self.n_substeps = int(round(n_sub))
+        if self.timestep != self.spec.timestep:
+            raise ValueError(f"{path}: timestep {self.timestep:g} s, not {self.spec.timestep:g} s as in {self.spec.gym_id}")
+        self.n_substeps = control_steps(self.spec, config.control_dt)
         #: the control step [s]: exactly Gymnasium's ``dt`` expression at the task's own step
         self.control_dt = self.n_substeps * self.timestep
         #: control_dt / dt0, the factor of every reward term (exactly 1.0 at the task's own step)

@@ -36,6 +36,7 @@ class TaskSpec:
     gym_id: str  #: its Gymnasium id, e.g. "Hopper-v5"
     xml_file: str  #: the MJCF in gymnasium/envs/mujoco/assets
     frame_skip: int  #: MuJoCo steps per control step at the task's own control step
+    timestep: float  #: the MJCF's physics timestep [s] (tests/test_tasks.py reads it from the model)
     forward_reward_weight: float
     ctrl_cost_weight: float
     healthy_reward: float = 0.0  #: 0: the task has no survival term (HalfCheetah)
@@ -56,15 +57,15 @@ class TaskSpec:
 
 TASKS = {
     "halfcheetah-v5": TaskSpec(
-        gym_id="HalfCheetah-v5", xml_file="half_cheetah.xml", frame_skip=5, forward_reward_weight=1.0,
+        gym_id="HalfCheetah-v5", xml_file="half_cheetah.xml", frame_skip=5, timestep=0.01, forward_reward_weight=1.0,
         ctrl_cost_weight=0.1, reset_noise_scale=0.1, qvel_noise="normal"),
     "hopper-v5": TaskSpec(
-        gym_id="Hopper-v5", xml_file="hopper.xml", frame_skip=4, forward_reward_weight=1.0,
+        gym_id="Hopper-v5", xml_file="hopper.xml", frame_skip=4, timestep=0.002, forward_reward_weight=1.0,
         ctrl_cost_weight=1e-3, healthy_reward=1.0, terminate_when_unhealthy=True,
         healthy_state_range=(-100.0, 100.0), healthy_z_range=(0.7, float("inf")),
         healthy_angle_range=(-0.2, 0.2), reset_noise_scale=5e-3, obs_qvel_clip=10.0),
     "walker2d-v5": TaskSpec(
-        gym_id="Walker2d-v5", xml_file="walker2d_v5.xml", frame_skip=4, forward_reward_weight=1.0,
+        gym_id="Walker2d-v5", xml_file="walker2d_v5.xml", frame_skip=4, timestep=0.002, forward_reward_weight=1.0,
         ctrl_cost_weight=1e-3, healthy_reward=1.0, terminate_when_unhealthy=True,
         healthy_z_range=(0.8, 2.0), healthy_angle_range=(-1.0, 1.0), reset_noise_scale=5e-3,
         obs_qvel_clip=10.0),
