@@ -52,7 +52,7 @@ RUN_FILES = (CONFIG_FILE, METRICS_FILE, CHECKPOINTS, COMPACT_FILE, RESUMES_FILE)
 IGNORED_ENTRIES = (".nmrl.lock",)
 
 
-def _short(value: str, n: int = 60) -> str:
+def _short(value: str, n: int = 200) -> str:
     return value if len(value) <= n else value[:n - 1] + "…"
 
 
