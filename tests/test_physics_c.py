@@ -204,3 +204,25 @@ def test_a_sweep_point_on_c_equals_the_run_alone(tmp_path):
                 assert b[k] == pytest.approx(a[k], rel=1e-4, abs=1e-6), k
             else:
                 assert a[k] == b[k], k
+
+
+def test_a_fresh_batch_reports_the_limit_force_of_its_first_substep():
+    """The first call on a new batch (each calling thread gets its own) reports the sensors of its
+    first substep too, as a plain loop computes them from the constraint arrays."""
+    m = mujoco.MjModel.from_xml_path(str(MODEL_PATH))
+    d = mujoco.MjData(m)
+    a = _actions(1)[:, 0]
+    states, _, _ = _plain_loop(a[:7])
+    env = HalfCheetah(EnvConfig(physics="c", stop_prob=0.0, auto_reset=False, threads=1))
+    s6 = states[5]  # the state after 6 control steps, joints in their limits
+    _, reports, ok = env.c.host_step(s6[None], a[6][None].astype(np.float64))
+    mujoco.mj_setState(m, d, s6, SPEC)
+    q, qd = d.qpos[3:], d.qvel[3:]
+    strength = np.array([g.STRENGTH[g.ACTUATED.index(i)] for i in g.QPOS_JOINTS])
+    a0 = 0.1 * a[6].astype(np.float64)[[g.ACTUATED.index(i) for i in g.QPOS_JOINTS]]
+    d.ctrl[:] = strength * np.clip(2.0 / np.pi * np.arctan(-2.0 * q - 0.05 * qd) + a0, -1.0, 1.0)
+    mujoco.mj_step(m, d)
+    rows = d.efc_type == mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT
+    limit = (d.efc_J.reshape(d.nefc, m.nv)[rows].T @ d.efc_force[rows])[3:]
+    assert ok[0] and np.any(np.abs(limit) > 1.0)
+    np.testing.assert_allclose(np.abs(reports[0, 0, 6:]), np.abs(limit), rtol=1e-9, atol=1e-9)

@@ -149,7 +149,10 @@ class CPhysics:
         with self._lock:
             b = self._batches.get(key)
             if b is None:
-                b = self._batches[key] = mujoco.batch.Batch(self.plant.model, n, self.threads)
+                b = mujoco.batch.Batch(self.plant.model, n, self.threads)
+                if self.plant.model.nsensordata:
+                    b.bind("sensordata")  # an output is copied out from the first call after it is bound
+                self._batches[key] = b
         return b
 
     def host_step(self, state: np.ndarray, action: np.ndarray):
