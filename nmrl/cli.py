@@ -241,6 +241,9 @@ def _join(args: argparse.Namespace, cluster: "_launch.Cluster | None") -> int | 
 
     try:
         distributed.initialize(cluster)
+        guard = _signals.active()
+        if guard is not None:  # jax.distributed took SIGTERM over (its preemption notice)
+            guard.reclaim()
         distributed.agree("command line", distributed.fingerprint(args.argv))
     except distributed.DistributedError as e:
         return _fail(f"{e}; nothing was written")

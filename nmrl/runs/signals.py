@@ -170,6 +170,14 @@ class Guard:
             self._pipe, self._thread = None, None
         return self
 
+    def reclaim(self) -> None:
+        """Install the handlers again after a library took the signals over: ``jax.distributed``
+        installs a C handler for SIGTERM (its preemption notice), which would swallow the signal
+        this guard is to see."""
+        if self._old:
+            for s in SIGNALS:
+                signal.signal(s, self._handler)
+
     def restore(self) -> None:
         """Put back the handlers and wakeup descriptor that were there before :meth:`install`."""
         if self._pipe is not None:
