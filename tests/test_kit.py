@@ -76,3 +76,52 @@ def test_a_study_runs_scores_publishes_and_continues_from_its_published_copy(tmp
     assert [r["steps"] for r in rows2] == [40, 40]
     first = [json.loads(line) for line in (tmp_path / "fresh/screen/a/points/sigma0.5_s7/metrics.jsonl").open()]
     assert [m["step"] for m in first] == [20, 40]  # the published chunk kept, one more trained
+
+
+def _screen_rows(cell, scores, budget=True, diverged=()):
+    """Finished rows of ``cell`` with a mean det score per value (2 seeds: score - 1, score + 1)."""
+    spec = _spec(cell.sweep)
+    out = []
+    for v, s in scores.items():
+        for k, seed in enumerate((100, 101)):
+            out.append({"cell": cell.name, "point": f"{spec.field}{v:g}_s{seed}", "seed": seed,
+                        "field": spec.field, "value": v, "steps": spec.base.steps if budget else 0,
+                        "budget": spec.base.steps, "diverged": v in diverged, "det_reward_per_s": s - 1 + 2 * k})
+    return out
+
+
+def test_the_screen_rule_brackets_sigma_then_screens_the_time_constant():
+    ou = next(c for c in exploration2.SIGMA_SCREEN if c.name == "screen/sigma/dt0.0025/ou")
+    # unfinished: nothing follows
+    assert not [c for c in exploration2.later_cells(_screen_rows(ou, {0.4: 10.0}, budget=False))
+                if "ou" in c.name]
+    # the best sigma at the upper edge: one more value, x 2.5
+    rows = _screen_rows(ou, {0.064: 1.0, 0.16: 2.0, 0.4: 3.0, 1.0: 9.0})
+    (ext,) = [c for c in exploration2.later_cells(rows) if "ou" in c.name]
+    assert ext.name == ou.name + "+2.5" and _spec(ext.sweep).ls == (2.5,)
+    # a diverged value is never chosen; the inner best at 0.16 is bracketed: the time constants follow
+    rows = _screen_rows(ou, {0.064: 1.0, 0.16: 5.0, 0.4: 3.0, 1.0: 9.0}, diverged=(1.0,))
+    (tc,) = [c for c in exploration2.later_cells(rows) if "ou" in c.name]
+    spec = _spec(tc.sweep)
+    assert tc.name == "screen/tc/dt0.0025/ou" and spec.field == "corr_time_s" and spec.ls == (0.01, 0.09)
+    assert spec.base.sigma == 0.16 and spec.base.exploration == "ou" and [s for _, s in spec.points()][:2] == [100, 101]
+    # the time constant's best at the lower edge (0.01 s beats the sigma cell's 0.03 s): 0.01 / 3 next
+    rows += _screen_rows(tc, {0.01: 8.0, 0.09: 1.0})
+    names = [c.name for c in exploration2.later_cells(rows) if "ou" in c.name]
+    assert names == ["screen/tc/dt0.0025/ou", "screen/tc/dt0.0025/ou+0.00333333"]
+    # the middle value (from the sigma screen) best: bracketed, nothing more
+    rows = rows[:-4] + _screen_rows(tc, {0.01: 2.0, 0.09: 1.0})
+    assert [c.name for c in exploration2.later_cells(rows) if "ou" in c.name] == ["screen/tc/dt0.0025/ou"]
+
+
+def test_white_has_no_time_constant_and_extensions_stop_after_two():
+    w = exploration2.SIGMA_SCREEN[0]
+    rows = _screen_rows(w, {0.064: 9.0, 0.16: 2.0, 0.4: 1.0, 1.0: 0.0})
+    (e1,) = exploration2.later_cells(rows)
+    assert e1.name == w.name + "+0.0256"
+    rows += _screen_rows(e1, {0.0256: 10.0})
+    (e2,) = [c for c in exploration2.later_cells(rows) if c.name != e1.name]
+    assert e2.name == w.name + "+0.01024"
+    rows += _screen_rows(e2, {0.01024: 11.0})
+    assert exploration2.later_cells(rows) == []  # still at the edge after two: used, reported as not bracketed
+    assert exploration2.choose(rows) == (0.01024, True, [0.01024, 0.0256, 0.064, 0.16, 0.4, 1.0])

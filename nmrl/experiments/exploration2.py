@@ -59,8 +59,99 @@ def sigma_cell(arm: str, dt: float) -> kit.Cell:
 SIGMA_SCREEN = (sigma_cell("white", 0.02), sigma_cell("nmp", 0.02),
                 *(sigma_cell(arm, 0.0025) for arm in ("white", "ou", "colored", "nms", "nmp")))
 
+#: each correlated arm's time constant: the option, its screened values (the middle one is the sigma
+#: screen's), and the factor an edge extension steps by
+TIME_CONSTANTS = {"ou": ("corr_time_s", (0.01, 0.03, 0.09), 3.0), "colored": ("beta", (0.25, 0.5, 1.0), 2.0),
+                  "nms": ("period_s", (0.02, 0.06, 0.18), 3.0), "nmp": ("period_s", (0.02, 0.06, 0.18), 3.0)}
+SIGMA_FACTOR = 2.5
+MAX_EXTENSIONS = 2
+
+
+def _finished(rows: list[dict], prefix: str) -> list[dict] | None:
+    """The rows of the cells named ``prefix`` or ``prefix+...`` when every point is at its budget and
+    scored; None while any is not."""
+    mine = [r for r in rows if r["cell"] == prefix or r["cell"].startswith(prefix + "+")]
+    if not mine or any(r["steps"] != r["budget"] or r["det_reward_per_s"] == "" for r in mine):
+        return None
+    return mine
+
+
+def choose(rows: list[dict]) -> tuple[float, bool, list[float]] | None:
+    """``(best value, at an edge, the values screened)`` of finished screen rows: the value whose
+    seeds' mean deterministic reward per second is highest; a value with a diverged run is never
+    chosen (None if every value has one)."""
+    by: dict[float, list[dict]] = {}
+    for r in rows:
+        by.setdefault(float(r["value"]), []).append(r)
+    ok = {v: sum(float(r["det_reward_per_s"]) for r in rs) / len(rs) for v, rs in by.items()
+          if not any(str(r["diverged"]) == "True" for r in rs)}
+    if not ok:
+        return None
+    best = max(ok, key=ok.get)
+    values = sorted(by)
+    return best, best in (values[0], values[-1]), values
+
+
+def _extension(cell: kit.Cell, rows: list[dict], factor: float) -> kit.Cell | None:
+    """The next value beyond the edge the winner sits at (``cell`` with that one value), if allowed."""
+    got = choose(rows)
+    if got is None:
+        return None
+    best, edge, values = got
+    n_ext = len({r["cell"] for r in rows if r["cell"].startswith(cell.name + "+")})
+    if not edge or n_ext >= MAX_EXTENSIONS:
+        return None
+    nxt = best * factor if best == values[-1] else best / factor
+    argv = list(cell.sweep)
+    i = argv.index("--vary")
+    j = i + 2
+    while j < len(argv) and not argv[j].startswith("--"):
+        j += 1
+    argv[i + 2:j] = [f"{nxt:.6g}"]
+    return kit.Cell(f"{cell.name}+{nxt:.6g}", tuple(argv))
+
+
+def later_cells(rows: list[dict]) -> list[kit.Cell]:
+    """The screen's rule (docs/exploration-study-2.md): a sigma winner at an edge adds the next sigma
+    (x or / 2.5, at most twice); once an arm's sigma is chosen, its time constant's other values at
+    that sigma, with the same edge extension (by the values' own factor: x or / 3, beta x or / 2)."""
+    out: list[kit.Cell] = []
+    for cell in SIGMA_SCREEN:
+        arm, dt = cell.name.split("/")[-1], float(cell.name.split("/")[2].removeprefix("dt"))
+        done = _finished(rows, cell.name)
+        if done is None:
+            continue
+        ext = _extension(cell, done, SIGMA_FACTOR)
+        if ext is not None:
+            out.append(ext)
+            continue
+        if arm not in TIME_CONSTANTS:
+            continue
+        sigma = choose(done)
+        if sigma is None:
+            continue
+        field, vals, factor = TIME_CONSTANTS[arm]
+        options = list(ARMS[arm])
+        k = options.index("--" + field.replace("_", "-"))
+        del options[k:k + 2]  # the field is varied instead
+        tc = kit.Cell(f"screen/tc/dt{dt:g}/{arm}",
+                      (*base(dt, SCREEN_ITERATIONS), *options, "--sigma", f"{sigma[0]:.6g}",
+                       "--vary", field, f"{vals[0]:g}", f"{vals[2]:g}",
+                       "--seeds", str(SCREEN_SEEDS), "--seed0", str(SCREEN_SEED0)))
+        out.append(tc)
+        tc_rows = _finished(rows, tc.name)
+        if tc_rows is None:
+            continue
+        at_sigma = [dict(r, value=vals[1]) for r in done if float(r["value"]) == sigma[0]]
+        ext = _extension(tc, tc_rows + at_sigma, factor)
+        if ext is not None:
+            out.append(ext)
+    return out
+
+
 STUDY = kit.Study(name="exploration2", cells=SIGMA_SCREEN, endpoint=kit.Endpoint(seconds=10.0, rollouts=8,
-                                                                                 start_noise=0.05, seed=0))
+                                                                                 start_noise=0.05, seed=0),
+                  later=later_cells)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -32,7 +32,7 @@ import pathlib
 import shutil
 import subprocess
 import sys
-from typing import Sequence
+from typing import Callable, Sequence
 
 from nmrl.runs import store
 
@@ -81,6 +81,21 @@ class Study:
     endpoint: Endpoint = Endpoint()
     #: ``nmrl sweep`` options of how a cell runs (not what it computes)
     run_options: tuple[str, ...] = ("--checkpoint-every", "1", "--quiet")
+    #: the study's rule for later cells: from the rows so far, the cells that follow (run after
+    #: ``cells``, as they appear; a rule reads only finished cells' rows)
+    later: Callable[[list[dict]], Sequence[Cell]] | None = None
+
+
+def all_cells(study: Study, out: pathlib.Path) -> list[Cell]:
+    """``study.cells`` and every later cell its rule makes from the rows so far."""
+    cells = list(study.cells)
+    while study.later is not None:
+        names = {c.name for c in cells}
+        new = [c for c in study.later(rows(study, out, cells)) if c.name not in names]
+        if not new:
+            break
+        cells += new
+    return cells
 
 
 def _nmrl() -> list[str]:
@@ -142,10 +157,11 @@ def score_point(study: Study, p: pathlib.Path) -> dict | None:
     return res
 
 
-def rows(study: Study, out: pathlib.Path) -> list[dict]:
-    """One row per point of every cell that exists (see the module docstring)."""
+def rows(study: Study, out: pathlib.Path, cells: Sequence[Cell] | None = None) -> list[dict]:
+    """One row per point of every cell that exists (see the module docstring); ``cells`` default:
+    :func:`all_cells`."""
     res = []
-    for cell in study.cells:
+    for cell in (all_cells(study, out) if cells is None else cells):
         d = out / cell.name
         if not (d / "sweep.json").exists():
             continue
@@ -187,20 +203,24 @@ def run(study: Study, out: str | os.PathLike, *, published: str | os.PathLike | 
     """Every cell (or those whose name starts with one of ``only``) to its budget, scored; the rows."""
     out = pathlib.Path(out)
     pub = pathlib.Path(published) if published is not None else None
-    for cell in study.cells:
-        if only and not any(cell.name.startswith(o) for o in only):
-            continue
-        run_cell(study, cell, out, pub)
-        for p in _points(out / cell.name):
-            score_point(study, p)
-        write_rows(study, out)
-    return write_rows(study, out)
+    done: set[str] = set()
+    while True:
+        todo = [c for c in all_cells(study, out) if c.name not in done
+                and (not only or any(c.name.startswith(o) for o in only))]
+        if not todo:
+            return write_rows(study, out)
+        for cell in todo:
+            run_cell(study, cell, out, pub)
+            for p in _points(out / cell.name):
+                score_point(study, p)
+            write_rows(study, out)
+            done.add(cell.name)
 
 
 def publish(study: Study, out: str | os.PathLike, dest: str | os.PathLike) -> None:
     """Copy every cell's sweep.json, results.csv and points' continuation files, and rows.csv, to ``dest``."""
     out, dest = pathlib.Path(out), pathlib.Path(dest)
-    for cell in study.cells:
+    for cell in all_cells(study, out):
         d = out / cell.name
         if not (d / "sweep.json").exists():
             continue
