@@ -47,3 +47,16 @@ def test_endpoint_without_noise_is_the_deterministic_rollout_of_nmrl_eval():
     assert len(set(noisy["rollouts"])) == 3 and noisy["nonfinite_steps"] == 0
     with pytest.raises(ValueError, match="rollouts"):
         endpoint.deterministic_endpoint(cfg, params, rollouts=0)
+
+
+def test_endpoint_and_eval_use_the_runs_physics_timestep():
+    """A 2.5 ms run on a 2.5 ms physics timestep: its endpoint and eval rollouts step that physics
+    (the model's own 5 ms timestep cannot make a 2.5 ms control step)."""
+    cfg = PPOConfig(num_envs=4, batch_size=4, num_minibatches=1, value_layers=1, value_width=8, policy_layers=1,
+                    policy_width=8, control_dt=0.0025, physics_timestep=0.0025, physics="c").resolved()
+    st = make_ppo(cfg).init(jax.random.PRNGKey(0))
+    params = {"policy": st.policy, "obs_stats": st.obs_stats}
+    out = endpoint.deterministic_endpoint(cfg, params, seconds=0.1, rollouts=2)
+    assert out["seconds"] == pytest.approx(0.1) and len(out["rollouts"]) == 2
+    ref = evaluate.rollout_params(cfg, params, seconds=0.1, seed=0, exploring=False)
+    assert len(ref["reward"]) == 40

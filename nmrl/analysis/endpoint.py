@@ -11,6 +11,7 @@ by the paper's 0.02 s (reward per second, nmrl/experiments/timescale.py), on the
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from typing import Any
 
@@ -19,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from nmrl import learners
-from nmrl.paper.env import EnvConfig, HalfCheetah
+from nmrl.paper.env import HalfCheetah
 
 DELTA_0 = 0.02  #: the paper's control step: reward per second = mean r_t / DELTA_0
 START_NOISE = 0.05  #: rad (angles, uniform half-width) and rad/s (velocities, standard deviation)
@@ -28,8 +29,8 @@ START_NOISE = 0.05  #: rad (angles, uniform half-width) and rad/s (velocities, s
 @functools.lru_cache(maxsize=8)
 def _program(program: Any, n_steps: int, rollouts: int, start_noise: float):
     cfg = program
-    env = HalfCheetah(EnvConfig(control_dt=cfg.control_dt, stop_prob=0.0, auto_reset=False,
-                                physics=getattr(cfg, "physics", "mjx")))
+    # the run's own environment (physics, its timestep), trials never stopping
+    env = HalfCheetah(dataclasses.replace(cfg.env_config(), stop_prob=0.0, trial_s=None, auto_reset=False))
     pol = learners.of(cfg).policy(cfg, env)
 
     def one(params, key):

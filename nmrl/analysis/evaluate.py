@@ -68,8 +68,9 @@ STAGING = ".staging."
 
 
 @functools.lru_cache(maxsize=4)
-def _env(control_dt: float, physics: str = "mjx") -> HalfCheetah:
-    return HalfCheetah(EnvConfig(control_dt=control_dt, stop_prob=0.0, auto_reset=False, physics=physics))
+def _env(control_dt: float, physics: str = "mjx", timestep: float | None = None) -> HalfCheetah:
+    return HalfCheetah(EnvConfig(control_dt=control_dt, stop_prob=0.0, auto_reset=False, physics=physics,
+                                 timestep=timestep))
 
 
 def _physics(config: Any) -> str:
@@ -83,7 +84,7 @@ def _rollout_fn(program: Any, n_steps: int):
     learner's policy (nmrl/learners/contract.py, ``Policy``): ``a_t = act(params, s_t, noise_scale *
     xi_t)``, xi the learner's exploration noise. ``program``: the config with its traced fields at
     their defaults (:func:`nmrl.learners.program_key`), so every point of a sweep shares it."""
-    env = _env(float(program.control_dt), _physics(program))
+    env = _env(float(program.control_dt), _physics(program), getattr(program, "physics_timestep", None))
     pol = learners.of(program).policy(program, env)
 
     def run(params, key, noise_scale, noise_args):
@@ -114,7 +115,8 @@ def rollout_params(config, params: dict, *, seconds: float, seed: int, exploring
     policy or (``exploring``) the exploring one; numpy arrays per step (``pos``: (T+1, 10, 2))."""
     n_steps = _num_steps(seconds, config.control_dt)
     fn = _rollout_fn(learners.program_key(config), n_steps)
-    noise_args = learners.of(config).policy(config, _env(float(config.control_dt), _physics(config))).noise_args
+    noise_args = learners.of(config).policy(config, _env(float(config.control_dt), _physics(config),
+                                                         getattr(config, "physics_timestep", None))).noise_args
     traj, pos0, x0 = fn(params, jax.random.PRNGKey(seed), jnp.float32(1.0 if exploring else 0.0), noise_args)
     return _host_traj(traj, pos0, x0, config.control_dt)
 
