@@ -59,6 +59,24 @@ def timing(times: list[float], work: float) -> dict:
             "control_steps_per_s_best": work / min(times)}
 
 
+def run_worker(module: str, size: list[str], cores: int, timeout: float) -> dict:
+    """Run ``python -m <module> --worker <size>`` with one XLA host device per core; its last stdout
+    line as JSON (RuntimeError with its stderr's tail when it fails)."""
+    import json
+    import subprocess
+    import sys
+
+    env = dict(os.environ)
+    flags = " ".join(f for f in env.get("XLA_FLAGS", "").split()
+                     if not f.startswith("--xla_force_host_platform_device_count"))
+    env["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={cores}".strip()
+    p = subprocess.run([sys.executable, "-m", module, "--worker", *size],
+                       env=env, capture_output=True, text=True, timeout=timeout)
+    if p.returncode != 0:
+        raise RuntimeError(f"{module.split('.')[-1]} worker failed (rc {p.returncode}): {p.stderr[-2000:]}")
+    return json.loads(p.stdout.strip().splitlines()[-1])
+
+
 def load_avg() -> list[float]:
     return list(os.getloadavg()) if hasattr(os, "getloadavg") else []
 

@@ -24,9 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import statistics
-import subprocess
 import sys
 import time
 
@@ -172,21 +170,13 @@ def _worker(quick: bool, smoke: bool) -> dict:
 
 
 def run(quick: bool = False, smoke: bool = False, timeout: float = 3600) -> dict:
-    from benchmarks.bench_learning import load_avg
+    from benchmarks.bench_learning import load_avg, run_worker
     from nmrl.runs.devices import cpu_cores
 
     t0 = time.perf_counter()
     load = [load_avg()]
-    env = dict(os.environ)
-    flags = " ".join(f for f in env.get("XLA_FLAGS", "").split()
-                     if not f.startswith("--xla_force_host_platform_device_count"))
-    env["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={cpu_cores()}".strip()
     size = ["--smoke"] if smoke else ["--quick"] if quick else []
-    p = subprocess.run([sys.executable, "-m", "benchmarks.bench_physics_c", "--worker", *size],
-                       env=env, capture_output=True, text=True, timeout=timeout)
-    if p.returncode != 0:
-        raise RuntimeError(f"bench_physics_c worker failed (rc {p.returncode}): {p.stderr[-2000:]}")
-    w = json.loads(p.stdout.strip().splitlines()[-1])
+    w = run_worker("benchmarks.bench_physics_c", size, cpu_cores(), timeout)
     load.append(load_avg())
     sw = w["b_sweep"]
     res = {

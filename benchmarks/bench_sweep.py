@@ -19,9 +19,7 @@ paths only). ``run(quick, smoke=False) -> dict``; ``python -m benchmarks --only 
 from __future__ import annotations
 
 import json
-import os
 import statistics
-import subprocess
 import sys
 import time
 
@@ -95,7 +93,7 @@ def _worker(quick: bool, smoke: bool = False) -> dict:
 
 def run(quick: bool = False, smoke: bool = False, timeout: float = 1800) -> dict:
     from benchmarks.bench_env import c_rollout
-    from benchmarks.bench_learning import load_avg
+    from benchmarks.bench_learning import load_avg, run_worker
     from nmrl.runs.devices import cpu_cores
 
     t0 = time.perf_counter()
@@ -104,16 +102,8 @@ def run(quick: bool = False, smoke: bool = False, timeout: float = 1800) -> dict
     c_batch, c_steps = (SMOKE["c_batch"], SMOKE["c_steps"]) if smoke else (64, 4096)
     c_reps = 1 if smoke else 2 if quick else 3
     c_before = c_rollout([c_batch], c_steps, [ncpu], repeats=c_reps)[0]
-    env = dict(os.environ)
-    flags = " ".join(f for f in env.get("XLA_FLAGS", "").split()
-                     if not f.startswith("--xla_force_host_platform_device_count"))
-    env["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={ncpu}".strip()
     size = ["--smoke"] if smoke else ["--quick"] if quick else []
-    p = subprocess.run([sys.executable, "-m", "benchmarks.bench_sweep", "--worker", *size],
-                       env=env, capture_output=True, text=True, timeout=timeout)
-    if p.returncode != 0:
-        raise RuntimeError(f"bench_sweep worker failed (rc {p.returncode}): {p.stderr[-2000:]}")
-    w = json.loads(p.stdout.strip().splitlines()[-1])
+    w = run_worker("benchmarks.bench_sweep", size, ncpu, timeout)
     load.append(load_avg())
     c_after = c_rollout([c_batch], c_steps, [ncpu], repeats=c_reps)[0]
     c_ctrl = statistics.mean([c_before["control_steps_per_s"], c_after["control_steps_per_s"]])
