@@ -114,6 +114,10 @@ def mjx_subprocess(batch_sizes, mode: str, ndev: int, steps_per_call: int, repea
     env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
     flags = f"--xla_force_host_platform_device_count={ndev} {xla_extra}".strip()
     env["XLA_FLAGS"] = flags
+    from nmrl.runs import devices  # the thread pool nmrl's own commands give ndev devices
+
+    if (pool := devices.pool_threads(ndev)) is not None:
+        env["PJRT_NPROC"] = str(pool)
     cmd = [sys.executable, str(pathlib.Path(__file__).resolve()), "--worker", "--mode", mode,
            "--batch", *map(str, batch_sizes), "--steps-per-call", str(steps_per_call),
            "--repeats", str(repeats)]
@@ -122,7 +126,7 @@ def mjx_subprocess(batch_sizes, mode: str, ndev: int, steps_per_call: int, repea
     try:
         p = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=timeout)
         stdout, stderr, rc = p.stdout, p.stderr, p.returncode
-    except subprocess.TimeoutExpired as e:  # seen: a 2-device run hanging (all threads in futex)
+    except subprocess.TimeoutExpired as e:  # a worker that never ends still reports what it measured
         stdout, stderr, rc = "", (e.stderr or b"").decode(errors="replace"), "timeout"
     if rc != 0 or not stdout.strip():
         # keep what the worker measured before it failed (one JSON line per batch size on stderr)

@@ -70,6 +70,10 @@ def run_worker(module: str, size: list[str], cores: int, timeout: float) -> dict
     flags = " ".join(f for f in env.get("XLA_FLAGS", "").split()
                      if not f.startswith("--xla_force_host_platform_device_count"))
     env["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={cores}".strip()
+    from nmrl.runs import devices  # the thread pool nmrl's own commands give these devices
+
+    if (pool := devices.pool_threads(cores)) is not None:
+        env["PJRT_NPROC"] = str(pool)
     p = subprocess.run([sys.executable, "-m", module, "--worker", *size],
                        env=env, capture_output=True, text=True, timeout=timeout)
     if p.returncode != 0:

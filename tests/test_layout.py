@@ -175,3 +175,38 @@ def test_sigterm_saves_every_active_point_and_exits_143(tmp_path):
                        capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr[-2000:]
     assert run.read_metrics(sweep.point_dir(out, 1, 0))[-1]["step"] == last + 25
+
+
+_POOL_PROBE = """
+import sys
+from nmrl.runs import devices
+devices.configure(2)
+import jax, jax.numpy as jnp, numpy as np
+m = 9
+a = np.random.default_rng(0).normal(size=(2, 4096, m, m)).astype(np.float32)
+a = a @ a.transpose(0, 1, 3, 2) + m * np.eye(m, dtype=np.float32)
+
+def f(x):
+    body = lambda c: (c[0] + 1, c[1] + 1e-3 * jnp.linalg.cholesky(c[1]))
+    return jax.lax.while_loop(lambda c: c[0] < 2, body, (0, x))[1]
+
+print(len(jax.devices()), float(jax.pmap(f)(a).sum()))
+"""
+
+
+def test_two_devices_get_a_thread_pool_in_which_a_batched_lapack_kernel_finishes(monkeypatch):
+    """jaxlib's batched Cholesky (MJX's Newton solver) splits a large batch into tasks on XLA's CPU
+    pool and blocks until they finish; with one pool thread per device both devices block and the
+    program never ends (4,096 9 x 9 matrices per device inside a loop, as in a 4,096-environment
+    run). With the pool devices.configure sets, the same program finishes."""
+    env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "PJRT_NPROC", "NPROC")}
+    p = subprocess.run([sys.executable, "-c", _POOL_PROBE], env=env, capture_output=True, text=True,
+                       timeout=120)
+    assert p.returncode == 0, p.stderr[-2000:]
+    n, total = p.stdout.split()
+    assert n == "2" and np.isfinite(float(total))
+    monkeypatch.delenv("PJRT_NPROC", raising=False)
+    monkeypatch.delenv("NPROC", raising=False)
+    if devices.cpu_cores() <= 2:
+        assert devices.pool_threads(2) == 3
+    assert devices.pool_threads(1) is None

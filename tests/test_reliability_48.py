@@ -366,3 +366,21 @@ def test_signals_at_any_moment_of_the_start_never_train_and_never_print_a_traceb
     assert p.returncode == 130, err
     assert "second signal 2 while compiling; nothing of the run was written" in err and "checkpoint" not in err
     assert not out.exists()
+
+
+# ----------------------------------------------------------------------------- thousands of environments on 2 devices
+
+
+@pytest.mark.slow  # 4,096 environments on each physics (~2 min)
+@pytest.mark.parametrize("physics", ["mjx", "c"])
+def test_thousands_of_environments_on_two_devices_train_to_the_end(tmp_path, physics):
+    """4,096 environments on the CLI's default layout (one device per core) finish their chunk and
+    save it; they used to wait for ever after compiling (MJX: the batched Cholesky, C: the
+    callback's operands), every worker idle."""
+    out = tmp_path / "R"
+    p = _run(["train", "--preset", "fast", "--hidden-actor", "8", "--hidden-critic", "8", "--steps", "100",
+              "--chunk-steps", "100", "--num-envs", "4096", "--physics", physics, "--out", str(out)], timeout=400)
+    assert p.returncode == 0, p.stderr[-3000:]
+    assert "4096 environments on 2 device(s)" in p.stderr or os.cpu_count() < 2, p.stderr[-2000:]
+    rows = [ln for ln in (out / "metrics.jsonl").read_text().splitlines() if ln.strip()]
+    assert len(rows) == 1 and '"step": 100' in rows[0]

@@ -7,6 +7,17 @@ exposes K host devices so that K shards run side by side. ``nmrl train`` and ``n
 ``XLA_FLAGS``; ``--devices 1`` (or ``NMRL_DEVICES=1``) turns it off, ``--devices K`` asks for K.
 The flag only concerns the host platform: on a GPU/TPU machine the accelerators are used as usual.
 
+K devices in one process share XLA's CPU thread pool, which has one thread per core by default.
+Each device's program runs on one of its threads, and some operations hand sub-tasks to the same
+pool and block until they finish: jaxlib's batched LAPACK kernels (``ParallelBatchMap``, e.g. the
+Cholesky of MJX's Newton solver once a batch holds about 820 of the robot's 9 x 9 matrices) and
+the hand-over of a large operand to a ``pure_callback`` (the C physics). When K is at least the
+pool's size, all its threads can block at once and the program waits for ever. :func:`configure`
+therefore sizes the pool to K + 1 threads (``PJRT_NPROC``, read once by XLA's CPU client) whenever
+K >= the pool's default; a spare thread costs nothing while idle, and the pool's size does not
+change any result (checked bit for bit on the actor-critic and PPO on both physics).
+A ``PJRT_NPROC`` or ``NPROC`` the user set is kept.
+
 This module must not import JAX.
 """
 
@@ -61,14 +72,26 @@ def configure(value: str | int | None) -> int:
     n = parse(value)
     flags = os.environ.get("XLA_FLAGS", "")
     has = re.search(FLAG + r"=(\d+)", flags)
-    if n is None:
-        if has:
-            return int(has.group(1))
-        n = cpu_cores()
     if "jax" in sys.modules:
-        return n
-    flags = re.sub(FLAG + r"=\d+", "", flags).strip()
-    if n > 1:
-        flags = f"{flags} {FLAG}={n}".strip()
-    os.environ["XLA_FLAGS"] = flags
+        return n if n is not None else int(has.group(1)) if has else cpu_cores()
+    if n is None and has:
+        n = int(has.group(1))
+    else:
+        n = cpu_cores() if n is None else n
+        flags = re.sub(FLAG + r"=\d+", "", flags).strip()
+        if n > 1:
+            flags = f"{flags} {FLAG}={n}".strip()
+        os.environ["XLA_FLAGS"] = flags
+    pool = pool_threads(n)
+    if pool is not None:
+        os.environ["PJRT_NPROC"] = str(pool)
     return n
+
+
+def pool_threads(devices: int) -> int | None:
+    """The CPU thread pool's size that ``devices`` host devices need (see the module docstring):
+    ``devices + 1`` when the default pool (one thread per core) is not larger than ``devices``;
+    None when the default suffices or the user sized the pool (``PJRT_NPROC`` or ``NPROC``)."""
+    if devices < 2 or "PJRT_NPROC" in os.environ or "NPROC" in os.environ:
+        return None
+    return devices + 1 if cpu_cores() <= devices else None
