@@ -11,7 +11,7 @@
 # Adam state and observation statistics; every environment starts a new trial).
 # Publish the progress with: .venv/bin/python scripts/publish_ppo_validation.py
 # PHYSICS=c runs the same on MuJoCo C (issue 44's learning check):
-#   OUT=runs/ppo_validation_c PUBLISHED=results/physics_c/ppo_validation PHYSICS=c scripts/ppo_validation.sh
+#   OUT=runs/ppo_validation_c PUBLISHED=results/physics_c/ppo/validation PHYSICS=c scripts/ppo_validation.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
 # shellcheck source=scripts/lower_priority.sh

@@ -279,6 +279,9 @@ def evaluate(
         "steps": n_steps,
         "seed": int(seed),
         "control_dt": float(config.control_dt),
+        "physics": _physics(config),
+        **({} if getattr(config, "physics_timestep", None) is None
+           else {"physics_timestep": float(config.physics_timestep)}),
         **({} if learner.name == learners.DEFAULT else {learners.KEY: learner.name}),
         **(learner.describe(config) if learner.describe is not None else {}),
         "deterministic": summarize(det),
