@@ -302,3 +302,25 @@ def parting_steps(name: str, seeds=range(5), n: int = 1000, tol: float = 1e-2) -
 if __name__ == "__main__":
     for task in NAMES:
         print(task, parting_steps(task))
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_ppo_acts_within_the_tasks_action_space(name):
+    """PPO's squashed action covers the task's action space and nothing beyond it (Gymnasium's
+    ``action_space``, read from gymnasium itself); on the paper's robot it spans a = 20 u (Sec. V-A:
+    a^0 = 0.1 a in [-2, 2])."""
+    from nmrl.learners import ppo
+
+    space = _gym(name).action_space
+    for env_name, lo, hi in ((name, space.low, space.high), ("paper-cheetah", -20.0, 20.0)):
+        cfg = ppo.PPOConfig(env=env_name, physics="c", num_envs=2, policy_layers=1, value_layers=1)
+        tr = ppo.make_ppo(cfg)
+        st = tr.init(jax.random.PRNGKey(0))
+        pol = ppo.policy(cfg, tr.env)
+        params = {"policy": st.policy, "obs_stats": st.obs_stats}
+        obs = st.env.obs[0]
+        for sign in (1.0, -1.0):
+            a = np.asarray(pol.act(params, obs, sign * 8.0 * jnp.ones(tr.env.act_dim)), np.float64)
+            assert np.all(a >= lo) and np.all(a <= hi), (env_name, a)
+            edge = hi if sign > 0 else lo
+            np.testing.assert_allclose(a, np.broadcast_to(edge, a.shape), rtol=1e-3, atol=1e-3 * np.max(np.abs(hi)))

@@ -319,6 +319,7 @@ def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None
     cfg = config.resolved()
     env = env or tasks.make_env(cfg.env, cfg.env_config())
     OBS, ACT = env.obs_dim, env.act_dim
+    SCALE = nn_.action_range(env)
     TERMS = tuple(env.reward_terms)
     N, NL = cfg.num_envs, cfg.num_envs // num_shards
     T, U, M, E = cfg.unroll_length, cfg.unrolls_per_env, cfg.num_minibatches, cfg.epochs
@@ -416,7 +417,7 @@ def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None
         xi, logp_xi, fresh, ns = _sample_per_env(h.process, ns, local(jax.random.split(key, N)))
         x = mu + std * xi
         logp = logp_xi - jnp.sum(jnp.log(std), axis=-1)
-        new = jax.vmap(env.step)(es, nn_.squash(x, cfg.squash))
+        new = jax.vmap(env.step)(es, nn_.squash(x, cfg.squash, *SCALE))
         done = new.done > 0
         failed = new.metrics["nonfinite"] > 0
         ns = explore.reset(h.process, ns, done)
@@ -530,7 +531,8 @@ def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None
 
 
 def policy(cfg: PPOConfig, env: Any) -> Policy:
-    """``act(params, obs, xi) = ACTION_SCALE * squash(mu_theta(s) + std_theta(s) xi)`` with ``s`` the
+    """``act(params, obs, xi) = squash(mu_theta(s) + std_theta(s) xi)`` onto the environment's action
+    range (the paper's robot: 20 tanh(.); ``ppo_networks.action_range``) with ``s`` the
     observation through the run's normaliser (``params``: ``policy``, ``obs_stats``); xi = 0 is the
     deterministic policy (Brax's mode: tanh of the mean). The exploring policy's noise is the run's
     process, drawn by nmrl.explore.sample from a key made of the per-step ``eps``'s bits."""
@@ -538,11 +540,12 @@ def policy(cfg: PPOConfig, env: Any) -> Policy:
     nets = nn_.make_networks(cfg.policy_layers, cfg.policy_width, cfg.value_layers, cfg.value_width, env.act_dim,
                              cfg.learn_std)
     proc = cfg.spec().process(cfg.control_dt)
+    scale = nn_.action_range(env)
 
     def act(params, obs, xi):
         mu, std = nn_.mean_std(nets, params["policy"], nn_.normalize(params["obs_stats"], obs, cfg.normalize_obs),
                                cfg.min_std)
-        return nn_.squash(mu + std * xi, cfg.squash)
+        return nn_.squash(mu + std * xi, cfg.squash, *scale)
 
     def noise_init(act_dim):
         return explore.init(proc, jax.random.PRNGKey(0), 1, act_dim)

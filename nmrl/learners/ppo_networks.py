@@ -86,10 +86,19 @@ def tanh_log_det(x: jax.Array) -> jax.Array:
     return 2.0 * (math.log(2.0) - x - jax.nn.softplus(-2.0 * x))
 
 
-def squash(x: jax.Array, kind: str) -> jax.Array:
-    """The environment's action for a pre-squash action ``x``: ACTION_SCALE * tanh(x) or * clip(x)."""
+def squash(x: jax.Array, kind: str, scale: Any = ACTION_SCALE, offset: Any = None) -> jax.Array:
+    """The environment's action for a pre-squash action ``x``: ``offset + scale * u`` with u = tanh(x)
+    or clip(x, -1, 1); ``scale``/``offset`` map [-1, 1] onto the environment's action range
+    (:func:`action_range`; the paper's robot: 20 u)."""
     u = jnp.tanh(x) if kind == "tanh" else jnp.clip(x, -1.0, 1.0)
-    return ACTION_SCALE * u
+    return scale * u if offset is None else offset + scale * u
+
+
+def action_range(env: Any) -> tuple[Any, Any]:
+    """``(scale, offset)`` of :func:`squash` for ``env``: its ``action_scale`` and ``action_offset``
+    (a Gymnasium task: the half-width and centre of its actuators' ctrlrange), the paper's
+    ``ACTION_SCALE`` and no offset for an environment that declares neither."""
+    return getattr(env, "action_scale", ACTION_SCALE), getattr(env, "action_offset", None)
 
 
 def entropy(std: jax.Array, x_sample: jax.Array, squash_kind: str) -> jax.Array:

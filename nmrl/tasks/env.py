@@ -123,6 +123,10 @@ class Task:
         self.reward_terms = ("reward_forward", "reward_ctrl") + (("reward_survive",) if self.spec.has_health else ())
         self.ctrl_low = mj.actuator_ctrlrange[:, 0].copy()
         self.ctrl_high = mj.actuator_ctrlrange[:, 1].copy()
+        #: a learner's squashed action u in [-1, 1] maps to action_offset + action_scale * u, the
+        #: actuators' ctrlrange (Gymnasium's action space; [-1, 1] in all three tasks)
+        self.action_scale = (self.ctrl_high - self.ctrl_low) / 2.0
+        self.action_offset = (self.ctrl_high + self.ctrl_low) / 2.0
         self.init_qpos = mj.qpos0.copy()
         self.c = None
         if config.physics == "c":
