@@ -324,3 +324,18 @@ def test_ppo_acts_within_the_tasks_action_space(name):
             assert np.all(a >= lo) and np.all(a <= hi), (env_name, a)
             edge = hi if sign > 0 else lo
             np.testing.assert_allclose(a, np.broadcast_to(edge, a.shape), rtol=1e-3, atol=1e-3 * np.max(np.abs(hi)))
+
+
+def test_ppo_learns_from_a_fall_as_a_termination_and_from_nothing_else_as_one():
+    """Gymnasium's Hopper terminates when it is unhealthy (the value after the fall is 0); PPO's
+    batch marks those steps as terminations, not as truncations (which carry no learning signal)."""
+    from nmrl.learners import ppo
+
+    cfg = ppo.PPOConfig(env="hopper-v5", physics="c", num_envs=4, batch_size=4, num_minibatches=2,
+                        policy_layers=1, value_layers=1, sigma=3.0)
+    tr = ppo.make_ppo(cfg)
+    st = tr.init(jax.random.PRNGKey(0))
+    _, data = jax.jit(tr.rollout)(st, jax.random.PRNGKey(1))
+    term, trunc = np.asarray(data.termination), np.asarray(data.truncation)
+    assert term.shape[-1] * term.shape[-2] < 1000  # no episode reaches Hopper's time limit in one iteration
+    assert term.sum() > 0 and trunc.sum() == 0, (term.sum(), trunc.sum())

@@ -267,8 +267,10 @@ class Batch(NamedTuple):
     logp: jax.Array  #: (..., T) log pi_old(x_t | x since the last reset)
     fresh: jax.Array  #: (..., T) bool, the noise started a period or trial at t
     reward: jax.Array  #: (..., T) r_t (unscaled)
-    termination: jax.Array  #: (..., T) 1 where the physics failed (the value after is 0)
-    truncation: jax.Array  #: (..., T) 1 where the stop rule ended the trial (no learning signal)
+    termination: jax.Array  #: (..., T) 1 where the trial terminated (the value after is 0): the physics
+    #: failed, or a task's own rule (Gymnasium's ``terminated``: unhealthy)
+    truncation: jax.Array  #: (..., T) 1 where any other end (the stop rule, a time limit) cut the trial
+    #: (no learning signal)
     next_obs: jax.Array  #: (..., obs) the observation after the unroll's last step
     mean0: jax.Array  #: (..., K, n) noise filter belief at the unroll's start
     cov0: jax.Array  #: (..., K, K)
@@ -426,8 +428,10 @@ def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None
                "trials": acc["trials"] + jnp.sum(done.astype(jnp.int32)),
                "nonfinite": acc["nonfinite"] + jnp.sum(failed.astype(jnp.int32)),
                **{k: acc[k] + jnp.sum(new.metrics[k]) for k in TERMS}}
-        tr = (es.obs, x, logp, fresh, new.reward, (done & failed).astype(jnp.float32),
-              (done & ~failed).astype(jnp.float32))
+        # termination: the environment's own rule where it has one (a Gymnasium task: unhealthy or a
+        # failed physics step), else a failed physics step; every other end of a trial truncates
+        term = done & (new.info["terminated"] > 0) if "terminated" in new.info else done & failed
+        tr = (es.obs, x, logp, fresh, new.reward, term.astype(jnp.float32), (done & ~term).astype(jnp.float32))
         return (new, ns, policy, stats, h, acc), tr
 
     def unroll(carry, key):
