@@ -232,6 +232,9 @@ def summary(res: dict) -> dict:
         s["physics_c_env_over_batch_alone"] = w["a_env"]["ratio"]
         s["physics_c_sweep_over_mjx"] = w["b_sweep"]["c_over_mjx"]
         s["physics_c_sweep_over_mujoco_c"] = w["c_limit"]["sweep_c_over_limit"]
+        if "sweep_c_grouped_over_limit" in w["c_limit"]:
+            s["physics_c_grouped_sweep_over_mjx"] = w["b_sweep"]["rates"]["c_grouped"] / w["b_sweep"]["rates"]["mjx"]
+            s["physics_c_grouped_sweep_over_mujoco_c"] = w["c_limit"]["sweep_c_grouped_over_limit"]
         s["physics_c_ppo_over_mjx"] = {k: v["c_over_mjx"] for k, v in w["d_ppo"].items()}
         s["physics_c_goal_met"] = pc.get("goal_met")
     li = res.get("likelihood")
@@ -319,6 +322,14 @@ def table(res: dict) -> str:
         rows.append(("sweep vs MuJoCo C, --physics c", f"the C sweep (with learning) vs mujoco.batch alone, "
                      f"B={lim['batch']}, {lim['threads']} threads", _f(sw["rates"]["c"]), _f(lim["batch_alone"]),
                      _f(lim["sweep_c_over_limit"], 2, "×"), "–"))
+        if "c_grouped" in sw["rates"]:
+            g = sw["c_grouped_points_per_call"]
+            rows.append(("sweep ctrl steps/s, --physics c", f"C with --group {g} (a device's points in one call) vs "
+                         "a point at a time", _f(sw["rates"]["c_grouped"]), _f(sw["rates"]["c"]),
+                         _f(sw["c_grouped_over_c"], 2, "×"), f"{sw['compile_s']['c_grouped']:.1f} / {sw['compile_s']['c']:.1f}"))
+            rows.append(("sweep vs MuJoCo C, --physics c", f"the grouped C sweep vs mujoco.batch alone, "
+                         f"B={lim['grouped_batch']}, {lim['threads']} threads", _f(sw["rates"]["c_grouped"]),
+                         _f(lim["grouped_batch_alone"]), _f(lim["sweep_c_grouped_over_limit"], 2, "×"), "–"))
         for k, v in w["d_ppo"].items():
             rows.append((f"native PPO ctrl steps/s, {k}", f"one iteration ({v['num_minibatches']} minibatches), "
                          "64 envs, value 2×64: C vs MJX", _f(v["rates"]["c"]), _f(v["rates"]["mjx"]),
