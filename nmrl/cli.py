@@ -102,8 +102,20 @@ def add_config_options(p: argparse.ArgumentParser, skip: set[str] = frozenset(),
 def given_options(args: argparse.Namespace, skip: set[str] = frozenset()) -> dict:
     """The config fields of the command's learner given on the command line (name -> value)."""
     learner = _learner(getattr(args, "learner", None))
-    return {f.name: getattr(args, f.name) for f in dataclasses.fields(learner.config)
-            if f.name not in skip and getattr(args, f.name, None) is not None}
+    given = {f.name: getattr(args, f.name) for f in dataclasses.fields(learner.config)
+             if f.name not in skip and getattr(args, f.name, None) is not None}
+    return {**_task_control_dt(given), **given}
+
+
+def _task_control_dt(given: dict) -> dict:
+    """``{"control_dt": the task's own step}`` (frame skip x timestep, Gymnasium's ``dt``) for a
+    Gymnasium task given by ``--env`` without ``--control-dt``; nothing otherwise."""
+    env = given.get("env")
+    if env is None or "control_dt" in given:
+        return {}
+    from nmrl.tasks.gym_v5 import TASKS
+
+    return {"control_dt": TASKS[env].frame_skip * TASKS[env].timestep} if env in TASKS else {}
 
 
 def config_from_args(args: argparse.Namespace, skip: set[str] = frozenset()):

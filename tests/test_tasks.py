@@ -339,3 +339,47 @@ def test_ppo_learns_from_a_fall_as_a_termination_and_from_nothing_else_as_one():
     term, trunc = np.asarray(data.termination), np.asarray(data.truncation)
     assert term.shape[-1] * term.shape[-2] < 1000  # no episode reaches Hopper's time limit in one iteration
     assert term.sum() > 0 and trunc.sum() == 0, (term.sum(), trunc.sum())
+
+
+def test_a_task_runs_eval_scores_episodes_as_a_gymnasium_loop_does(tmp_path):
+    """``nmrl eval`` of a PPO run on Hopper-v5 (C physics, the task's own control step by default)
+    reports each episode's return and length;
+    a plain Gymnasium loop from the same reset states, with actions from the same policy on
+    Gymnasium's observations, ends its episodes at the same steps with the same returns."""
+    import json
+
+    from nmrl import cli
+    from nmrl.analysis import task_eval
+    from nmrl.learners import ppo
+    from nmrl.runs import checkpoint
+
+    out = tmp_path / "r"
+    assert cli.main(["train", "--learner", "ppo", "--env", "hopper-v5", "--physics", "c", "--num-envs", "4",
+                     "--batch-size", "4", "--num-minibatches", "2", "--epochs", "1", "--policy-layers", "1",
+                     "--value-layers", "1", "--steps", "40", "--out", str(out)]) == 0
+    assert cli.main(["eval", str(out), "--seed", "5"]) == 0
+    ev = json.loads((out / "eval" / "eval.json").read_text())
+    det = ev["deterministic"]
+    assert ev["env"] == "hopper-v5" and ev["physics"] == "c" and det["episodes"] == task_eval.EPISODES
+    assert not (out / "eval" / "strobe.png").exists()
+
+    _, cfg, params = checkpoint.restore_params(out)
+    env = task_eval._env("hopper-v5", float(cfg.control_dt), "c")
+    pol = ppo.policy(cfg, env)
+    k_reset, _ = jax.random.split(jax.random.PRNGKey(5))
+    s0 = jax.vmap(env.reset)(jax.random.split(k_reset, task_eval.EPISODES))
+    g = _gym("hopper-v5")
+    assert cfg.control_dt == g.unwrapped.dt  # without --control-dt a task runs at its own step
+    for i in range(task_eval.EPISODES):
+        q, v = env.c.split(mujoco_c.from_bits(np.asarray(s0.data.state[i])))
+        g.reset(seed=0)
+        g.unwrapped.set_state(q, v)
+        obs, ret, n = g.unwrapped._get_obs(), 0.0, 0
+        while True:
+            a = np.asarray(pol.act(params, jnp.asarray(obs, jnp.float32), jnp.zeros(env.act_dim)), np.float64)
+            obs, r, term, trunc, _ = g.step(a)
+            ret, n = ret + r, n + 1
+            if term or trunc:
+                break
+        assert n == det["length"][i], (i, n, det["length"][i])
+        np.testing.assert_allclose(det["return"]["each"][i], ret, rtol=1e-4)

@@ -40,7 +40,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nmrl import learners
+from nmrl import learners, tasks
+from nmrl.analysis import task_eval
 from nmrl.analysis.gait_pictures import plot_strobe, write_gif
 from nmrl.paper.env import REWARD_TERMS, EnvConfig, HalfCheetah, forward_kinematics
 from nmrl.runs import checkpoint, io_errors
@@ -252,6 +253,9 @@ def evaluate(
     ``nonfinite`` (steps whose physics failed). With ``render`` also ``files`` {strobe, gif,
     trajectory}: ``trajectory.npz`` holds the deterministic rollout's joint positions ``pos`` (T+1, 10,
     2) and ``control_dt``, so that gaits can be redrawn side by side at one scale.
+    A run on a Gymnasium task (``--env``) is scored by :func:`nmrl.analysis.task_eval.episodes`
+    instead: ``env``, ``episodes`` and, under ``deterministic`` and ``exploring``, the return per
+    episode and the episodes' lengths; ``seconds`` does not apply and nothing is drawn.
     The JSON is also written to ``OUT_DIR/eval.json`` (``OUT_DIR`` = ``RUN_DIR/eval``).
     Raises CheckpointError for a missing/bad checkpoint or one of another run (ForeignCheckpoint),
     ValueError for bad ``seconds``, :class:`nmrl.runs.io_errors.IOFailure` (before the rollouts)
@@ -269,14 +273,22 @@ def evaluate(
     learner = learners.of(config)
     out_dir = pathlib.Path(out_dir) if out_dir is not None else run / EVAL_DIR
     io_errors.check_writable(out_dir)  # before the rollouts: IOFailure naming the directory and the cause
-    det = rollout_params(config, params, seconds=seconds, seed=seed, exploring=False)
-    exp = rollout_params(config, params, seconds=seconds, seed=seed, exploring=True)
+    env_name = getattr(config, "env", tasks.PAPER)
+    if env_name != tasks.PAPER:  # a Gymnasium task: returns per episode, no pictures of the paper's robot
+        render = False
+        ends = {"env": env_name, "episodes": task_eval.EPISODES,
+                "deterministic": task_eval.episodes(config, params, seed=seed, exploring=False),
+                "exploring": task_eval.episodes(config, params, seed=seed, exploring=True)}
+    else:
+        det = rollout_params(config, params, seconds=seconds, seed=seed, exploring=False)
+        ends = {"seconds": float(seconds), "steps": n_steps,
+                "deterministic": summarize(det),
+                "exploring": summarize(rollout_params(config, params, seconds=seconds, seed=seed, exploring=True))}
     result: dict[str, Any] = {
         "run_dir": str(run),
         "step": step,
         "trials": meta.get("trials"),
-        "seconds": float(seconds),
-        "steps": n_steps,
+        **{k: ends.pop(k) for k in ("seconds", "steps", "env", "episodes") if k in ends},
         "seed": int(seed),
         "control_dt": float(config.control_dt),
         "physics": _physics(config),
@@ -284,8 +296,7 @@ def evaluate(
            else {"physics_timestep": float(config.physics_timestep)}),
         **({} if learner.name == learners.DEFAULT else {learners.KEY: learner.name}),
         **(learner.describe(config) if learner.describe is not None else {}),
-        "deterministic": summarize(det),
-        "exploring": summarize(exp),
+        **ends,
     }
     out_dir.mkdir(parents=True, exist_ok=True)
     remove_stale(out_dir)
