@@ -54,7 +54,7 @@ from nmrl.learners import ppo_losses as L
 from nmrl.learners import ppo_networks as nn_
 from nmrl.learners.contract import Learner, Policy, register
 from nmrl.paper.env import PHYSICS_HELP, TRIAL_S_HELP, EnvConfig
-from nmrl.paper.learner import check_shards
+from nmrl.pytrees import check_shards, global_norm, tree_where
 
 NAME = "ppo"
 #: the horizon (s) of Brax's discounting 0.95 (and GAE lambda 0.95) at the baseline's 0.02 s step
@@ -294,14 +294,6 @@ class PPOTrainer(NamedTuple):
     minibatches: Callable[..., Batch]
 
 
-def _tree_where(c, a, b):
-    return jax.tree.map(lambda x, y: jnp.where(c, x, y), a, b)
-
-
-def _global_norm(tree) -> jax.Array:
-    return jnp.sqrt(sum(jnp.sum(jnp.square(x)) for x in jax.tree.leaves(tree)))
-
-
 def _sample_per_env(proc: explore.Process, ns: explore.NoiseState, keys: jax.Array):
     """explore.sample with one key per environment (the draws do not depend on how many
     environments a shard holds)."""
@@ -331,7 +323,7 @@ def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None
     nets = nn_.make_networks(cfg.policy_layers, cfg.policy_width, cfg.value_layers, cfg.value_width, ACT,
                              cfg.learn_std)
     adam = optax.scale_by_adam()
-    tx = adam if cfg.max_grad_norm is None else optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), adam)
+    tx = adam if cfg.max_grad_norm is None else optax.chain(optax.clip_byglobal_norm(cfg.max_grad_norm), adam)
 
     def psum(x):
         return jax.lax.psum(x, axis_name) if num_shards > 1 else x
@@ -495,12 +487,12 @@ def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None
         key, k_roll, k_sgd = jax.random.split(st.key, 3)
         (es, ns, acc), data = rollout(st, k_roll)
         params, opt, stats, sums = learn(st, data, k_sgd)
-        norms = (_global_norm(params["policy"]), _global_norm(params["value"]))
+        norms = (global_norm(params["policy"]), global_norm(params["value"]))
         ok = jnp.all(jnp.isfinite(jnp.stack(norms))) & (jnp.maximum(*norms) < cfg.max_param_norm)
         take_it = ok & ~st.diverged
-        params = _tree_where(take_it, params, {"policy": st.policy, "value": st.value})
-        opt = _tree_where(take_it, opt, st.opt)
-        stats = _tree_where(take_it, stats, st.obs_stats)
+        params = tree_where(take_it, params, {"policy": st.policy, "value": st.value})
+        opt = tree_where(take_it, opt, st.opt)
+        stats = tree_where(take_it, stats, st.obs_stats)
         trials = psum(acc["trials"])
         new = st.replace(policy=params["policy"], value=params["value"], opt=opt, obs_stats=stats, env=es, noise=ns,
                          key=key, step=st.step + U * T, trials=st.trials + trials, diverged=st.diverged | ~ok)
@@ -519,8 +511,8 @@ def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None
             "nonfinite": jnp.sum(o["nonfinite"]),
             **{k: jnp.mean(o[k]) for k in ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_frac", "std")},
             "updates_in_chunk": jnp.sum(o["learn"].astype(jnp.int32)) * E * M,
-            "policy_norm": _global_norm(st.policy),
-            "value_norm": _global_norm(st.value),
+            "policy_norm": global_norm(st.policy),
+            "value_norm": global_norm(st.value),
             "diverged": st.diverged,
             "step": st.step,
             "trials": st.trials,

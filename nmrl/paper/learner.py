@@ -78,6 +78,7 @@ from flax import struct
 
 from nmrl.paper import networks, noise
 from nmrl.paper.env import EnvConfig, HalfCheetah, State
+from nmrl.pytrees import check_shards, global_norm, tree_where
 
 Params = Any
 OptState = Any
@@ -406,19 +407,6 @@ def _with_learning_rate(state: OptState, learning_rate: jax.Array) -> OptState:
     return state._replace(hyperparams={**state.hyperparams, "learning_rate": learning_rate})
 
 
-def _tree_where(c, a, b):
-    return jax.tree.map(lambda x, y: jnp.where(c, x, y), a, b)
-
-
-def check_shards(num_envs: int, num_shards: int, axis_name: str | None) -> None:
-    """The environment axis splits evenly over ``num_shards`` shards of a ``jax.shard_map`` named
-    ``axis_name`` (every learner's ``make`` takes these arguments; ValueError otherwise)."""
-    if num_shards < 1 or num_envs % num_shards:
-        raise ValueError(f"num_envs={num_envs} must be divisible by num_shards={num_shards}")
-    if num_shards > 1 and axis_name is None:
-        raise ValueError("num_shards > 1 needs an axis_name")
-
-
 def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = None,
                num_shards: int = 1) -> Trainer:
     """Build the pure functions of a training run (see the module docstring).
@@ -488,7 +476,7 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
         s_start = jnp.where(start, obs, slot.s_start)
         rbar = jnp.where(start, 0.0, slot.rbar)
         gpow = jnp.where(start, 1.0, slot.gpow)
-        olr = _tree_where(start, noise.online_lr_reset(slot.olr), slot.olr)
+        olr = tree_where(start, noise.online_lr_reset(slot.olr), slot.olr)
         i_used = slot.ar.i
         mean = actor.apply(theta, obs)
         ar, xi = noise.ar_step(slot.ar, eps, h.alpha, h.l, h.sigma)
@@ -534,13 +522,13 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
         theta = optax.apply_updates(ts.theta, u_theta)
         v = optax.apply_updates(ts.v, u_v)
         learn = n_learn > 0  # an update instant: some environment's period ended at this step
-        ok = (networks.global_norm(theta) < cfg.max_param_norm) & (networks.global_norm(v) < cfg.max_param_norm)
+        ok = (global_norm(theta) < cfg.max_param_norm) & (global_norm(v) < cfg.max_param_norm)
         ok = (ok | ~learn) & ~ts.diverged  # a diverged point stays frozen at its last good parameters
         take = ok & learn
-        theta = _tree_where(take, theta, ts.theta)
-        v = _tree_where(take, v, ts.v)
-        opt_theta = _tree_where(take, opt_theta, ts.opt_theta)
-        opt_v = _tree_where(take, opt_v, ts.opt_v)
+        theta = tree_where(take, theta, ts.theta)
+        v = tree_where(take, v, ts.v)
+        opt_theta = tree_where(take, opt_theta, ts.opt_theta)
+        opt_v = tree_where(take, opt_v, ts.opt_v)
         new = ts.replace(theta=theta, v=v, slots=slots, key=key, step=ts.step + 1,
                          trials=ts.trials + n_done, periods=ts.periods + n_learn,
                          diverged=ts.diverged | ~ok, opt_theta=opt_theta, opt_v=opt_v)
@@ -556,10 +544,10 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
             "td_absmax": pmax(jnp.max(jnp.abs(d))),
             # global norms of the summed pseudo-gradients sum_e d_e z_e, sum_e d_e y_e (0 where no
             # period ended) and of the updates the optimizers made of them
-            "gnorm_theta": networks.global_norm(g_theta),
-            "gnorm_v": networks.global_norm(g_v),
-            "unorm_theta": jnp.where(take, networks.global_norm(u_theta), 0.0),
-            "unorm_v": jnp.where(take, networks.global_norm(u_v), 0.0),
+            "gnorm_theta": global_norm(g_theta),
+            "gnorm_v": global_norm(g_v),
+            "unorm_theta": jnp.where(take, global_norm(u_theta), 0.0),
+            "unorm_v": jnp.where(take, global_norm(u_v), 0.0),
             "learn": take,
         }
         if cfg.grad_stats:
@@ -590,8 +578,8 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
                for k in ("gnorm_theta", "gnorm_v", "unorm_theta", "unorm_v")
                for f, fn in (("mean", lambda x, n: jnp.sum(x) / jnp.maximum(n, 1)),
                              ("max", lambda x, n: jnp.max(x)))},
-            "theta_norm": networks.global_norm(ts.theta),
-            "v_norm": networks.global_norm(ts.v),
+            "theta_norm": global_norm(ts.theta),
+            "v_norm": global_norm(ts.v),
             "diverged": ts.diverged,
             "step": ts.step,
             "trials": ts.trials,

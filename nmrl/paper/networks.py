@@ -48,7 +48,3 @@ def value(critic: Perceptron, v: Params, s: jax.Array) -> jax.Array:
 
 def init_params(module: Perceptron, key: jax.Array, obs_dim: int) -> Params:
     return module.init(key, jnp.zeros((obs_dim,), jnp.float32))
-
-
-def global_norm(tree: Params) -> jax.Array:
-    return jnp.sqrt(sum(jnp.sum(jnp.square(x)) for x in jax.tree.leaves(tree)))
