@@ -21,7 +21,12 @@ def _spec(argv):
     learner = cli._learner("ppo")
     args = cli.build_parser(learner).parse_args(["sweep", *argv, "--out", "unused"])
     base = cli.config_from_args(args, skip=cli._sweep_skip(learner))
-    spec = cli._varied_spec(args, learner, base)
+    if args.vary is None:  # seeds only (a grid cell)
+        from nmrl.experiments import sweep
+
+        spec = sweep.SweepSpec(ls=(None,), seeds=args.seeds, base=base, field=None, seed0=args.seed0)
+    else:
+        spec = cli._varied_spec(args, learner, base)
     spec.validate()
     return spec
 
@@ -125,3 +130,45 @@ def test_white_has_no_time_constant_and_extensions_stop_after_two():
     rows += _screen_rows(e2, {0.01024: 11.0})
     assert exploration2.later_cells(rows) == []  # still at the edge after two: used, reported as not bracketed
     assert exploration2.choose(rows) == (0.01024, True, [0.01024, 0.0256, 0.064, 0.16, 0.4, 1.0])
+
+
+def _chosen_rows():
+    """Finished screens of the primary family, each bracketed: sigma 0.4 best, then its time
+    constant's middle value (the sigma screen's own) best."""
+    rows = []
+    for cell in exploration2.SIGMA_SCREEN:
+        rows += _screen_rows(cell, {0.064: 1.0, 0.16: 2.0, 0.4: 5.0, 1.0: 3.0})
+    for tc in [c for c in exploration2.later_cells(rows) if c.name.startswith("screen/tc/")]:
+        rows += _screen_rows(tc, dict(zip(_spec(tc.sweep).ls, (1.0, 2.0))))
+    return rows
+
+
+def test_the_grid_follows_the_screen_with_the_preregistered_design():
+    rows = _chosen_rows()
+    cells = {c.name: c for c in exploration2.later_cells(rows)}
+    primary = ["grid/dt0.02/white", "grid/dt0.02/nmp", "grid/dt0.0025/white", "grid/dt0.0025/ws",
+               "grid/dt0.0025/ou", "grid/dt0.0025/colored", "grid/dt0.0025/nms", "grid/dt0.0025/nmp"]
+    assert [n for n in cells if n.startswith("grid/")][:8] == primary
+    for name in primary:
+        spec = _spec(cells[name].sweep)
+        cfg = spec.base.resolved()
+        assert [s for _, s in spec.points()] == list(range(8))  # grid seeds 0-7, one point each
+        assert cfg.steps * cfg.control_dt == pytest.approx(16 * 102.4)  # 1.6e3 simulated s per environment
+        assert cfg.physics == "c" and cfg.physics_timestep == 0.0025
+        assert cfg.env_config().step_stop_prob * 5.0 == pytest.approx(cfg.control_dt)
+    # white and the correlated arms at their screened sigma and time constants (the middle values)
+    got = {n: _spec(cells[n].sweep).base for n in primary}
+    assert got["grid/dt0.0025/white"].sigma == 0.4 and got["grid/dt0.0025/ou"].corr_time_s == 0.03
+    assert got["grid/dt0.0025/colored"].beta == 0.5 and got["grid/dt0.0025/nmp"].period_s == 0.06
+    assert got["grid/dt0.0025/nmp"].period_wise and not got["grid/dt0.0025/nms"].period_wise
+    # Ws holds sigma^2 dt at W's 20 ms value (eq. (1)): x sqrt(8) at 2.5 ms, x 2 at 5 ms
+    assert got["grid/dt0.0025/ws"].sigma == pytest.approx(0.4 * 8 ** 0.5, rel=1e-5)
+    assert got["grid/dt0.0025/ws"].exploration == "white"
+    assert _spec(cells["grid/dt0.005/ws"].sweep).base.sigma == pytest.approx(0.8, rel=1e-5)
+    # secondary: the 5 ms column and the sensitivity of W at 2.5 ms, 4 seeds; OU, CN, NMs screened at 20 ms
+    for name in ("grid/dt0.005/white", "grid/dt0.005/ws", "grid/dt0.005/nmp",
+                 "sensitivity/dt0.0025/white_sigma0.16", "sensitivity/dt0.0025/white_sigma1"):
+        assert [s for _, s in _spec(cells[name].sweep).points()] == [0, 1, 2, 3], name
+    assert {"screen/sigma/dt0.02/ou", "screen/sigma/dt0.02/colored", "screen/sigma/dt0.02/nms"} <= set(cells)
+    # nothing of the grid before every primary setting is chosen
+    assert not [c for c in exploration2.later_cells(rows[:-4]) if not c.name.startswith("screen/")]

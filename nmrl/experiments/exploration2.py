@@ -111,41 +111,108 @@ def _extension(cell: kit.Cell, rows: list[dict], factor: float) -> kit.Cell | No
     return kit.Cell(f"{cell.name}+{nxt:.6g}", tuple(argv))
 
 
+def _screen(rows: list[dict], cell: kit.Cell) -> tuple[list[kit.Cell], dict | None]:
+    """One sigma-screen cell's rule (docs/exploration-study-2.md): the cells it adds so far (a sigma
+    winner at an edge adds the next sigma, x or / 2.5, at most twice; once sigma is chosen, the
+    arm's time constant's other values at that sigma, with the same edge extension by the values'
+    own factor: x or / 3, beta x or / 2) and, once every one of them is finished, the choice:
+    ``{"sigma": ..., <time constant field>: ...}`` (None until then)."""
+    arm, dt = cell.name.split("/")[-1], float(cell.name.split("/")[2].removeprefix("dt"))
+    done = _finished(rows, cell.name)
+    if done is None:
+        return [], None
+    ext = _extension(cell, done, SIGMA_FACTOR)
+    if ext is not None:
+        return [ext], None
+    sigma = choose(done)
+    if sigma is None:
+        return [], None
+    if arm not in TIME_CONSTANTS:
+        return [], {"sigma": sigma[0]}
+    field, vals, factor = TIME_CONSTANTS[arm]
+    options = list(ARMS[arm])
+    k = options.index("--" + field.replace("_", "-"))
+    del options[k:k + 2]  # the field is varied instead
+    tc = kit.Cell(f"screen/tc/dt{dt:g}/{arm}",
+                  (*base(dt, SCREEN_ITERATIONS), *options, "--sigma", f"{sigma[0]:.6g}",
+                   "--vary", field, f"{vals[0]:g}", f"{vals[2]:g}",
+                   "--seeds", str(SCREEN_SEEDS), "--seed0", str(SCREEN_SEED0)))
+    tc_rows = _finished(rows, tc.name)
+    if tc_rows is None:
+        return [tc], None
+    at_sigma = [dict(r, value=vals[1]) for r in done if float(r["value"]) == sigma[0]]
+    ext = _extension(tc, tc_rows + at_sigma, factor)
+    if ext is not None:
+        return [tc, ext], None
+    best = choose(tc_rows + at_sigma)
+    return [tc], None if best is None else {"sigma": sigma[0], field: best[0]}
+
+
+#: the primary family's screened settings (arm, control step), and the grid that follows them
+PRIMARY = (("white", 0.02), ("nmp", 0.02), ("white", 0.0025), ("ou", 0.0025), ("colored", 0.0025),
+           ("nms", 0.0025), ("nmp", 0.0025))
+GRID_SEEDS, GRID_ITERATIONS, SECONDARY_SEEDS = 8, 16, 4
+#: the secondary screens: OU, CN and NMs at 20 ms (run after the primary grid and the 5 ms column)
+SECONDARY_SCREEN = tuple(sigma_cell(arm, 0.02) for arm in ("ou", "colored", "nms"))
+SIGMA_MAX = 10.0  #: the largest --sigma nmrl takes (nmrl/runs/bounds.py)
+
+
+def scaled_white_sigma(sigma_w20: float, dt: float) -> float:
+    """Ws: white with sigma(dt) = sigma*(W, 20 ms) (20 ms / dt)^(1/2), which holds white noise's
+    low-frequency power sigma^2 dt (eq. (1)) at its tuned 20 ms value."""
+    return sigma_w20 * (0.02 / dt) ** 0.5
+
+
+def grid_cell(arm: str, dt: float, choice: dict, seeds: int, name: str | None = None) -> kit.Cell:
+    """``arm`` at ``dt`` with its chosen sigma and time constant, seeds 0.. at the full budget."""
+    options = list(ARMS["white" if arm == "ws" else arm])
+    for field, value in choice.items():
+        flag = "--" + field.replace("_", "-")
+        if flag in options:
+            options[options.index(flag) + 1] = f"{value:.6g}"
+        else:
+            options += [flag, f"{value:.6g}"]
+    return kit.Cell(name or f"grid/dt{dt:g}/{arm}",
+                    (*base(dt, GRID_ITERATIONS), *options, "--seeds", str(seeds), "--seed0", "0"))
+
+
 def later_cells(rows: list[dict]) -> list[kit.Cell]:
-    """The screen's rule (docs/exploration-study-2.md): a sigma winner at an edge adds the next sigma
-    (x or / 2.5, at most twice); once an arm's sigma is chosen, its time constant's other values at
-    that sigma, with the same edge extension (by the values' own factor: x or / 3, beta x or / 2)."""
+    """The cells the rows so far call for, in run order (docs/exploration-study-2.md): the screen's
+    extensions and time constants; once every primary setting is chosen, the primary grid (W and NMp
+    at 20 ms, W, Ws, OU, CN, NMs and NMp at 2.5 ms, 8 seeds, 16 iterations), then the secondary
+    parts: the 5 ms column (W and NMp with the 2.5 ms choices, Ws by eq. (1)), OU, CN and NMs at
+    20 ms with their own screens, 4 seeds each, and W's sigma sensitivity at 2.5 ms (one screen step
+    either side of its choice). A Ws sigma above nmrl's range (10) is not run (reported)."""
     out: list[kit.Cell] = []
+    chosen: dict[tuple[str, float], dict] = {}
     for cell in SIGMA_SCREEN:
-        arm, dt = cell.name.split("/")[-1], float(cell.name.split("/")[2].removeprefix("dt"))
-        done = _finished(rows, cell.name)
-        if done is None:
-            continue
-        ext = _extension(cell, done, SIGMA_FACTOR)
-        if ext is not None:
-            out.append(ext)
-            continue
-        if arm not in TIME_CONSTANTS:
-            continue
-        sigma = choose(done)
-        if sigma is None:
-            continue
-        field, vals, factor = TIME_CONSTANTS[arm]
-        options = list(ARMS[arm])
-        k = options.index("--" + field.replace("_", "-"))
-        del options[k:k + 2]  # the field is varied instead
-        tc = kit.Cell(f"screen/tc/dt{dt:g}/{arm}",
-                      (*base(dt, SCREEN_ITERATIONS), *options, "--sigma", f"{sigma[0]:.6g}",
-                       "--vary", field, f"{vals[0]:g}", f"{vals[2]:g}",
-                       "--seeds", str(SCREEN_SEEDS), "--seed0", str(SCREEN_SEED0)))
-        out.append(tc)
-        tc_rows = _finished(rows, tc.name)
-        if tc_rows is None:
-            continue
-        at_sigma = [dict(r, value=vals[1]) for r in done if float(r["value"]) == sigma[0]]
-        ext = _extension(tc, tc_rows + at_sigma, factor)
-        if ext is not None:
-            out.append(ext)
+        add, ch = _screen(rows, cell)
+        out += add
+        if ch is not None:
+            chosen[(cell.name.split("/")[-1], float(cell.name.split("/")[2].removeprefix("dt")))] = ch
+    if any(key not in chosen for key in PRIMARY):
+        return out
+    s20 = chosen[("white", 0.02)]["sigma"]
+    for arm, dt in PRIMARY[:2]:
+        out.append(grid_cell(arm, dt, chosen[(arm, dt)], GRID_SEEDS))
+    for arm, dt in PRIMARY[2:]:
+        out.append(grid_cell(arm, dt, chosen[(arm, dt)], GRID_SEEDS))
+        if arm == "white" and scaled_white_sigma(s20, dt) <= SIGMA_MAX:
+            out.append(grid_cell("ws", dt, {"sigma": scaled_white_sigma(s20, dt)}, GRID_SEEDS))
+    for arm in ("white", "ws", "nmp"):  # the 5 ms column takes the 2.5 ms choices
+        ch = {"sigma": scaled_white_sigma(s20, 0.005)} if arm == "ws" else chosen[(arm, 0.0025)]
+        if ch["sigma"] <= SIGMA_MAX:
+            out.append(grid_cell(arm, 0.005, ch, SECONDARY_SEEDS))
+    for cell in SECONDARY_SCREEN:
+        add, ch = _screen(rows, cell)
+        out += [cell, *add]
+        if ch is not None:
+            out.append(grid_cell(cell.name.split("/")[-1], 0.02, ch, SECONDARY_SEEDS))
+    sw = chosen[("white", 0.0025)]["sigma"]
+    for s in (sw / SIGMA_FACTOR, sw * SIGMA_FACTOR):
+        if s <= SIGMA_MAX:
+            out.append(grid_cell("white", 0.0025, {"sigma": s}, SECONDARY_SEEDS,
+                                 name=f"sensitivity/dt0.0025/white_sigma{s:.6g}"))
     return out
 
 
