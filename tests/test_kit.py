@@ -172,3 +172,29 @@ def test_the_grid_follows_the_screen_with_the_preregistered_design():
     assert {"screen/sigma/dt0.02/ou", "screen/sigma/dt0.02/colored", "screen/sigma/dt0.02/nms"} <= set(cells)
     # nothing of the grid before every primary setting is chosen
     assert not [c for c in exploration2.later_cells(rows[:-4]) if not c.name.startswith("screen/")]
+
+
+def test_the_analysis_is_the_preregistered_family_on_the_grid_at_full_budget():
+    import numpy as np
+    from scipy import stats as sps
+
+    rng = np.random.default_rng(5)
+    means = {"grid/dt0.02/white": 150.0, "grid/dt0.0025/white": 60.0, "grid/dt0.0025/ws": 62.0,
+             "grid/dt0.0025/ou": 100.0, "grid/dt0.0025/colored": 58.0, "grid/dt0.0025/nms": 0.0,
+             "grid/dt0.0025/nmp": 61.0, "grid/dt0.02/nmp": 60.0}
+    rows, vals = [], {}
+    for cell, m in means.items():
+        vals[cell] = rng.normal(m, 10.0, 8)
+        rows += [{"cell": cell, "steps": 100, "budget": 100, "det_reward_per_s": v} for v in vals[cell]]
+    rows.append({"cell": "grid/dt0.0025/ou", "steps": 50, "budget": 100, "det_reward_per_s": 1e6})  # unfinished
+    rows.append({"cell": "screen/sigma/dt0.02/white", "steps": 100, "budget": 100, "det_reward_per_s": 1e6})
+    res = {r["contrast"]: r for r in exploration2.analysis(rows)}
+    assert list(res) == [f"P{i}" for i in range(1, 8)]
+    p1 = sps.ttest_ind(vals["grid/dt0.0025/white"], vals["grid/dt0.02/white"], equal_var=False)
+    assert res["P1"]["p"] == pytest.approx(p1.pvalue) and res["P1"]["decision"] == "behind"
+    assert res["P3"]["decision"] == "ahead" and res["P5"]["decision"] == "behind"
+    assert res["P2"]["decision"] == "equivalent" and res["P6"]["decision"] == "equivalent"
+    inter = (vals["grid/dt0.0025/nmp"].mean() - vals["grid/dt0.02/nmp"].mean()
+             - vals["grid/dt0.0025/white"].mean() + vals["grid/dt0.02/white"].mean())
+    assert res["P7"]["estimate"] == pytest.approx(inter) and res["P7"]["decision"] == "ahead"
+    assert res["P3"]["n"] == "8 8"  # the unfinished run is not counted

@@ -108,6 +108,80 @@ def tost(a, b, margin: float, alpha: float = 0.05) -> TostResult:
     return TostResult(d, p, p_lower, p_upper, d - h, d + h, bool(p <= alpha))
 
 
+def _contrast_parts(samples: Sequence, weights: Sequence[float]) -> tuple[float, float, float]:
+    """(sum_i w_i mean_i, its standard error, Welch-Satterthwaite degrees of freedom) of independent
+    samples with unequal variances."""
+    xs = [_finite(x) for x in samples]
+    if len(xs) != len(weights) or not xs:
+        raise ValueError("one weight per sample")
+    if any(x.size < 2 for x in xs):
+        raise ValueError("each sample needs at least 2 finite values")
+    v = np.array([w * w * x.var(ddof=1) / x.size for w, x in zip(weights, xs)])
+    se2 = float(v.sum())
+    if se2 == 0:
+        raise ValueError("every weighted sample is constant: the Welch statistic is undefined")
+    dof = se2**2 / float(sum(vi**2 / (x.size - 1) for vi, x in zip(v, xs) if vi > 0))
+    return float(sum(w * x.mean() for w, x in zip(weights, xs))), float(np.sqrt(se2)), float(dof)
+
+
+def contrast(samples: Sequence, weights: Sequence[float], confidence: float = 0.95) -> WelchResult:
+    """The Welch test of a linear contrast ``sum_i w_i mean(samples_i) = 0`` of independent cells:
+    its estimate, two-sided ``confidence`` interval and p-value, with Welch-Satterthwaite degrees of
+    freedom. Weights (1, -1) give :func:`welch`; (1, -1, -1, 1) over (a at d1, a at d2, b at d1, b
+    at d2) the interaction: how much more ``a`` changes from d2 to d1 than ``b`` does (P7)."""
+    d, se, dof = _contrast_parts(samples, weights)
+    h = stats.t.ppf(0.5 + confidence / 2, dof) * se
+    return WelchResult(d, d - h, d + h, float(2 * stats.t.sf(abs(d) / se, dof)), dof, se)
+
+
+def contrast_tost(samples: Sequence, weights: Sequence[float], margin: float, alpha: float = 0.05) -> TostResult:
+    """:func:`tost` for a linear contrast: equivalent when both one-sided Welch tests reject
+    ``|sum_i w_i mean_i| >= margin`` at ``alpha``."""
+    if not margin > 0:
+        raise ValueError("the equivalence margin must be positive")
+    d, se, dof = _contrast_parts(samples, weights)
+    p_lower = float(stats.t.sf((d + margin) / se, dof))
+    p_upper = float(stats.t.cdf((d - margin) / se, dof))
+    h = stats.t.ppf(1 - alpha, dof) * se
+    p = max(p_lower, p_upper)
+    return TostResult(d, p, p_lower, p_upper, d - h, d + h, bool(p <= alpha))
+
+
+DECISIONS = ("ahead", "behind", "equivalent", "not detected", "pending")
+
+
+def family(cells: dict[str, Sequence[float]], contrasts: Sequence[tuple[str, dict[str, float]]],
+           margin: float, alpha: float = 0.05) -> list[dict]:
+    """A pre-registered family of linear contrasts between cells, decided together: per contrast
+    ``(name, {cell: weight})`` its estimate with the 95% Welch interval and raw p, the Holm-adjusted
+    p over the family (:func:`holm`), the TOST p within ``±margin`` and its Holm adjustment over the
+    same family, and the decision: "ahead" / "behind" (Holm rejects; the sign of the estimate),
+    "equivalent" (TOST rejects after Holm), else "not detected". While any contrast lacks a cell
+    with 2 finite values, every decision is "pending" (a family is corrected as a whole) and the
+    estimates that exist are given."""
+    out, ok = [], True
+    for name, weights in contrasts:
+        samples = [_finite(cells.get(c, ())) for c in weights]
+        row = {"contrast": name, "cells": " ".join(f"{w:+g}*{c}" for c, w in weights.items()),
+               "n": " ".join(str(s.size) for s in samples)}
+        try:
+            r = contrast(samples, list(weights.values()))
+            e = contrast_tost(samples, list(weights.values()), margin)
+        except ValueError:
+            ok = False
+            out.append(row)
+            continue
+        out.append({**row, "estimate": r.diff, "lo": r.lo, "hi": r.hi, "p": r.p, "tost_p": e.p})
+    if not ok:
+        return [{**r, "decision": "pending"} for r in out]
+    reject = holm([r["p"] for r in out], alpha)
+    equiv = holm([r["tost_p"] for r in out], alpha)
+    for r, pa, rj, pe, eq in zip(out, reject.adjusted, reject.reject, equiv.adjusted, equiv.reject):
+        r.update(p_holm=float(pa), tost_p_holm=float(pe),
+                 decision=("ahead" if r["estimate"] > 0 else "behind") if rj else "equivalent" if eq else "not detected")
+    return out
+
+
 # ------------------------------------------------------------------------------ bootstrap
 
 

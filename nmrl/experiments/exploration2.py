@@ -216,9 +216,40 @@ def later_cells(rows: list[dict]) -> list[kit.Cell]:
     return out
 
 
+MARGIN = 50.0  #: the TOST margin of "no difference" [reward/s]
+
+
+def _g(arm: str, dt: float) -> str:
+    return f"grid/dt{dt:g}/{arm}"
+
+
+#: the primary family P1-P7 (docs/exploration-study-2.md), contrasts of the grid cells' endpoints
+CONTRASTS = (
+    ("P1", {_g("white", 0.0025): 1.0, _g("white", 0.02): -1.0}),
+    ("P2", {_g("ws", 0.0025): 1.0, _g("white", 0.0025): -1.0}),
+    ("P3", {_g("ou", 0.0025): 1.0, _g("white", 0.0025): -1.0}),
+    ("P4", {_g("colored", 0.0025): 1.0, _g("white", 0.0025): -1.0}),
+    ("P5", {_g("nms", 0.0025): 1.0, _g("white", 0.0025): -1.0}),
+    ("P6", {_g("nmp", 0.0025): 1.0, _g("white", 0.0025): -1.0}),
+    ("P7", {_g("nmp", 0.0025): 1.0, _g("nmp", 0.02): -1.0, _g("white", 0.0025): -1.0, _g("white", 0.02): 1.0}),
+)
+
+
+def analysis(rows: list[dict]) -> list[dict]:
+    """The primary family on the deterministic endpoint (reward per second) of every grid run at
+    its full budget: Welch contrasts, Holm over P1-P7, TOST at +-50 (nmrl.analysis.prereg_stats.family)."""
+    from nmrl.analysis import prereg_stats
+
+    cells: dict[str, list[float]] = {}
+    for r in rows:
+        if r["cell"].startswith("grid/") and r["det_reward_per_s"] != "" and int(r["steps"]) == int(r["budget"]):
+            cells.setdefault(r["cell"], []).append(float(r["det_reward_per_s"]))
+    return prereg_stats.family(cells, CONTRASTS, MARGIN)
+
+
 STUDY = kit.Study(name="exploration2", cells=SIGMA_SCREEN, endpoint=kit.Endpoint(seconds=10.0, rollouts=8,
                                                                                  start_noise=0.05, seed=0),
-                  later=later_cells)
+                  later=later_cells, analysis=analysis)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -18,7 +18,8 @@ budget and scores it:
   under the learning curve), and the endpoint.
 
 :func:`publish` copies what continues and re-scores a study (no full checkpoints) into a folder
-small enough to commit. A study's own module (e.g. nmrl/experiments/exploration2.py) holds its
+small enough to commit, with ``analysis.csv``, the study's own analysis of the rows (its
+pre-registered contrasts). A study's own module (e.g. nmrl/experiments/exploration2.py) holds its
 cells as data and any rule that makes later cells from earlier rows.
 """
 
@@ -37,6 +38,7 @@ from typing import Callable, Sequence
 from nmrl.runs import store
 
 ROWS = "rows.csv"
+ANALYSIS = "analysis.csv"
 ENDPOINT = "endpoint.json"
 DELTA_0 = 0.02  #: reward per second = mean r_t / DELTA_0 (nmrl/experiments/timescale.py)
 COLUMNS = ("cell", "point", "seed", "field", "value", "control_dt", "steps", "budget", "diverged",
@@ -84,6 +86,9 @@ class Study:
     #: the study's rule for later cells: from the rows so far, the cells that follow (run after
     #: ``cells``, as they appear; a rule reads only finished cells' rows)
     later: Callable[[list[dict]], Sequence[Cell]] | None = None
+    #: the study's analysis: from every row, the rows of its result table (written as
+    #: ``analysis.csv`` beside ``rows.csv`` by :func:`publish`)
+    analysis: Callable[[list[dict]], list[dict]] | None = None
 
 
 def all_cells(study: Study, out: pathlib.Path) -> list[Cell]:
@@ -235,5 +240,14 @@ def publish(study: Study, out: str | os.PathLike, dest: str | os.PathLike) -> No
             for f in _PUBLISHED_POINT_FILES:
                 if (p / f).is_file():
                     shutil.copy2(p / f, q / f)
-    write_rows(study, out)
+    r = write_rows(study, out)
     shutil.copy2(out / ROWS, dest / ROWS)
+    if study.analysis is not None:
+        table = study.analysis(r)
+        cols = list(dict.fromkeys(k for row in table for k in row))
+        tmp = dest / f".{ANALYSIS}.{os.getpid()}.tmp"
+        with open(tmp, "w", newline="") as fh:
+            w = csv.DictWriter(fh, cols)
+            w.writeheader()
+            w.writerows(table)
+        os.replace(tmp, dest / ANALYSIS)
