@@ -51,7 +51,7 @@ _SWEEP_SEED = "seed"  # ``nmrl sweep`` gives --seeds (a count) and the learner's
 _NOT_OPTIONS = {"grad_stats"}  # diagnostics set by nmrl.experiments.gradvar, not training options
 #: Longest ``nmrl eval --seconds`` (the GIF keeps every frame in memory: 25 per simulated second).
 MAX_EVAL_SECONDS = 600.0
-SEED_MAX = 2**32 - 1  # = nmrl.runs.driver.SEED_MAX (not imported here: nmrl.runs.driver imports JAX)
+SEED_MAX = 2**32 - 1  # = nmrl.runs.preflight.SEED_MAX (not imported here: nmrl.runs.preflight imports JAX)
 
 
 def _field_type(cls: type, f: dataclasses.Field) -> type:
@@ -192,10 +192,10 @@ def _failure(e: BaseException) -> int | None:
         return _fail(str(e), _exits.IO_FAILED)
     if isinstance(e, jsonl.Corrupt):
         return _fail(str(e))
-    if "nmrl.runs.driver" in sys.modules:
-        from nmrl.runs import driver
+    if "nmrl.runs.errors" in sys.modules:
+        from nmrl.runs import errors
 
-        if isinstance(e, driver.OutOfMemory):
+        if isinstance(e, errors.OutOfMemory):
             return _fail(str(e), _exits.OUT_OF_MEMORY)
     f = io_errors.find(e)
     if f is not None and (isinstance(e, OSError) or type(e).__name__ in ("CheckpointError", "CorruptCheckpoint")):

@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 
 from nmrl import cli
-from nmrl.runs import checkpoint, driver as run
+from nmrl.runs import checkpoint, driver as run, loop
 from nmrl.analysis import evaluate
 from nmrl.paper.learner import TrainConfig, make_train
 
@@ -397,13 +397,13 @@ def test_eval_of_a_missing_run(tmp_path):
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_a_signal_stops_after_the_saved_chunk_with_its_own_status(base, tmp_path, monkeypatch, sig):
     d = _copy(base, tmp_path)
-    append = run.append_metrics
+    append = loop.append_metrics  # the chunk loop's, where the rows are written
 
     def append_and_signal(run_dir, row):
         append(run_dir, row)
         os.kill(os.getpid(), sig)  # arrives during the chunk's bookkeeping, as a user's Ctrl-C would
 
-    monkeypatch.setattr(run, "append_metrics", append_and_signal)
+    monkeypatch.setattr(loop, "append_metrics", append_and_signal)
     old_handler = signal.getsignal(sig)
     rc, out, err = _main(["train", "--resume", "--out", str(d), "--steps", "150", "--quiet"])
     assert rc == 128 + sig == {signal.SIGINT: 130, signal.SIGTERM: 143}[sig]
@@ -483,7 +483,7 @@ def test_a_diverging_run_exits_3_says_so_and_keeps_its_last_good_checkpoint(tmp_
 
 def test_progress_eta_after_resume_uses_this_sessions_speed(capsys):
     cfg = TrainConfig(num_envs=8, chunk_steps=25, steps=100)
-    bar = run._Progress(cfg, True, done0=50)
+    bar = loop.Progress(cfg, True, done0=50)
     bar.t0 -= 10.0  # 25 steps in 10 s: the last 25 need 10 s more
     row = {"step": 75, "trials": 3, "total_steps": 600, "steps_per_s": 60.0, "avg_reward": -0.5,
            "forward_speed": 0.0}

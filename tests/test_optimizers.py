@@ -358,7 +358,7 @@ def test_resume_with_another_chain_is_refused(tmp_path, capsys):
     assert sorted(p.name for p in run.iterdir()) == before
     # the same chain in another spelling is the same run (the canonical form is compared)
     from nmrl.runs import driver as run_mod
-    run_mod._given_changes(checkpoint.load_run_config(run), {"actor_opt": "clip:max_norm=10,sgd"}, run)
+    run_mod.given_changes(checkpoint.load_run_config(run), {"actor_opt": "clip:max_norm=10,sgd"}, run)
 
 
 def test_sweep_resume_with_another_chain_is_refused(tmp_path, capsys):

@@ -411,8 +411,8 @@ def run(cfg: PPOConfig, out: str | os.PathLike, *, resume: bool = False, progres
                                   "unix_time": time.time()})
         store.atomic_write_json(out / store.CONFIG_FILE, _asdict(cfg))
     else:
-        driver._fresh_out(out)
-        driver._create_dir(out)
+        driver.fresh_out(out)
+        driver.create_dir(out)
         store.atomic_write_json(out / store.CONFIG_FILE, _asdict(cfg))
         params = None
     spi = cfg.steps_per_iteration

@@ -233,7 +233,7 @@ def _run_sweep(spec, out, resume, progress, keep, max_chunks, plot, checkpoint_e
                              f"--learner {learners.of(spec.base).name} would change it")
         if given:
             try:
-                driver._given_changes(base, given, out)
+                driver.given_changes(base, given, out)
             except driver.RunError as e:
                 raise SweepError(str(e).replace("the run in", "the sweep in")) from e
         if spec.base.steps is not None or spec.base.trials is not None:  # the budget may be extended

@@ -416,7 +416,7 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
     ``State`` with ``obs``, ``reward``, ``done``, ``metrics`` incl. ``forward_speed`` and ``nonfinite``) works.
 
     With ``axis_name`` and ``num_shards`` > 1, ``chunk`` is written for ``jax.shard_map`` over the
-    environment axis of ``TrainState.slots`` (nmrl/runs/driver.py does that): each shard steps its
+    environment axis of ``TrainState.slots`` (nmrl/runs/layout.py does that): each shard steps its
     ``num_envs / num_shards`` environments, and the summed update and the statistics are ``psum``-ed
     over ``axis_name``. The noise of all N environments is drawn from the shared key and each shard
     takes its slice, so the draws equal the unsharded program's.

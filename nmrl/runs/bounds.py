@@ -8,11 +8,11 @@ of a config (any learner, nmrl/learners/contract.py) is checked by its type:
 * ``float``: finite once rounded to float32 (``|x| <~ 3.40e38``) and, when not 0, not below
   float32's smallest normal number (``1.18e-38``; it would become 0 or lose its precision);
 * ``int``: within int32 (``< 2**31``), as the step and trial counters and the traced integers are
-  (the seed is checked apart: nmrl/runs/driver.py, 32-bit unsigned);
+  (the seed is checked apart: nmrl/runs/preflight.py, 32-bit unsigned);
 
 and the fields whose meaning is shared by the learners by a range of that meaning (:data:`RANGES`):
 the control step at most 1 s (the robot's joints move in tenths of seconds; the physics runs in
-steps of the model's 5 ms, nmrl/runs/driver.py checks the multiple), a stop probability in [0, 1],
+steps of the model's 5 ms, nmrl/runs/preflight.py checks the multiple), a stop probability in [0, 1],
 a noise standard deviation in (0, 10] (actions are clipped to [-1, 1], nmrl/paper/env.py: at
 sigma = 10, 92 % of the noise values alone exceed that whole range in magnitude), step sizes and learning
 rates in [0, 1]. Each refusal is one line ``NAME=VALUE is invalid: ...`` naming what is allowed.

@@ -5,7 +5,7 @@ run identity in nmrl/runs/identity.py, the compact continuation states in nmrl/r
 other learners' trees in nmrl/runs/trees.py; their public names are importable from this module.
 
 One :class:`Checkpointer` per run holds one orbax ``CheckpointManager`` for a whole session (the
-driver, nmrl/runs/driver.py, opens one per point): its ``save(ts, config)`` (or the one-off
+chunk loop, nmrl/runs/loop.py, opens one per point): its ``save(ts, config)`` (or the one-off
 ``save(run_dir, ts, config)``) writes the whole state of any learner (nmrl/learners/contract.py; for
 the actor-critic the :class:`~nmrl.paper.learner.TrainState`: theta, v, every
 :class:`~nmrl.paper.learner.EnvSlot` with its MJX state, noise, likelihood ratio and traces, the PRNG key,

@@ -1,0 +1,299 @@
+"""The chunk loop of every run, and what it decides, shows and stops on between two chunks.
+
+Between two chunks of ``chunk_steps`` control steps (one ``jit``-compiled ``lax.scan``,
+:func:`compile_chunk`) the loop (:func:`drive`) only appends one metrics row per point to its
+``metrics.jsonl`` (:func:`metrics_row`), checkpoints the points (one
+:class:`~nmrl.runs.checkpoint.Checkpointer` per point, saving every ``checkpoint_every`` chunks,
+when a point finishes its budget (:func:`budget_done`) and when a signal stops the loop) and shows
+progress (:class:`Progress`, :func:`progress_table`). It runs the points as a layout
+(nmrl/runs/layout.py) holds them.
+
+Several processes (nmrl/runs/distributed.py) run the loop in lockstep: each chunk starts at a
+barrier, after it they agree on the signal and on process 0's checkpoint decisions, and only
+process 0 writes.
+
+SIGINT/SIGTERM at any moment go through one :class:`nmrl.runs.signals.Guard` (:func:`guarded`: the
+command's, else one of the caller's own): during the compile the run stops when the compile
+returns, before anything of it is written (:func:`compile_or_stop`); during the chunk loop after
+the chunk in flight, every active point saved (:class:`Stopped`); a second signal stops at once
+(the last checkpoints are intact because checkpoints are written atomically).
+:func:`stop_on_signals` is the plain form for a loop of another kind (the Brax PPO baseline).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import sys
+import time
+from typing import Callable, Iterator, Sequence
+
+import jax
+import numpy as np
+
+from nmrl import learners
+from nmrl.runs import checkpoint, distributed as dist, signals
+from nmrl.runs.errors import Diverged, Stopped
+from nmrl.runs.preflight import allocate
+from nmrl.runs.store import append_metrics, is_diverged
+
+#: A learner's config (nmrl/learners/contract.py).
+Config = object
+
+
+def stop_on_signals() -> tuple[dict, Callable[[], None]]:
+    """Install SIGINT/SIGTERM handlers for a chunk loop: a first signal sets ``stop["signal"]`` (the
+    loop stops after the chunk in flight is saved), a second stops at once (KeyboardInterrupt).
+    Returns ``(stop, restore)``; call ``restore()`` when the loop ends."""
+    stop: dict = {"signal": None}
+
+    def on_signal(signum, _frame):
+        if stop["signal"] is not None:
+            raise KeyboardInterrupt
+        stop["signal"] = signum
+        print(f"\nsignal {signum}: stopping after the chunk in flight is saved (again to stop now)",
+              file=sys.stderr, flush=True)
+
+    old = {sg: signal.signal(sg, on_signal) for sg in (signal.SIGINT, signal.SIGTERM)}
+
+    def restore() -> None:
+        for sg, h in old.items():
+            signal.signal(sg, h)
+
+    return stop, restore
+
+
+def _compile_needed(guard: signals.Guard) -> bool:
+    """Whether to compile the chunk: not when one process was already stopped by a signal (it stops
+    at once, before anything of the run is written, instead of after a compile of tens of seconds);
+    several processes compile and then agree on the signal (nmrl/runs/distributed.py)."""
+    return guard.signal is None or dist.active()
+
+
+def compile_chunk(fn, ts, donate: bool = True):
+    """AOT-compile ``fn`` (donating its argument if ``donate``) for ``ts``; returns (compiled, seconds)."""
+    t0 = time.time()
+    compiled = jax.jit(fn, donate_argnums=0 if donate else ()).lower(ts).compile()
+    return compiled, time.time() - t0
+
+
+@contextlib.contextmanager
+def guarded() -> Iterator[signals.Guard]:
+    """The signal guard for the block: the command's (a command installs one for its whole life),
+    else one installed here (a library call) and restored when the block ends."""
+    guard = signals.active()
+    own_guard = guard is None
+    if own_guard:
+        guard = signals.Guard().install()
+    try:
+        yield guard
+    finally:
+        if own_guard:
+            guard.restore()
+
+
+def compile_or_stop(guard: signals.Guard, layout, cfg: Config, *, chunk: str | None, stopped: str,
+                    step: int) -> None:
+    """Compile the ``layout``'s chunk (not when a signal already stopped this one process), then
+    stop if a signal came to any process: before the first chunk nothing of this session is
+    written, so :class:`Stopped` (at ``step``, no rows) follows one line ending with ``stopped``
+    (what is left, how to continue). ``chunk`` names the chunk in the line giving the compile time
+    (None: no line)."""
+    guard.at("compiling")
+    if _compile_needed(guard):
+        compile_s = allocate(layout.compile, "compiling the chunk", cfg)
+        if chunk is not None:
+            print(f"compiled {chunk} in {compile_s:.1f} s", file=sys.stderr, flush=True)
+    signum, _ = _agreed(guard.signal, np.zeros(0, bool))
+    if signum is not None:  # stopped before the first chunk: nothing of this session is written
+        print(f"stopped by signal {signum} before the first chunk; {stopped}", file=sys.stderr, flush=True)
+        raise Stopped(signum, step, [])
+    guard.at("starting")
+
+
+def metrics_row(cfg: Config, m: dict, wall: float, points: int = 1) -> dict:
+    """One metrics.jsonl object from a chunk's metrics (``points`` programs shared the wall time)."""
+    return {"chunk": m["step"] // cfg.chunk_steps, **m, "total_steps": m["step"] * cfg.num_envs,
+            "wall_s": wall, "steps_per_s": points * cfg.chunk_steps * cfg.num_envs / wall}
+
+
+def budget_done(cfg: Config, ts_step: int, ts_trials: int) -> bool:
+    if cfg.steps is not None:
+        return ts_step >= cfg.steps
+    return ts_trials >= cfg.trials
+
+
+def budget_text(cfg: Config) -> str:
+    """The budget :func:`budget_done` checks, as the command line gives it: ``steps=N`` or ``trials=N``."""
+    return f"steps={cfg.steps}" if cfg.steps is not None else f"trials={cfg.trials}"
+
+
+class Progress:
+    """A rich progress bar on a terminal, one plain line per chunk otherwise.
+
+    ``done0`` is where this session started (a resumed run): the ETA extrapolates this session's
+    own speed, not the run's whole progress over this session's time.
+    """
+
+    def __init__(self, cfg: Config, enabled: bool, done0: int = 0):
+        self.cfg = cfg
+        self.enabled = enabled
+        self.rich = enabled and sys.stderr.isatty()
+        self.t0 = time.time()
+        self.total = cfg.steps if cfg.steps is not None else cfg.trials
+        self.frac0 = min(done0 / self.total, 1.0)
+        if self.rich:
+            from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+            self.bar = Progress(TextColumn("[bold]train[/]"), BarColumn(), TextColumn("{task.percentage:>5.1f}%"),
+                                TimeRemainingColumn(), TextColumn("{task.description}"), transient=False)
+            self.task = self.bar.add_task("compiling…", total=self.total, completed=min(done0, self.total))
+            self.bar.start()
+
+    def eta(self, frac: float) -> float:
+        """Seconds left at ``frac`` of the budget, from this session's speed (nan before any progress)."""
+        gained = frac - self.frac0
+        return (time.time() - self.t0) * (1 - frac) / gained if gained > 0 else float("nan")
+
+    def update(self, row: dict) -> None:
+        if not self.enabled:
+            return
+        cfg = self.cfg
+        done = row["step"] if cfg.steps is not None else row["trials"]
+        text = (f"trials {row['trials']:,}  steps {row['total_steps']:,}  {row['steps_per_s']:,.0f} steps/s  "
+                f"avg reward {row['avg_reward']:+.3f}  speed {row['forward_speed']:+.2f} m/s")
+        if self.rich:
+            self.bar.update(self.task, completed=min(done, self.total), description=text)
+        else:
+            frac = min(done / self.total, 1.0)
+            print(f"[{100 * frac:5.1f}%] {text}  ETA {self.eta(frac):,.0f}s", file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        if self.rich:
+            self.bar.stop()
+
+
+def drive(ps: Sequence, layout, *, guard: signals.Guard, stages: list[list[int]], checkpoint_every: int,
+          keep: int, freeze_diverged: bool, compact: bool, on_chunk: Callable[[dict[int, dict]], None] | None,
+          stop_message: Callable[[int, int], str], max_chunks: int | None) -> list[dict]:
+    """The chunk loop of every run: step the active points of the first unfinished stage, append
+    their metrics rows, checkpoint them, report progress, stop on signals. Returns the rows written
+    (every point's, in order). A diverged point raises :class:`Diverged` (``freeze_diverged`` False)
+    or is frozen at its last good checkpoint while the others go on. ``ps``: the session's points
+    (:class:`nmrl.runs.layout.Point`), as ``layout`` holds them; ``guard``: the session's signal
+    guard (:func:`guarded`)."""
+    writer = dist.is_writer()  # several processes: only process 0 writes (nmrl/runs/distributed.py)
+    ckpts = [checkpoint.Checkpointer(p.dir, keep=keep, every_steps=checkpoint_every * p.cfg.chunk_steps)
+             if writer else None for p in ps]
+    done = np.zeros(len(ps), bool)
+    dist.barrier("drive")  # several processes: every one has compiled (counters() may gather)
+    for i, (p, (step, trials, div)) in enumerate(zip(ps, layout.counters(), strict=True)):
+        done[i] = budget_done(p.cfg, step, trials) or (freeze_diverged and (div or p.frozen))
+    rows: list[dict] = []
+    unsaved: set[int] = set()  # points whose newest metrics row has no checkpoint yet
+    n_chunks = 0
+
+    def save(i: int) -> None:
+        guard.at("saving")
+        one = layout.state(i)  # every process (a gather when there are several)
+        if writer:
+            ckpts[i].save(one, ps[i].cfg)
+            if compact:
+                checkpoint.save_compact(ps[i].dir, one, ps[i].cfg)
+        unsaved.discard(i)
+        guard.at("training")
+
+    stop = guard  # ``stop.signal``: the first signal received (or agreed on by every process)
+    guard.at("training")
+    try:
+        while not done.all():
+            # several processes: start every chunk together (their compiles and process 0's saves take
+            # different times; the collectives inside a chunk would wait only gloo's own 30 s)
+            dist.barrier(f"chunk-{n_chunks}")
+            stage = next(st for st in stages if not all(done[i] for i in st))
+            active = np.zeros(len(ps), bool)
+            active[[i for i in stage if not done[i]]] = True
+            t0 = time.time()
+            ms = allocate(lambda: layout.run(active), "running a chunk", ps[0].cfg)
+            wall = time.time() - t0
+            n_active = int(active.sum())
+            new: dict[int, dict] = {}
+            want = np.zeros(len(ps), bool)  # the points this process would checkpoint now
+            for i, p in enumerate(ps):
+                if not active[i]:
+                    continue
+                row = metrics_row(p.cfg, ms[i], wall, points=n_active)
+                if writer:
+                    append_metrics(p.dir, row)
+                rows.append(row)
+                new[i] = row
+                if is_diverged(row):
+                    done[i] = True  # its last good checkpoint is kept; frozen from now on
+                    if not freeze_diverged:
+                        last = ckpts[i].latest_step() if writer else "the newest"
+                        norms = ", ".join(f"{k.removesuffix('_norm')} norm {row[k]:.3g}"
+                                          for k in learners.norm_keys(row))
+                        kept = (f"the last good checkpoint (step {last}) is kept in {p.dir}" if last is not None
+                                else "no checkpoint was kept (it diverged in its first chunk)")
+                        raise Diverged(
+                            f"training diverged at step {row['step']} ({norms}, limit {p.cfg.max_param_norm:g}); "
+                            f"{kept}. Try smaller step sizes.")
+                    continue
+                finished = budget_done(p.cfg, row["step"], row["trials"])
+                want[i] = (finished or checkpoint_every == 1 or stop.signal is not None
+                           or (writer and ckpts[i].should_save(row["step"])))
+                if finished:
+                    done[i] = True
+            # several processes: process 0's checkpoint decisions, and a signal that reached any of them
+            signum, want = _agreed(stop.signal, want)
+            for i, row in new.items():
+                if is_diverged(row):
+                    continue
+                if want[i] or signum is not None:
+                    save(i)
+                else:
+                    unsaved.add(i)
+            if on_chunk is not None:
+                on_chunk(new)
+            n_chunks += 1
+            if not dist.active():  # one process: a signal during on_chunk stops now, too
+                signum = stop.signal
+            if signum is not None:
+                stop.signal = signum
+                for i in sorted(unsaved):  # the signal came after this chunk's saves
+                    save(i)
+                step = max(r["step"] for r in new.values()) if new else 0
+                print(stop_message(stop.signal, step), file=sys.stderr, flush=True)
+                raise Stopped(stop.signal, step, rows)
+            if max_chunks is not None and n_chunks >= max_chunks:
+                break
+    finally:
+        guard.at("finishing")
+        for c in ckpts:
+            if c is not None:
+                c.close()
+    return rows
+
+
+def _agreed(signum: int | None, want: np.ndarray) -> tuple[int | None, np.ndarray]:
+    """``(signal, save mask)`` every process acts on after a chunk: the largest signal number any
+    process received (None: none) and process 0's checkpoint decisions (one small collective; one
+    process: its own)."""
+    if not dist.active():
+        return signum, want
+    table = dist.exchange(np.concatenate([[signum or 0], want.astype(np.int32)]))
+    s = int(table[:, 0].max())
+    return (s or None), table[0, 1:].astype(bool)
+
+
+def progress_table(names: Sequence[str], rows_by_point: dict, elapsed: float) -> str:
+    lines = [f"sweep: {len(names)} points, {elapsed:,.0f} s"]
+    w = max(len(n) for n in names)
+    for name in names:
+        r = rows_by_point.get(name)
+        if r is None:
+            continue
+        flag = "  DIVERGED" if r["diverged"] else ""
+        lines.append(f"  {name:<{w}}  trials {r['trials']:>8,}  steps {r['step']:>8,}  "
+                     f"avg reward {r['avg_reward']:+.3f}  speed {r['forward_speed']:+.2f} m/s{flag}")
+    return "\n".join(lines)
