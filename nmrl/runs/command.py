@@ -14,7 +14,7 @@ import pathlib
 import sys
 from typing import Callable, Sequence
 
-from nmrl.runs import checkpoint, driver, exits, io_errors, lock, signals, store
+from nmrl.runs import checkpoint, errors, exits, io_errors, lock, signals, store
 
 
 def run(prog: str, body: Callable[[], object], bad_input: tuple[type[BaseException], ...] = ()) -> int:
@@ -24,7 +24,7 @@ def run(prog: str, body: Callable[[], object], bad_input: tuple[type[BaseExcepti
     guard = signals.Guard().install()
     try:
         body()
-    except driver.Stopped as e:
+    except errors.Stopped as e:
         print(f"{prog}: {e}; every active point was saved; run the same command again to continue", file=sys.stderr)
         return e.exit_status
     except signals.Interrupted as e:
@@ -37,7 +37,7 @@ def run(prog: str, body: Callable[[], object], bad_input: tuple[type[BaseExcepti
         if isinstance(e, io_errors.IOFailure) or f is not None:
             io_errors.report(f"{prog}: error: {e if isinstance(e, io_errors.IOFailure) else f.line()}")
             return exits.IO_FAILED
-        if isinstance(e, (ValueError, driver.RunError, checkpoint.CheckpointError) + tuple(bad_input)):
+        if isinstance(e, (ValueError, errors.RunError, checkpoint.CheckpointError) + tuple(bad_input)):
             print(f"{prog}: error: {e}", file=sys.stderr)
             return exits.BAD_INPUT
         raise
