@@ -100,7 +100,12 @@ def tost(a, b, margin: float, alpha: float = 0.05) -> TostResult:
     """
     if not margin > 0:
         raise ValueError("the equivalence margin must be positive")
-    d, se, dof = _welch_parts(a, b)
+    return _tost(*_welch_parts(a, b), margin, alpha)
+
+
+def _tost(d: float, se: float, dof: float, margin: float, alpha: float) -> TostResult:
+    """The two one-sided t tests of ``|d| >= margin`` for an estimate ``d`` with standard error
+    ``se`` and ``dof`` degrees of freedom."""
     p_lower = float(stats.t.sf((d + margin) / se, dof))
     p_upper = float(stats.t.cdf((d - margin) / se, dof))
     h = stats.t.ppf(1 - alpha, dof) * se
@@ -139,12 +144,7 @@ def contrast_tost(samples: Sequence, weights: Sequence[float], margin: float, al
     ``|sum_i w_i mean_i| >= margin`` at ``alpha``."""
     if not margin > 0:
         raise ValueError("the equivalence margin must be positive")
-    d, se, dof = _contrast_parts(samples, weights)
-    p_lower = float(stats.t.sf((d + margin) / se, dof))
-    p_upper = float(stats.t.cdf((d - margin) / se, dof))
-    h = stats.t.ppf(1 - alpha, dof) * se
-    p = max(p_lower, p_upper)
-    return TostResult(d, p, p_lower, p_upper, d - h, d + h, bool(p <= alpha))
+    return _tost(*_contrast_parts(samples, weights), margin, alpha)
 
 
 DECISIONS = ("ahead", "behind", "equivalent", "not detected", "pending")

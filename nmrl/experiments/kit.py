@@ -191,15 +191,20 @@ def rows(study: Study, out: pathlib.Path, cells: Sequence[Cell] | None = None) -
     return res
 
 
+def _write_csv(path: pathlib.Path, columns: Sequence[str], table: Sequence[dict]) -> None:
+    """``table`` as a CSV file with ``columns``, written whole or not at all."""
+    tmp = path.parent / f".{path.name}.{os.getpid()}.tmp"
+    with open(tmp, "w", newline="") as fh:
+        w = csv.DictWriter(fh, columns)
+        w.writeheader()
+        w.writerows(table)
+    os.replace(tmp, path)
+
+
 def write_rows(study: Study, out: pathlib.Path) -> list[dict]:
     r = rows(study, out)
     out.mkdir(parents=True, exist_ok=True)
-    tmp = out / f".{ROWS}.{os.getpid()}.tmp"
-    with open(tmp, "w", newline="") as fh:
-        w = csv.DictWriter(fh, COLUMNS)
-        w.writeheader()
-        w.writerows(r)
-    os.replace(tmp, out / ROWS)
+    _write_csv(out / ROWS, COLUMNS, r)
     return r
 
 
@@ -244,10 +249,4 @@ def publish(study: Study, out: str | os.PathLike, dest: str | os.PathLike) -> No
     shutil.copy2(out / ROWS, dest / ROWS)
     if study.analysis is not None:
         table = study.analysis(r)
-        cols = list(dict.fromkeys(k for row in table for k in row))
-        tmp = dest / f".{ANALYSIS}.{os.getpid()}.tmp"
-        with open(tmp, "w", newline="") as fh:
-            w = csv.DictWriter(fh, cols)
-            w.writeheader()
-            w.writerows(table)
-        os.replace(tmp, dest / ANALYSIS)
+        _write_csv(dest / ANALYSIS, list(dict.fromkeys(k for row in table for k in row)), table)
