@@ -104,6 +104,8 @@ def given_options(args: argparse.Namespace, skip: set[str] = frozenset()) -> dic
     learner = _learner(getattr(args, "learner", None))
     given = {f.name: getattr(args, f.name) for f in dataclasses.fields(learner.config)
              if f.name not in skip and getattr(args, f.name, None) is not None}
+    if getattr(args, "resume", False):  # a resumed run keeps its own control step
+        return given
     return {**_task_control_dt(given), **given}
 
 

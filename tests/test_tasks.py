@@ -383,3 +383,19 @@ def test_a_task_runs_eval_scores_episodes_as_a_gymnasium_loop_does(tmp_path):
                 break
         assert n == det["length"][i], (i, n, det["length"][i])
         np.testing.assert_allclose(det["return"]["each"][i], ret, rtol=1e-4)
+
+
+def test_a_task_run_at_another_step_resumes_with_its_env_given_again(tmp_path):
+    """The task's own step is the default of a fresh run only: a run made at 0.004 s continues when
+    ``--env`` is given again without ``--control-dt``."""
+    import json
+
+    from nmrl import cli
+
+    out = tmp_path / "r"
+    argv = ["train", "--learner", "ppo", "--env", "hopper-v5", "--physics", "c", "--num-envs", "4",
+            "--batch-size", "4", "--num-minibatches", "2", "--epochs", "1", "--policy-layers", "1",
+            "--value-layers", "1", "--out", str(out)]
+    assert cli.main([*argv, "--control-dt", "0.004", "--steps", "40"]) == 0
+    assert cli.main([*argv, "--resume", "--steps", "200"]) == 0
+    assert json.loads((out / "config.json").read_text())["control_dt"] == 0.004
