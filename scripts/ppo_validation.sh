@@ -10,7 +10,7 @@
 # $PUBLISHED (sweep.json, every point's config, metrics and compact continuation state: parameters,
 # Adam state and observation statistics; every environment starts a new trial).
 # Publish the progress with: .venv/bin/python scripts/publish_ppo_validation.py
-# PHYSICS=c runs the same on MuJoCo C (issue 44's learning check):
+# PHYSICS=c runs the same on MuJoCo C (the C physics' learning check, against the MJX runs):
 #   OUT=runs/ppo_validation_c PUBLISHED=results/physics_c/ppo/validation PHYSICS=c scripts/ppo_validation.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
