@@ -276,19 +276,19 @@ def evaluate(
     env_name = getattr(config, "env", tasks.PAPER)
     if env_name != tasks.PAPER:  # a Gymnasium task: returns per episode, no pictures of the paper's robot
         render = False
-        ends = {"env": env_name, "episodes": task_eval.EPISODES,
-                "deterministic": task_eval.episodes(config, params, seed=seed, exploring=False),
+        length = {"env": env_name, "episodes": task_eval.EPISODES}
+        ends = {"deterministic": task_eval.episodes(config, params, seed=seed, exploring=False),
                 "exploring": task_eval.episodes(config, params, seed=seed, exploring=True)}
     else:
         det = rollout_params(config, params, seconds=seconds, seed=seed, exploring=False)
-        ends = {"seconds": float(seconds), "steps": n_steps,
-                "deterministic": summarize(det),
+        length = {"seconds": float(seconds), "steps": n_steps}
+        ends = {"deterministic": summarize(det),
                 "exploring": summarize(rollout_params(config, params, seconds=seconds, seed=seed, exploring=True))}
     result: dict[str, Any] = {
         "run_dir": str(run),
         "step": step,
         "trials": meta.get("trials"),
-        **{k: ends.pop(k) for k in ("seconds", "steps", "env", "episodes") if k in ends},
+        **length,
         "seed": int(seed),
         "control_dt": float(config.control_dt),
         "physics": _physics(config),

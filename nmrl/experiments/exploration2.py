@@ -193,11 +193,9 @@ def later_cells(rows: list[dict]) -> list[kit.Cell]:
     if any(key not in chosen for key in PRIMARY):
         return out
     s20 = chosen[("white", 0.02)]["sigma"]
-    for arm, dt in PRIMARY[:2]:
+    for arm, dt in PRIMARY:
         out.append(grid_cell(arm, dt, chosen[(arm, dt)], GRID_SEEDS))
-    for arm, dt in PRIMARY[2:]:
-        out.append(grid_cell(arm, dt, chosen[(arm, dt)], GRID_SEEDS))
-        if arm == "white" and scaled_white_sigma(s20, dt) <= SIGMA_MAX:
+        if arm == "white" and dt != 0.02 and scaled_white_sigma(s20, dt) <= SIGMA_MAX:  # at 20 ms Ws is W
             out.append(grid_cell("ws", dt, {"sigma": scaled_white_sigma(s20, dt)}, GRID_SEEDS))
     for arm in ("white", "ws", "nmp"):  # the 5 ms column takes the 2.5 ms choices
         ch = {"sigma": scaled_white_sigma(s20, 0.005)} if arm == "ws" else chosen[(arm, 0.0025)]
