@@ -245,7 +245,7 @@ def drive(ps: Sequence, layout, *, guard: signals.Guard, stages: list[list[int]]
                 if finished:
                     done[i] = True
             # several processes: process 0's checkpoint decisions, and a signal that reached any of them
-            signum, want = _agreed(stop.signal, want)
+            signum, want = _agreed(stop.signal, want, f"decide-{n_chunks}")
             for i, row in new.items():
                 if is_diverged(row):
                     continue
@@ -275,12 +275,15 @@ def drive(ps: Sequence, layout, *, guard: signals.Guard, stages: list[list[int]]
     return rows
 
 
-def _agreed(signum: int | None, want: np.ndarray) -> tuple[int | None, np.ndarray]:
+def _agreed(signum: int | None, want: np.ndarray, name: str) -> tuple[int | None, np.ndarray]:
     """``(signal, save mask)`` every process acts on after a chunk: the largest signal number any
     process received (None: none) and process 0's checkpoint decisions (one small collective; one
-    process: its own)."""
+    process: its own). The processes meet at barrier ``name`` first: one may reach the collective
+    long after another (process 0 writes the metrics; a loaded machine), and a collective waits
+    only gloo's own 30 s for its peers, a barrier :func:`nmrl.runs.distributed.barrier_timeout_s`."""
     if not dist.active():
         return signum, want
+    dist.barrier(name)
     table = dist.exchange(np.concatenate([[signum or 0], want.astype(np.int32)]))
     s = int(table[:, 0].max())
     return (s or None), table[0, 1:].astype(bool)
