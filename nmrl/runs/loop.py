@@ -104,7 +104,7 @@ def compile_or_stop(guard: signals.Guard, layout, cfg: Config, *, chunk: str | N
         compile_s = allocate(layout.compile, "compiling the chunk", cfg)
         if chunk is not None:
             print(f"compiled {chunk} in {compile_s:.1f} s", file=sys.stderr, flush=True)
-    signum, _ = _agreed(guard.signal, np.zeros(0, bool))
+    signum, _ = _agreed(guard.signal, np.zeros(0, bool), "compiled")
     if signum is not None:  # stopped before the first chunk: nothing of this session is written
         print(f"stopped by signal {signum} before the first chunk; {stopped}", file=sys.stderr, flush=True)
         raise Stopped(signum, step, [])
