@@ -186,9 +186,10 @@ def test_the_analysis_is_the_preregistered_family_on_the_grid_at_full_budget():
     for cell, m in means.items():
         vals[cell] = rng.normal(m, 10.0, 8)
         rows += [{"cell": cell, "steps": 100, "budget": 100, "det_reward_per_s": v} for v in vals[cell]]
-    rows.append({"cell": "grid/dt0.0025/ou", "steps": 50, "budget": 100, "det_reward_per_s": 1e6})  # unfinished
-    rows.append({"cell": "screen/sigma/dt0.02/white", "steps": 100, "budget": 100, "det_reward_per_s": 1e6})
-    res = {r["contrast"]: r for r in exploration2.analysis(rows)}
+    rows = [dict(r, diverged=False) for r in rows]
+    rows.append({"cell": "screen/sigma/dt0.02/white", "steps": 100, "budget": 100, "diverged": False,
+                 "det_reward_per_s": 1e6})
+    res = {r["contrast"]: r for r in exploration2.analysis(rows) if r["family"] == "primary"}
     assert list(res) == [f"P{i}" for i in range(1, 8)]
     p1 = sps.ttest_ind(vals["grid/dt0.0025/white"], vals["grid/dt0.02/white"], equal_var=False)
     assert res["P1"]["p"] == pytest.approx(p1.pvalue) and res["P1"]["decision"] == "behind"
@@ -197,4 +198,60 @@ def test_the_analysis_is_the_preregistered_family_on_the_grid_at_full_budget():
     inter = (vals["grid/dt0.0025/nmp"].mean() - vals["grid/dt0.02/nmp"].mean()
              - vals["grid/dt0.0025/white"].mean() + vals["grid/dt0.02/white"].mean())
     assert res["P7"]["estimate"] == pytest.approx(inter) and res["P7"]["decision"] == "ahead"
-    assert res["P3"]["n"] == "8 8"  # the unfinished run is not counted
+    assert res["P3"]["n"] == "8 8"
+    # a run still going leaves its cell out: the whole family waits (decided together, on full cells)
+    going = rows + [{"cell": "grid/dt0.0025/ou", "steps": 50, "budget": 100, "diverged": False,
+                     "det_reward_per_s": 1e6}]
+    assert {r["decision"] for r in exploration2.analysis(going) if r["family"] == "primary"} == {"pending"}
+    # a diverged run has ended: scored by its last good policy, it counts
+    ended = rows + [{"cell": "grid/dt0.0025/ou", "steps": 50, "budget": 100, "diverged": "True",
+                     "det_reward_per_s": -70.0}]
+    p3 = next(r for r in exploration2.analysis(ended) if r["contrast"] == "P3")
+    assert p3["n"] == "9 8" and p3["decision"] != "pending"
+
+
+def test_the_secondary_family_and_the_checks_are_apart_from_the_primary():
+    import numpy as np
+    from scipy import stats as sps
+
+    rng = np.random.default_rng(2)
+    cells = {c: rng.normal(0.0, 10.0, 8) for c in ("grid/dt0.02/white", "grid/dt0.0025/white", "grid/dt0.0025/ws",
+                                                    "grid/dt0.0025/ou", "grid/dt0.0025/colored",
+                                                    "grid/dt0.0025/nms", "grid/dt0.0025/nmp", "grid/dt0.02/nmp")}
+    cells["grid/dt0.0025/nmp"] = cells["grid/dt0.0025/nmp"] + 100.0  # the best correlated arm
+    for c in ("grid/dt0.005/white", "grid/dt0.005/ws", "grid/dt0.005/nmp", "grid/dt0.02/ou",
+              "grid/dt0.02/colored", "grid/dt0.02/nms", "sensitivity/dt0.0025/white_sigma1",
+              "asymptote/dt0.005/white", "asymptote/dt0.005/nmp"):
+        cells[c] = rng.normal(0.0, 10.0, 4)
+    rows = [{"cell": c, "steps": 1, "budget": 1, "diverged": False, "det_reward_per_s": v}
+            for c, vs in cells.items() for v in vs]
+    res = exploration2.analysis(rows)
+    assert [r["contrast"] for r in res if r["family"] == "secondary"] == [f"S{i}" for i in range(1, 8)]
+    s3 = next(r for r in res if r["contrast"] == "S3")
+    t = sps.ttest_ind(cells["grid/dt0.005/nmp"], cells["grid/dt0.005/white"], equal_var=False)
+    assert s3["p"] == pytest.approx(t.pvalue) and s3["n"] == "4 4"
+    # Holm within the secondary family alone: 7 p-values, whatever the primary's
+    ps = sorted(r["p"] for r in res if r["family"] == "secondary")
+    assert min(r["p_holm"] for r in res if r["family"] == "secondary") == pytest.approx(min(1.0, 7 * ps[0]))
+    checks = {r["contrast"]: r for r in res if r["family"] == "check"}
+    assert set(checks) == {"white_sigma1", "asymptote"}
+    a = cells["asymptote/dt0.005/nmp"].mean() - cells["asymptote/dt0.005/white"].mean()
+    assert checks["asymptote"]["estimate"] == pytest.approx(a) and checks["asymptote"]["decision"] == "reported"
+    assert "+1*asymptote/dt0.005/nmp" in checks["asymptote"]["cells"]
+
+
+def test_the_asymptote_runs_white_against_the_best_correlated_arm_at_4x_the_budget():
+    rows = _chosen_rows()
+    assert not [c for c in exploration2.later_cells(rows) if c.name.startswith("asymptote/")]
+    scores = {"white": 0.0, "ou": 10.0, "colored": 30.0, "nms": 20.0, "nmp": 25.0}
+    for arm, m in scores.items():
+        rows += [{"cell": f"grid/dt0.0025/{arm}", "steps": 1, "budget": 1, "diverged": False,
+                  "det_reward_per_s": m + k} for k in range(8)]
+    cells = {c.name: c for c in exploration2.later_cells(rows)}
+    assert [n for n in cells if n.startswith("asymptote/")] == ["asymptote/dt0.005/white", "asymptote/dt0.005/colored"]
+    for name in ("asymptote/dt0.005/white", "asymptote/dt0.005/colored"):
+        spec = _spec(cells[name].sweep)
+        cfg = spec.base.resolved()
+        assert [s for _, s in spec.points()] == [0, 1, 2, 3]
+        assert cfg.control_dt == 0.005 and cfg.steps * cfg.control_dt == pytest.approx(64 * 102.4)
+    assert _spec(cells["asymptote/dt0.005/colored"].sweep).base.beta == 0.5  # its 2.5 ms choice

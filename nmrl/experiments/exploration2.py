@@ -19,7 +19,11 @@ made from these rows by the rules the pre-registration states.
 from __future__ import annotations
 
 import argparse
+import json
+import pathlib
 import sys
+
+import numpy as np
 
 from nmrl.experiments import kit
 
@@ -71,9 +75,15 @@ def _finished(rows: list[dict], prefix: str) -> list[dict] | None:
     """The rows of the cells named ``prefix`` or ``prefix+...`` when every point is at its budget and
     scored; None while any is not."""
     mine = [r for r in rows if r["cell"] == prefix or r["cell"].startswith(prefix + "+")]
-    if not mine or any(r["steps"] != r["budget"] or r["det_reward_per_s"] == "" for r in mine):
+    if not mine or not all(_ended(r) for r in mine):
         return None
     return mine
+
+
+def _ended(r: dict) -> bool:
+    """Whether a run's row is final: at its budget, or diverged (frozen at its last good policy),
+    and scored."""
+    return (int(r["steps"]) == int(r["budget"]) or str(r["diverged"]) == "True") and r["det_reward_per_s"] != ""
 
 
 def choose(rows: list[dict]) -> tuple[float, bool, list[float]] | None:
@@ -163,8 +173,10 @@ def scaled_white_sigma(sigma_w20: float, dt: float) -> float:
     return sigma_w20 * (0.02 / dt) ** 0.5
 
 
-def grid_cell(arm: str, dt: float, choice: dict, seeds: int, name: str | None = None) -> kit.Cell:
-    """``arm`` at ``dt`` with its chosen sigma and time constant, seeds 0.. at the full budget."""
+def grid_cell(arm: str, dt: float, choice: dict, seeds: int, name: str | None = None,
+              iterations: int = GRID_ITERATIONS) -> kit.Cell:
+    """``arm`` at ``dt`` with its chosen sigma and time constant, seeds 0.. at the full budget
+    (``iterations``: the grid's 16 unless given)."""
     options = list(ARMS["white" if arm == "ws" else arm])
     for field, value in choice.items():
         flag = "--" + field.replace("_", "-")
@@ -173,7 +185,7 @@ def grid_cell(arm: str, dt: float, choice: dict, seeds: int, name: str | None = 
         else:
             options += [flag, f"{value:.6g}"]
     return kit.Cell(name or f"grid/dt{dt:g}/{arm}",
-                    (*base(dt, GRID_ITERATIONS), *options, "--seeds", str(seeds), "--seed0", "0"))
+                    (*base(dt, iterations), *options, "--seeds", str(seeds), "--seed0", "0"))
 
 
 def later_cells(rows: list[dict]) -> list[kit.Cell]:
@@ -211,7 +223,30 @@ def later_cells(rows: list[dict]) -> list[kit.Cell]:
         if s <= SIGMA_MAX:
             out.append(grid_cell("white", 0.0025, {"sigma": s}, SECONDARY_SEEDS,
                                  name=f"sensitivity/dt0.0025/white_sigma{s:.6g}"))
+    best = best_correlated(rows)
+    if best is not None:
+        for arm in ("white", best):
+            out.append(grid_cell(arm, 0.005, chosen[(arm, 0.0025)], SECONDARY_SEEDS,
+                                 name=_a(arm), iterations=ASYMPTOTE_ITERATIONS))
     return out
+
+
+CORRELATED = ("ou", "colored", "nms", "nmp")
+ASYMPTOTE_ITERATIONS = 4 * GRID_ITERATIONS  #: the asymptote's budget: 4x the grid's, at 5 ms
+
+
+def _a(arm: str) -> str:
+    return f"asymptote/dt0.005/{arm}"
+
+
+def best_correlated(rows: list[dict]) -> str | None:
+    """The correlated arm (OU, CN, NMs, NMp) whose 2.5 ms grid cell has the highest mean
+    deterministic reward per second, once all four cells are complete (None before): the arm the
+    asymptote runs against white."""
+    cells = _complete_cells(rows)
+    means = {arm: sum(cells[_g(arm, 0.0025)]) / len(cells[_g(arm, 0.0025)]) for arm in CORRELATED
+             if _g(arm, 0.0025) in cells}
+    return max(means, key=means.get) if len(means) == len(CORRELATED) else None
 
 
 MARGIN = 50.0  #: the TOST margin of "no difference" [reward/s]
@@ -233,21 +268,110 @@ CONTRASTS = (
 )
 
 
-def analysis(rows: list[dict]) -> list[dict]:
-    """The primary family on the deterministic endpoint (reward per second) of every grid run at
-    its full budget: Welch contrasts, Holm over P1-P7, TOST at +-50 (nmrl.analysis.prereg_stats.family)."""
+#: the secondary family (Holm apart from the primary): the 5 ms column against 20 ms, and the
+#: interactions like P7 of OU, CN and NMs screened at 20 ms
+SECONDARY = (
+    ("S1", {_g("white", 0.005): 1.0, _g("white", 0.02): -1.0}),
+    ("S2", {_g("ws", 0.005): 1.0, _g("white", 0.005): -1.0}),
+    ("S3", {_g("nmp", 0.005): 1.0, _g("white", 0.005): -1.0}),
+    ("S4", {_g("nmp", 0.005): 1.0, _g("nmp", 0.02): -1.0, _g("white", 0.005): -1.0, _g("white", 0.02): 1.0}),
+    *((f"S{5 + i}", {_g(arm, 0.0025): 1.0, _g(arm, 0.02): -1.0, _g("white", 0.0025): -1.0, _g("white", 0.02): 1.0})
+      for i, arm in enumerate(("ou", "colored", "nms"))),
+)
+
+
+def _complete_cells(rows: list[dict]) -> dict[str, list[float]]:
+    """The deterministic endpoints of every cell whose runs all ended (at the budget, or diverged
+    and scored by their last good policy) and were scored; a cell with a run still going is left
+    out (its contrasts stay pending)."""
+    by: dict[str, list[dict]] = {}
+    for r in rows:
+        if not r["cell"].startswith("screen/"):
+            by.setdefault(r["cell"], []).append(r)
+    return {c: [float(r["det_reward_per_s"]) for r in rs] for c, rs in by.items() if all(_ended(r) for r in rs)}
+
+
+def _reported(name: str, weights: dict[str, float], cells: dict[str, list[float]]) -> dict:
+    """One contrast with its 95% Welch interval, no decision (a check that decides nothing)."""
     from nmrl.analysis import prereg_stats
 
-    cells: dict[str, list[float]] = {}
+    row = {"family": "check", "contrast": name, "cells": " ".join(f"{w:+g}*{c}" for c, w in weights.items())}
+    try:
+        r = prereg_stats.contrast([cells[c] for c in weights], list(weights.values()))
+    except (KeyError, ValueError):
+        return {**row, "decision": "pending"}
+    return {**row, "n": " ".join(str(len(cells[c])) for c in weights), "estimate": r.diff, "lo": r.lo,
+            "hi": r.hi, "p": r.p, "decision": "reported"}
+
+
+def analysis(rows: list[dict]) -> list[dict]:
+    """The primary family P1-P7 on the deterministic endpoint (reward per second) of the complete
+    grid cells: Welch contrasts, Holm over P1-P7, TOST at +-50 (nmrl.analysis.prereg_stats.family);
+    the secondary family S1-S7 the same way, Holm apart; and two checks that decide nothing, each
+    with its Welch interval: W's sigma sensitivity at 2.5 ms (each neighbouring sigma minus the grid's
+    W) and the asymptote at 5 ms (the best correlated arm minus white at 4x the budget)."""
+    from nmrl.analysis import prereg_stats
+
+    cells = _complete_cells(rows)
+    out = [{"family": "primary", **r} for r in prereg_stats.family(cells, CONTRASTS, MARGIN)]
+    out += [{"family": "secondary", **r} for r in prereg_stats.family(cells, SECONDARY, MARGIN)]
+    for c in sorted(c for c in cells if c.startswith("sensitivity/")):
+        out.append(_reported(c.split("/")[-1], {c: 1.0, _g("white", 0.0025): -1.0}, cells))
+    best = best_correlated(rows)
+    if best is not None:
+        out.append(_reported("asymptote", {_a(best): 1.0, _a("white"): -1.0}, cells))
+    return out
+
+
+CELLS_CSV = "cells.csv"
+SCREEN_FIGURE, GRID_FIGURE = "screen_curves.png", "learning_curves.png"
+CELL_COLUMNS = ("cell", "value", "n", "mean", "sd", "ci_lo", "ci_hi", "iqm", "iqm_lo", "iqm_hi")
+
+
+def _curve(point: pathlib.Path) -> tuple[np.ndarray, np.ndarray]:
+    """A point's learning curve: simulated seconds per environment, exploring reward per second."""
+    cfg = json.loads((point / "config.json").read_text())
+    m = [json.loads(line) for line in (point / "metrics.jsonl").read_text().splitlines() if line.strip()]
+    return (np.array([r["step"] * cfg["control_dt"] for r in m]),
+            np.array([r["avg_reward"] / kit.DELTA_0 for r in m]))
+
+
+def report(rows: list[dict], dest: pathlib.Path) -> None:
+    """``cells.csv`` (every cell's and screened value's deterministic endpoint at its budget:
+    nmrl.analysis.cell_curves.summary), the screen's learning curves (one panel per screened arm and
+    control step, one line per value, extensions included) and, once grid cells exist, the grid's
+    (one panel per control step, one line per arm), from the published points' metrics."""
+    from nmrl.analysis import cell_curves
+
+    groups: dict[tuple[str, str], list[float]] = {}
+    screen: dict[str, dict[str, list]] = {}
+    grid: dict[str, dict[str, list]] = {}
     for r in rows:
-        if r["cell"].startswith("grid/") and r["det_reward_per_s"] != "" and int(r["steps"]) == int(r["budget"]):
-            cells.setdefault(r["cell"], []).append(float(r["det_reward_per_s"]))
-    return prereg_stats.family(cells, CONTRASTS, MARGIN)
+        key = (r["cell"], f"{float(r['value']):g}" if r["cell"].startswith("screen/") else "")
+        at_budget = int(r["steps"]) == int(r["budget"]) and r["det_reward_per_s"] != ""
+        groups.setdefault(key, []).extend([float(r["det_reward_per_s"])] if at_budget else [])
+        point = dest / r["cell"] / "points" / r["point"]
+        if not (point / "metrics.jsonl").is_file():
+            continue
+        base_name = r["cell"].split("+")[0]
+        if r["cell"].startswith("screen/"):
+            field = r["field"].replace("_", " ")
+            screen.setdefault(base_name.removeprefix("screen/"), {}).setdefault(f"{field} {key[1]}", []).append(
+                _curve(point))
+        elif r["cell"].startswith("grid/"):
+            _, dt, arm = r["cell"].split("/")
+            grid.setdefault(f"control step {float(dt[2:]) * 1000:g} ms", {}).setdefault(arm, []).append(_curve(point))
+    kit._write_csv(dest / CELLS_CSV, CELL_COLUMNS,
+                   [{"cell": c, "value": v, **cell_curves.summary(x)} for (c, v), x in groups.items()])
+    if screen:
+        cell_curves.figure(screen, dest / SCREEN_FIGURE, "exploring reward per second", "the screen (seeds 100, 101)")
+    if grid:
+        cell_curves.figure(grid, dest / GRID_FIGURE, "exploring reward per second", "the grid")
 
 
 STUDY = kit.Study(name="exploration2", cells=SIGMA_SCREEN, endpoint=kit.Endpoint(seconds=10.0, rollouts=8,
                                                                                  start_noise=0.05, seed=0),
-                  later=later_cells, analysis=analysis)
+                  later=later_cells, analysis=analysis, report=report)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -269,7 +393,7 @@ def main(argv: list[str] | None = None) -> int:
             ap.error("publish needs --dest")
         kit.publish(STUDY, a.out, a.dest)
     else:
-        kit.write_rows(STUDY, __import__("pathlib").Path(a.out))
+        kit.write_rows(STUDY, pathlib.Path(a.out))
     return 0
 
 

@@ -15,7 +15,8 @@ budget and scores it:
   over the study's rollouts from perturbed starts (nmrl/analysis/endpoint.py), once per step;
 * ``rows.csv``: one row per point with its cell, seed, the varied field's value, budget, whether it
   diverged, the exploring reward per second of its last chunk and its mean over chunks (the area
-  under the learning curve), and the endpoint.
+  under the learning curve), and the endpoint (a diverged point's: its last good policy's, at
+  which the sweep froze it).
 
 :func:`publish` copies what continues and re-scores a study (no full checkpoints) into a folder
 small enough to commit, with ``analysis.csv``, the study's own analysis of the rows (its
@@ -89,6 +90,9 @@ class Study:
     #: the study's analysis: from every row, the rows of its result table (written as
     #: ``analysis.csv`` beside ``rows.csv`` by :func:`publish`)
     analysis: Callable[[list[dict]], list[dict]] | None = None
+    #: the study's figures and tables beyond ``analysis.csv``: called by :func:`publish` with every
+    #: row and the published folder, from which alone it draws (so a fresh clone redraws them)
+    report: Callable[[list[dict], pathlib.Path], None] | None = None
 
 
 def all_cells(study: Study, out: pathlib.Path) -> list[Cell]:
@@ -176,17 +180,20 @@ def rows(study: Study, out: pathlib.Path, cells: Sequence[Cell] | None = None) -
             cfg = json.loads((p / "config.json").read_text())
             m = store.read_metrics(p)
             e = json.loads((p / ENDPOINT).read_text()) if (p / ENDPOINT).exists() else {}
+            diverged = bool(any(r.get("diverged") for r in m))
+            # the endpoint of the newest metrics row's policy; a diverged point's is its last good one
+            if not (m and (e.get("step") == m[-1]["step"] or (diverged and e))):
+                e = {}
             res.append({
                 "cell": cell.name, "point": p.name, "seed": cfg.get("seed"), "field": field or "",
                 "value": cfg.get(field) if field else "", "control_dt": cfg.get("control_dt"),
                 "steps": m[-1]["step"] if m else 0, "budget": cfg.get("steps"),
-                "diverged": bool(any(r.get("diverged") for r in m)),
+                "diverged": diverged,
                 "avg_reward_per_s": m[-1]["avg_reward"] / DELTA_0 if m else "",
                 "auc_reward_per_s": sum(r["avg_reward"] for r in m) / len(m) / DELTA_0 if m else "",
-                "det_reward_per_s": e.get("reward_per_s", "") if e.get("step") == (m[-1]["step"] if m else None)
+                "det_reward_per_s": e.get("reward_per_s", ""),
+                "det_forward_speed": sum(e["forward_speed"]) / len(e["forward_speed"]) if e.get("forward_speed")
                 else "",
-                "det_forward_speed": (sum(e["forward_speed"]) / len(e["forward_speed"]))
-                if e.get("forward_speed") and e.get("step") == (m[-1]["step"] if m else None) else "",
             })
     return res
 
@@ -250,3 +257,5 @@ def publish(study: Study, out: str | os.PathLike, dest: str | os.PathLike) -> No
     if study.analysis is not None:
         table = study.analysis(r)
         _write_csv(dest / ANALYSIS, list(dict.fromkeys(k for row in table for k in row)), table)
+    if study.report is not None:
+        study.report(r, dest)

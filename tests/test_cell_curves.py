@@ -1,0 +1,77 @@
+"""A study's per-cell statistics and learning-curve bands (nmrl/analysis/cell_curves.py) and the
+second exploration study's report (nmrl/experiments/exploration2.report), against scipy and
+numbers computed here from hand-written run files."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from nmrl.analysis import cell_curves
+from nmrl.experiments import exploration2
+
+
+def test_a_cells_summary_is_the_t_interval_and_rliables_iqm():
+    x = np.array([-50.0, 12.5, 30.0, 41.0, 44.0, 47.5, 90.0, 300.0])
+    s = cell_curves.summary(list(x) + [float("nan")])  # a non-finite value is not a run
+    lo, hi = stats.t.interval(0.95, len(x) - 1, loc=x.mean(), scale=stats.sem(x))
+    assert s["n"] == 8 and s["mean"] == pytest.approx(x.mean()) and s["sd"] == pytest.approx(x.std(ddof=1))
+    assert (s["ci_lo"], s["ci_hi"]) == (pytest.approx(lo), pytest.approx(hi))
+    assert s["iqm"] == pytest.approx(np.sort(x)[2:6].mean())  # 25% trimmed: 2 of 8 off each end
+    assert s["iqm_lo"] < s["iqm"] < s["iqm_hi"] and s["iqm_hi"] - s["iqm_lo"] < x.max() - x.min()
+
+
+def test_a_summary_leaves_out_what_its_runs_cannot_support():
+    assert cell_curves.summary([])["mean"] == ""
+    one = cell_curves.summary([3.0])
+    assert one["mean"] == 3.0 and one["sd"] == "" and one["ci_lo"] == ""
+    three = cell_curves.summary([1.0, 2.0, 6.0])
+    assert three["sd"] == pytest.approx(np.std([1, 2, 6], ddof=1)) and three["iqm"] == ""
+
+
+def test_a_band_is_the_mean_and_t_interval_over_seeds_on_their_common_points():
+    t = np.arange(1, 6) * 102.4
+    ys = [np.array([1.0, 2.0, 4.0, 8.0, 9.0]), np.array([0.0, 3.0, 3.0, 6.0]), np.array([2.0, 1.0, 5.0, 7.0, 1.0])]
+    tt, mean, lo, hi = cell_curves.band([(t[:len(y)], y) for y in ys])
+    assert np.array_equal(tt, t[:4])  # the shortest seed's length
+    for j in range(4):
+        col = np.array([y[j] for y in ys])
+        a, b = stats.t.interval(0.95, 2, loc=col.mean(), scale=stats.sem(col))
+        assert (mean[j], lo[j], hi[j]) == (pytest.approx(col.mean()), pytest.approx(a), pytest.approx(b))
+    with pytest.raises(ValueError, match="same time points"):
+        cell_curves.band([(t, ys[0]), (t * 2, ys[2])])
+
+
+def _point(root, cell, name, cfg, rows):
+    d = root / cell / "points" / name
+    d.mkdir(parents=True)
+    (d / "config.json").write_text(json.dumps(cfg))
+    (d / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+
+
+def test_the_report_tabulates_every_cell_at_its_budget_and_draws_the_curves(tmp_path):
+    rows = []
+    for seed, det in ((100, -40.0), (101, -50.0)):  # a screen cell, one value, 2 seeds at budget
+        _point(tmp_path, "screen/sigma/dt0.02/white", f"sigma0.4_s{seed}", {"control_dt": 0.02},
+               [{"step": 5120, "avg_reward": -1.0}, {"step": 10240, "avg_reward": -0.5}])
+        rows.append({"cell": "screen/sigma/dt0.02/white", "point": f"sigma0.4_s{seed}", "field": "sigma",
+                     "value": 0.4, "steps": 10240, "budget": 10240, "det_reward_per_s": det})
+    dets = [10.0, 30.0, 20.0, 60.0]
+    for seed, det in enumerate(dets):  # a grid cell of 4 seeds, one of them unfinished
+        _point(tmp_path, "grid/dt0.0025/white", f"s{seed}", {"control_dt": 0.0025},
+               [{"step": 40960, "avg_reward": 0.1 * seed}])
+        rows.append({"cell": "grid/dt0.0025/white", "point": f"s{seed}", "field": "", "value": "",
+                     "steps": 40960 if seed < 3 else 100, "budget": 40960, "det_reward_per_s": det})
+    exploration2.report(rows, tmp_path)
+    table = {r["cell"]: r for r in csv.DictReader(open(tmp_path / exploration2.CELLS_CSV))}
+    screen, grid = table["screen/sigma/dt0.02/white"], table["grid/dt0.0025/white"]
+    assert screen["value"] == "0.4" and screen["n"] == "2" and float(screen["mean"]) == pytest.approx(-45.0)
+    assert grid["n"] == "3" and float(grid["mean"]) == pytest.approx(20.0) and grid["iqm"] == ""
+    assert (tmp_path / exploration2.SCREEN_FIGURE).stat().st_size > 0
+    assert (tmp_path / exploration2.GRID_FIGURE).stat().st_size > 0
+    t, y = exploration2._curve(tmp_path / "screen/sigma/dt0.02/white/points/sigma0.4_s100")
+    assert np.allclose(t, [102.4, 204.8]) and np.allclose(y, [-50.0, -25.0])  # per second: r / 0.02 s
