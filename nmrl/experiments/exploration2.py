@@ -19,6 +19,7 @@ made from these rows by the rules the pre-registration states.
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import pathlib
 import sys
@@ -228,7 +229,45 @@ def later_cells(rows: list[dict]) -> list[kit.Cell]:
         for arm in ("white", best):
             out.append(grid_cell(arm, 0.005, chosen[(arm, 0.0025)], SECONDARY_SEEDS,
                                  name=_a(arm), iterations=ASYMPTOTE_ITERATIONS))
+    for it in SNR_POLICY_ITERATIONS:  # white's 20 ms policies for the SNR at matched policies
+        out.append(grid_cell("white", 0.02, chosen[("white", 0.02)], SNR_SEEDS, name=_snr(it), iterations=it))
     return out
+
+
+SNR_SEEDS = 3  #: seeds of the matched policies (0-2: the grid's white at 20 ms holds their iteration 16)
+SNR_POLICY_ITERATIONS = (1, 4, 8)  #: iteration 1's point gives iteration 0's observation statistics
+SNR_CSV = "snr.csv"
+
+
+def _snr(it: int) -> str:
+    return f"snr/dt0.02/white_it{it}"
+
+
+def snr(out: pathlib.Path, rows: list[dict]) -> None:
+    """The gradient's SNR at matched policies (nmrl/experiments/matched_snr.py) into ``snr.csv``:
+    white's 20 ms policies of seeds 0-2 after 0, 4, 8 and 16 iterations, at 20, 5 and 2.5 ms, with
+    white at their own sigma and NMp with its chosen settings at each control step (20 ms: its 20 ms
+    choice; 5 and 2.5 ms: its 2.5 ms one). Waits until those cells are complete."""
+    from nmrl.experiments import matched_snr
+
+    cells = _complete_cells(rows)
+    need = [_snr(it) for it in SNR_POLICY_ITERATIONS] + [_g("white", 0.02), _g("nmp", 0.02), _g("nmp", 0.0025)]
+    if any(c not in cells for c in need):
+        return
+
+    def points(cell: str) -> dict[int, pathlib.Path]:
+        return {int(r["seed"]): out / cell / "points" / r["point"] for r in rows
+                if r["cell"] == cell and int(r["seed"]) < SNR_SEEDS}
+
+    def config(cell: str) -> dict:
+        return json.loads((next(iter(points(cell).values())) / "config.json").read_text())
+
+    by_it = {0: points(_snr(1)), 4: points(_snr(4)), 8: points(_snr(8)), 16: points(_g("white", 0.02))}
+    white = matched_snr.exploration_of(config(_g("white", 0.02)))
+    nmp20, nmp_fine = (matched_snr.exploration_of(config(_g("nmp", dt))) for dt in (0.02, 0.0025))
+    arms = {"white": {dt: white for dt in matched_snr.DTS},
+            "nmp": {dt: nmp20 if dt == 0.02 else nmp_fine for dt in matched_snr.DTS}}
+    matched_snr.measure(by_it, arms, out / SNR_CSV)
 
 
 CORRELATED = ("ou", "colored", "nms", "nmp")
@@ -367,11 +406,51 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
         cell_curves.figure(screen, dest / SCREEN_FIGURE, "exploring reward per second", "the screen (seeds 100, 101)")
     if grid:
         cell_curves.figure(grid, dest / GRID_FIGURE, "exploring reward per second", "the grid")
+    if (dest / SNR_CSV).is_file():
+        _snr_report(dest)
+
+
+SNR_SUMMARY_CSV, SNR_FIGURE = "snr_summary.csv", "snr.png"
+
+
+def _snr_report(dest: pathlib.Path) -> None:
+    """``snr_summary.csv``: per arm, iteration and control step, the SNR per second over the seeds'
+    policies (cell_curves.summary: mean, 95% t interval); ``snr.png``: one panel per arm, the mean
+    against the control step, one line per iteration, with the t intervals."""
+    from nmrl.analysis import cell_curves, plots
+
+    with open(dest / SNR_CSV, newline="") as fh:
+        got = list(csv.DictReader(fh))
+    groups: dict[tuple[str, int, float], list[float]] = {}
+    for r in got:
+        groups.setdefault((r["arm"], int(r["iteration"]), float(r["control_dt"])), []).append(float(r["snr_per_s"]))
+    table = [{"arm": a, "iteration": it, "control_dt": dt, **cell_curves.summary(x)}
+             for (a, it, dt), x in sorted(groups.items())]
+    kit._write_csv(dest / SNR_SUMMARY_CSV, ("arm", "iteration", "control_dt", *CELL_COLUMNS[2:]), table)
+    arms = sorted({a for a, _, _ in groups})
+    fig, axes = plots.plt.subplots(1, len(arms), figsize=(4.6 * len(arms), 3.6), sharey=True, squeeze=False,
+                                   layout="constrained")
+    for ax, arm in zip(axes[0], arms):
+        for it in sorted({i for a, i, _ in groups if a == arm}):
+            rs = [r for r in table if r["arm"] == arm and r["iteration"] == it]
+            dt_ms = [1000 * r["control_dt"] for r in rs]
+            mean = [r["mean"] for r in rs]
+            err = [[m - (r["ci_lo"] if r["ci_lo"] != "" else m) for m, r in zip(mean, rs)],
+                   [(r["ci_hi"] if r["ci_hi"] != "" else m) - m for m, r in zip(mean, rs)]]
+            ax.errorbar(dt_ms, mean, yerr=err, marker="o", capsize=3, label=f"iteration {it}")
+        ax.set_xscale("log")
+        ax.set_title(arm)
+        ax.set_xlabel("control step [ms]")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    axes[0][0].set_ylabel("gradient SNR per second of experience")
+    plots._save(fig, dest / SNR_FIGURE)
 
 
 STUDY = kit.Study(name="exploration2", cells=SIGMA_SCREEN, endpoint=kit.Endpoint(seconds=10.0, rollouts=8,
                                                                                  start_noise=0.05, seed=0),
-                  later=later_cells, analysis=analysis, report=report)
+                  later=later_cells, analysis=analysis, report=report,
+                  measurements=(kit.Measurement(SNR_CSV, snr),))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -20,7 +20,8 @@ budget and scores it:
 
 :func:`publish` copies what continues and re-scores a study (no full checkpoints) into a folder
 small enough to commit, with ``analysis.csv``, the study's own analysis of the rows (its
-pre-registered contrasts). A study's own module (e.g. nmrl/experiments/exploration2.py) holds its
+pre-registered contrasts), its report's figures and tables, and the files of its measurements (steps
+after the cells that are not sweeps, :class:`Measurement`). A study's own module (e.g. nmrl/experiments/exploration2.py) holds its
 cells as data and any rule that makes later cells from earlier rows.
 """
 
@@ -78,6 +79,16 @@ class Endpoint:
 
 
 @dataclasses.dataclass(frozen=True)
+class Measurement:
+    """A step of a study after its cells that is not a sweep: ``run(out, rows)`` writes ``file`` in the
+    study's directory from the rows and the cells' points, continuing what an earlier call left
+    there, and does nothing while a cell it needs is unfinished; :func:`publish` copies ``file``."""
+
+    file: str
+    run: Callable[[pathlib.Path, list[dict]], None]
+
+
+@dataclasses.dataclass(frozen=True)
 class Study:
     name: str
     cells: tuple[Cell, ...]
@@ -93,6 +104,8 @@ class Study:
     #: the study's figures and tables beyond ``analysis.csv``: called by :func:`publish` with every
     #: row and the published folder, from which alone it draws (so a fresh clone redraws them)
     report: Callable[[list[dict], pathlib.Path], None] | None = None
+    #: run after every cell, in order (:class:`Measurement`)
+    measurements: tuple[Measurement, ...] = ()
 
 
 def all_cells(study: Study, out: pathlib.Path) -> list[Cell]:
@@ -225,7 +238,10 @@ def run(study: Study, out: str | os.PathLike, *, published: str | os.PathLike | 
         todo = [c for c in all_cells(study, out) if c.name not in done
                 and (not only or any(c.name.startswith(o) for o in only))]
         if not todo:
-            return write_rows(study, out)
+            r = write_rows(study, out)
+            for m in study.measurements:
+                m.run(out, r)
+            return r
         for cell in todo:
             run_cell(study, cell, out, pub)
             for p in _points(out / cell.name):
@@ -254,6 +270,9 @@ def publish(study: Study, out: str | os.PathLike, dest: str | os.PathLike) -> No
                     shutil.copy2(p / f, q / f)
     r = write_rows(study, out)
     shutil.copy2(out / ROWS, dest / ROWS)
+    for m in study.measurements:
+        if (out / m.file).is_file():
+            shutil.copy2(out / m.file, dest / m.file)
     if study.analysis is not None:
         table = study.analysis(r)
         _write_csv(dest / ANALYSIS, list(dict.fromkeys(k for row in table for k in row)), table)

@@ -11,7 +11,11 @@ iteration (U unrolls of ``unroll_s``, 102.4 s at the study's settings),
 with A the GAE advantages under the current value net (docs/ppo.md), normalised over the whole
 iteration's data as PPO normalises a minibatch, and log pi the process's exact conditional density
 (nmrl/learners/ppo.py ``seq_logp``). The environments' g_e are independent estimates of one mean;
-nmrl.experiments.gradvar.summarize turns per-batch sums into tr Cov(g_e), |E g_e|^2 (unbiased) and
+With ``period_wise`` (nm-periods learned on periods as wholes) a sample is a period: g_e sums
+A_p log pi_theta(period p) over the period starts p, with the period-wise advantages
+(nmrl/learners/ppo_losses.py ``period_gae``), normalised over the periods, and the period's
+density (eq. (7): the sum of its steps' conditionals, ``segment_sums``), as PPO's period-wise loss
+learns from them. nmrl.experiments.gradvar.summarize turns per-batch sums into tr Cov(g_e), |E g_e|^2 (unbiased) and
 the SNR of one second of one environment's experience, |E g|^2 / (tr Cov(g) * U * unroll_s), with
 95% intervals over batches (independent rollouts from the same parameters).
 """
@@ -54,16 +58,31 @@ def make_batch(cfg: PPOConfig, env: Any = None):
             _, a = L.gae(tm(r * h.reward_scale), tm(v), b, tm(term), tm(trunc), h.gamma, h.lam)
             return tm(a)
 
-        adv = jax.vmap(adv_of)(data.reward, values, boot, data.termination, data.truncation)
-        if cfg.normalize_advantage:
-            adv = (adv - jnp.mean(adv)) / (jnp.std(adv) + 1e-8)
-        flat0, unravel = ravel_pytree(st.policy)
+        def period_adv_of(r, v, b, term, trunc, fresh):  # per period: (U, T), 0 off period starts
+            tm = lambda a: jnp.swapaxes(a, 0, 1)  # noqa: E731
+            start = tm(fresh).at[0].set(True)
+            _, a = L.period_gae(tm(r * h.reward_scale), tm(v), b, tm(term), tm(trunc), start, h.gamma, h.lam)
+            return tm(a), tm(start.astype(a.dtype))
+
+        if cfg.period_wise:
+            adv, w = jax.vmap(period_adv_of)(data.reward, values, boot, data.termination, data.truncation,
+                                             data.fresh)
+            if cfg.normalize_advantage:  # over the periods, as PPO's period-wise loss
+                adv = L.normalize_advantages(adv, jnp.sum(adv * w), jnp.sum(w), jnp.sum(adv * adv * w)) * w
+        else:
+            adv = jax.vmap(adv_of)(data.reward, values, boot, data.termination, data.truncation)
+            if cfg.normalize_advantage:
+                adv = (adv - jnp.mean(adv)) / (jnp.std(adv) + 1e-8)
 
         def one(args):
             d_e, a_e = args
 
             def obj(p):
-                return jnp.sum(a_e * tr.seq_logp(p, st.obs_stats, d_e, h.process)) / (U * T)
+                logp = tr.seq_logp(p, st.obs_stats, d_e, h.process)  # (U, T)
+                if cfg.period_wise:  # a period's density (eq. (7)), at its start
+                    logp = jnp.swapaxes(L.segment_sums(jnp.swapaxes(logp, 0, 1), jnp.swapaxes(d_e.fresh, 0, 1)),
+                                        0, 1)
+                return jnp.sum(a_e * logp) / (U * T)
 
             return ravel_pytree(jax.grad(obj)(st.policy))[0]
 

@@ -161,8 +161,16 @@ def restore_compact(run_dir: str | os.PathLike, trainer: Trainer) -> State:
     key = jnp.asarray(arrays["key"])
     k_init, key = jax.random.split(key)
     ts = trainer.init(k_init)
+    parts = fields_of(meta, arrays, ts, tuple(learner.compact_fields) + COMPACT_COUNTERS)
+    return learners.replace_state(ts, key=key, **parts)
+
+
+def fields_of(meta: dict, arrays: dict[str, np.ndarray], ts: State, fields: tuple[str, ...]) -> dict[str, Any]:
+    """The top-level ``fields`` of a compact state's ``arrays`` as trees shaped like ``ts``'s
+    (a learner's state of the same config's networks); CheckpointError if one is missing or differs
+    in shape or dtype."""
     parts = {}
-    for part in tuple(learner.compact_fields) + COMPACT_COUNTERS:
+    for part in fields:
         names, leaves, treedef = _flatten(getattr(ts, part))
         keys = [f"{part}{_SEP}{n}" if n else part for n in names]
         try:
@@ -178,7 +186,7 @@ def restore_compact(run_dir: str | os.PathLike, trainer: Trainer) -> State:
                                       f"{tuple(t.shape)} {t.dtype}")
             out.append(jnp.asarray(a))
         parts[part] = jax.tree_util.tree_unflatten(treedef, out)
-    return learners.replace_state(ts, key=key, **parts)
+    return parts
 
 
 def uses_compact(run_dir: str | os.PathLike) -> bool:
