@@ -35,7 +35,7 @@ from nmrl.runs import compact
 
 DTS = (0.02, 0.005, 0.0025)
 ITERATIONS = (0, 4, 8, 16)
-BATCHES, WARMUP = 3, 1
+BATCHES, WARMUP = 2, 1
 COLUMNS = ("seed", "iteration", "control_dt", "arm", "seconds_per_estimate", "trcov", "trcov_ci", "mean_sq",
            "mean_sq_ci", "snr_per_s")
 EXPLORATION_FIELDS = ("exploration", "sigma", "period_s", "corr_time_s", "beta", "f_min_hz", "f_max_hz", "order",
