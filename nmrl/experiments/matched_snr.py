@@ -23,7 +23,6 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
-import os
 import pathlib
 from typing import Any, Sequence
 
@@ -31,7 +30,7 @@ import jax
 
 from nmrl.experiments import ppo_gradsnr
 from nmrl.learners.ppo import PPOConfig, PPOState, make_ppo
-from nmrl.runs import compact
+from nmrl.runs import compact, store
 
 DTS = (0.02, 0.005, 0.0025)
 ITERATIONS = (0, 4, 8, 16)
@@ -89,7 +88,7 @@ def measure(points: dict[int, dict[int, pathlib.Path]], arms: dict[str, dict[flo
                 res = ppo_gradsnr.measure_many(cfg, states, batches=batches, seed=1, warmup=warmup, env=env)
                 done += [{"seed": s, "iteration": it, "control_dt": dt, "arm": arm,
                           **{k: r[k] for k in COLUMNS[4:]}} for s, r in zip(seeds, res)]
-                _write(path, done)
+                store.write_csv(path, COLUMNS, done)
     return done
 
 
@@ -98,12 +97,3 @@ def _read(path: pathlib.Path) -> list[dict]:
         return []
     with open(path, newline="") as fh:
         return list(csv.DictReader(fh))
-
-
-def _write(path: pathlib.Path, rows: list[dict]) -> None:
-    tmp = path.parent / f".{path.name}.{os.getpid()}.tmp"
-    with open(tmp, "w", newline="") as fh:
-        w = csv.DictWriter(fh, COLUMNS)
-        w.writeheader()
-        w.writerows(rows)
-    os.replace(tmp, path)
