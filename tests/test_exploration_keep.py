@@ -1,4 +1,4 @@
-"""scripts/exploration_keep.sh on a stand-in study in a throwaway git repository: `watch` stops the
+"""scripts/run/exploration_keep.sh on a stand-in study in a throwaway git repository: `watch` stops the
 study, evaluates and publishes, commits results/exploration (and nothing else) and starts the
 study again, every interval; a bad interval is refused with exit 2 before anything starts.
 
@@ -27,8 +27,8 @@ pytestmark = pytest.mark.skipif(any(shutil.which(t) is None for t in ("setsid", 
 def layout(tmp_path):
     tag = uuid.uuid4().hex[:12]
     pat = f"standin-study-{tag}"
-    (tmp_path / "scripts").mkdir()
-    for f in ("exploration_keep.sh", "lower_priority.sh"):
+    (tmp_path / "scripts" / "run").mkdir(parents=True)
+    for f in ("run/exploration_keep.sh", "lower_priority.sh"):
         shutil.copy(REPO / "scripts" / f, tmp_path / "scripts" / f)
     study = tmp_path / "scripts" / "exploration_study.sh"  # says it started, then runs until signalled
     study.write_text(f'#!/usr/bin/env bash\nmkdir -p runs/exploration\necho "{{}}" > runs/exploration/study.json\n'
@@ -76,7 +76,7 @@ def test_watch_publishes_commits_and_restarts(layout):
     root, env, pat, tag = layout
     env = {**env, "INTERVAL_S": "1"}
     # the tag in the command line lets the fixture end this loop and no other
-    watch = subprocess.Popen(["bash", "scripts/exploration_keep.sh", "watch", "5", tag], cwd=root, env=env,
+    watch = subprocess.Popen(["bash", "scripts/run/exploration_keep.sh", "watch", "5", tag], cwd=root, env=env,
                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
     try:
         _wait(lambda: _log(root).count("Exploration study progress") >= 2, 40, "two published commits")
@@ -96,7 +96,7 @@ def test_watch_publishes_commits_and_restarts(layout):
 @pytest.mark.parametrize("bad", ["2", "ten", "-5"])
 def test_watch_refuses_a_bad_interval(layout, bad):
     root, env, pat, _ = layout
-    p = subprocess.run(["bash", "scripts/exploration_keep.sh", "watch", bad], cwd=root, env=env,
+    p = subprocess.run(["bash", "scripts/run/exploration_keep.sh", "watch", bad], cwd=root, env=env,
                        capture_output=True, text=True, timeout=30)
     assert p.returncode == 2
     assert p.stderr.strip().splitlines() == [f"watch: MIN={bad} is invalid: a whole number of minutes >= 5"]

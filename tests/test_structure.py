@@ -8,7 +8,7 @@
   (devices, run store, checkpoints, the driver) < ``nmrl.analysis`` (statistics, figures,
   evaluation) < ``nmrl.experiments`` (sweep, study, gradient variance) < ``nmrl.cli``;
 * the package imports nothing from the checkout around it (``benchmarks``, ``scripts``, ``tests``),
-  and neither scripts/ nor benchmarks/ edit ``sys.path`` (``pip install -e .`` is the way in).
+  and neither scripts/, examples/ nor benchmarks/ edit ``sys.path`` (``pip install -e .`` is the way in).
 """
 
 from __future__ import annotations
@@ -192,7 +192,8 @@ def test_package_imports_nothing_from_the_checkout():
 
 def test_scripts_and_benchmarks_do_not_edit_sys_path():
     hit = []
-    for p in sorted((REPO / "scripts").glob("*.py")) + sorted((REPO / "benchmarks").glob("*.py")):
+    for p in [*sorted((REPO / "scripts").rglob("*.py")), *sorted((REPO / "examples").rglob("*.py")),
+              *sorted((REPO / "benchmarks").glob("*.py"))]:
         for node in ast.walk(ast.parse(p.read_text())):
             if (isinstance(node, ast.Attribute) and node.attr == "path" and isinstance(node.value, ast.Name)
                     and node.value.id == "sys"):

@@ -96,7 +96,7 @@ def milestone_series(by_l: dict, milestones) -> list[dict]:
     """The lines of :func:`fig3_milestones`: per milestone (trials), the l whose every seed reached it,
     with the mean and 95% half-width over the seeds. ``by_l`` maps l (int or str) -> milestone (int
     or str) -> ``{"mean", "ci95", "seeds"}``, the mean None while a seed is short of it (as
-    scripts/publish_fig3_paper.py's progress.json). A milestone no l reached is left out."""
+    scripts/publish/publish_fig3_paper.py's progress.json). A milestone no l reached is left out."""
     out = []
     for m in milestones:
         got = [(int(k), by_l[k][str(m)]) for k in sorted(by_l, key=int)

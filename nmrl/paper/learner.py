@@ -59,7 +59,7 @@ presets name ``sgd`` for both networks, and a chain of one ``sgd`` is ``optax.sg
 ``optax.chain`` around it).
 
 The sgd chain is bit-identical to the paper's update written by hand, ``theta + beta * sum_e d_e
-z_e`` (scripts/check_optax_update.py compares the two: Half-Cheetah, the paper's networks and
+z_e`` (scripts/lab/check_optax_update.py compares the two: Half-Cheetah, the paper's networks and
 preset, N = 1 and 8, and the tiny test environment; the parameters after every chunk are equal bit
 for bit, since -beta * -S == beta * S exactly in floating point).
 """

@@ -9,7 +9,7 @@ Cases: the paper's preset and networks (M^A = 100, M^C = 200, l = 10, Delta = 4)
 with N = 1 and N = 8, and the tiny test environment (tests/tiny_env.py) with large step sizes, l = 3,
 N = 1 and N = 8. Chunks of 25 steps (each case compiles two programs; ~2-4 min on 2 cores).
 
-    PYTHONPATH=. python scripts/check_optax_update.py [--old a849a9d] [--chunks 4]
+    PYTHONPATH=. python scripts/lab/check_optax_update.py [--old a849a9d] [--chunks 4]
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ import sys
 import tempfile
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
-ROOT = pathlib.Path(__file__).resolve().parents[1]
+ROOT = pathlib.Path(__file__).resolve().parents[2]
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402

@@ -2,9 +2,9 @@
 # Keeps the exploration study (scripts/exploration_study.sh) going and its progress committed, so a
 # machine that goes away mid-session loses at most one interval of it.
 #
-#   scripts/exploration_keep.sh start        # start or resume the study (also on a fresh clone)
-#   scripts/exploration_keep.sh stop         # SIGTERM, wait for the saves, evaluate, publish
-#   scripts/exploration_keep.sh watch [MIN]  # forever: every MIN minutes (default 40) stop, publish,
+#   scripts/run/exploration_keep.sh start        # start or resume the study (also on a fresh clone)
+#   scripts/run/exploration_keep.sh stop         # SIGTERM, wait for the saves, evaluate, publish
+#   scripts/run/exploration_keep.sh watch [MIN]  # forever: every MIN minutes (default 40) stop, publish,
 #                                            # commit results/exploration, start again
 #
 # stop: the study saves every active point after the chunk in flight (full checkpoints in runs/, so
@@ -14,10 +14,10 @@
 # watch: commits only results/exploration (`git commit -- results/exploration`), with a message that
 #   names the runs published; a commit that fails (e.g. another commit holds the index) is tried
 #   again at the next interval. Run it in the background, e.g.
-#     (setsid nohup scripts/exploration_keep.sh watch 45 >> runs/exploration_keep.log 2>&1 < /dev/null &)
+#     (setsid nohup scripts/run/exploration_keep.sh watch 45 >> runs/exploration_keep.log 2>&1 < /dev/null &)
 #   and end it (pkill -f 'exploration_keep.sh watch') before a final `stop`.
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 PAT=${STUDY_PAT:-'nmrl explore-study --out runs/exploration'}
 PY=${PY:-.venv/bin/python}
 NMRL=${NMRL:-.venv/bin/nmrl}
@@ -70,5 +70,5 @@ case "${1:-}" in
       if stop; then commit; fi
       start
     done ;;
-  *) echo "usage: scripts/exploration_keep.sh start|stop|watch [MIN]" >&2; exit 2 ;;
+  *) echo "usage: scripts/run/exploration_keep.sh start|stop|watch [MIN]" >&2; exit 2 ;;
 esac

@@ -1,10 +1,10 @@
 #!/usr/bin/env bash
 # The project's two long runs, resumable on any machine: the paper-scale Fig. 3 sweep
-# (scripts/fig3_paper.sh) and the Brax PPO baseline (scripts/baseline_ppo.sh).
+# (scripts/run/fig3_paper.sh) and the Brax PPO baseline (scripts/run/baseline_ppo.sh).
 #
-#   scripts/background.sh start    # start or resume both (also on a fresh clone)
-#   scripts/background.sh status   # their last lines, the sweep's last chunk times, what runs
-#   scripts/background.sh stop     # before the machine goes away: SIGTERM, wait for the saves, publish
+#   scripts/run/background.sh start    # start or resume both (also on a fresh clone)
+#   scripts/run/background.sh status   # their last lines, the sweep's last chunk times, what runs
+#   scripts/run/background.sh stop     # before the machine goes away: SIGTERM, wait for the saves, publish
 #
 # start: with 2 or more cores and Brax installed (pip install -e '.[brax]'), the sweep runs on
 #   core 0 and PPO on core 1 (CPUS=..., one XLA device each): the sweep's devices step in one
@@ -16,11 +16,11 @@
 #   already done, and while they run by a hand-off that follows the PPO script when it ends
 #   normally (SIGTERM the pinned sweep, wait for its save, resume it on every core).
 # stop: SIGTERM to both; the sweep saves every active point after its chunk, PPO after the
-#   iteration in flight (up to ~5 min on one core); then scripts/publish_fig3_paper.py and
-#   scripts/publish_baseline_ppo.py write results/ (commit it). Exits 1 if a run did not stop
+#   iteration in flight (up to ~5 min on one core); then scripts/publish/publish_fig3_paper.py and
+#   scripts/publish/publish_baseline_ppo.py write results/ (commit it). Exits 1 if a run did not stop
 #   within STOP_TIMEOUT seconds (default 900), without publishing that run.
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 SWEEP_PAT=${SWEEP_PAT:-'nmrl sweep --resume --l 1 --out runs/fig3_paper'}
 PPO_PAT=${PPO_PAT:-'nmrl baseline ppo'}
 PY=${PY:-.venv/bin/python}
@@ -48,10 +48,10 @@ PYEOF
 
 start_sweep() {  # [cpus]: the sweep, on those cores or (empty) on every core
   if [ -n "${1:-}" ]; then
-    (CPUS=$1 setsid scripts/fig3_paper.sh >> runs/fig3_paper.log 2>&1 &)
+    (CPUS=$1 setsid scripts/run/fig3_paper.sh >> runs/fig3_paper.log 2>&1 &)
     echo "started the Fig. 3 sweep on core $1 (runs/fig3_paper.log)"
   else
-    (env -u CPUS setsid scripts/fig3_paper.sh >> runs/fig3_paper.log 2>&1 &)
+    (env -u CPUS setsid scripts/run/fig3_paper.sh >> runs/fig3_paper.log 2>&1 &)
     echo "started the Fig. 3 sweep on every core (runs/fig3_paper.log)"
   fi
 }
@@ -73,7 +73,7 @@ start() {
     if running "$PPO_PAT"; then
       echo "the PPO baseline is already running"
     else
-      (CPUS=1 setsid bash -c 'scripts/baseline_ppo.sh && scripts/background.sh handoff' \
+      (CPUS=1 setsid bash -c 'scripts/run/baseline_ppo.sh && scripts/run/background.sh handoff' \
         >> runs/baseline_ppo.log 2>&1 &)
       echo "started the PPO baseline on core 1 (runs/baseline_ppo.log)"
     fi
@@ -82,7 +82,7 @@ start() {
   elif [ "$cores" -lt 2 ]; then
     echo "one core: the PPO baseline is not started beside the sweep" >&2
   else
-    echo "the PPO baseline has finished every seed: nothing to start (publish with scripts/background.sh stop)"
+    echo "the PPO baseline has finished every seed: nothing to start (publish with scripts/run/background.sh stop)"
   fi
 }
 
@@ -125,12 +125,12 @@ stop() {
   pkill -TERM -f "$SWEEP_PAT" || true
   pkill -TERM -f "$PPO_PAT" || true
   if wait_gone "$SWEEP_PAT"; then
-    if [ -f runs/fig3_paper/sweep.json ]; then "$PY" scripts/publish_fig3_paper.py; fi
+    if [ -f runs/fig3_paper/sweep.json ]; then "$PY" scripts/publish/publish_fig3_paper.py; fi
   else
     echo "the Fig. 3 sweep did not stop within ${STOP_TIMEOUT:-900} s; not published" >&2; rc=1
   fi
   if wait_gone "$PPO_PAT"; then
-    if [ -d runs/baseline_ppo ] && has_brax; then "$PY" scripts/publish_baseline_ppo.py; fi
+    if [ -d runs/baseline_ppo ] && has_brax; then "$PY" scripts/publish/publish_baseline_ppo.py; fi
   else
     echo "the PPO baseline did not stop within ${STOP_TIMEOUT:-900} s; not published" >&2; rc=1
   fi
@@ -142,5 +142,5 @@ case "${1:-}" in
   stop) stop ;;
   status) status ;;
   handoff) handoff ;;
-  *) echo "usage: scripts/background.sh start|status|stop (got '${1:-}')" >&2; exit 2 ;;
+  *) echo "usage: scripts/run/background.sh start|status|stop (got '${1:-}')" >&2; exit 2 ;;
 esac

@@ -1,12 +1,12 @@
 """Publish the native PPO's validation against the Brax PPO peer under results/ppo/.
 
-    .venv/bin/python scripts/publish_ppo_validation.py [--src runs/ppo_validation] [--dest results/ppo]
+    .venv/bin/python scripts/publish/publish_ppo_validation.py [--src runs/ppo_validation] [--dest results/ppo]
 
-Reads the sweep SRC (scripts/ppo_validation.sh: nmrl's PPO, white noise, the Brax settings, 3
+Reads the sweep SRC (scripts/run/ppo_validation.sh: nmrl's PPO, white noise, the Brax settings, 3
 seeds) and the Brax seeds' metrics (results/baseline_ppo/ppo_s*/metrics.jsonl). Writes, atomically:
 
 * ``validation/{sweep.json, points/s{seed}/{config.json, metrics.jsonl, compact.npz}}``: what a
-  fresh clone needs to continue the sweep (scripts/ppo_validation.sh seeds runs/ from it);
+  fresh clone needs to continue the sweep (scripts/run/ppo_validation.sh seeds runs/ from it);
 * ``learning_curves.png``: average reward per control step during learning against control steps,
   each native seed and their mean over the band (min..max) of the Brax seeds;
 * ``summary.json``: per iteration both seed sets reached, the native mean, the Brax band and whether
@@ -34,7 +34,7 @@ from nmrl.analysis import ppo_validation as pv, stats
 from nmrl.analysis.publish_ppo import ppo_runs
 from nmrl.runs import store
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
+ROOT = pathlib.Path(__file__).resolve().parents[2]
 
 
 def draw(native: dict, peer: dict, path: pathlib.Path, names: tuple[str, str] = ("native PPO", "Brax PPO"),

@@ -5,17 +5,17 @@
 #
 # Resumable, also on a fresh clone: run the same script again. A seed with a run directory in $OUT
 # continues from its newest checkpoint; a seed without one that was published in $PUBLISHED
-# (scripts/publish_baseline_ppo.py: config, metrics, resumes and, while unfinished, compact.npz,
+# (scripts/publish/publish_baseline_ppo.py: config, metrics, resumes and, while unfinished, compact.npz,
 # the newest parameters) is copied there first and continues from its compact.npz, which holds the
 # same arrays as the newest checkpoint. A continuation has a fresh Adam state and environments:
 # statistically, not bitwise, the uninterrupted run (see nmrl/experiments/baseline_ppo.py). A
 # finished seed (published without parameters) is skipped: its --resume does nothing. SIGTERM
 # stops after the PPO iteration in flight is saved (exit 143).
-# Publish with: .venv/bin/python scripts/publish_baseline_ppo.py
+# Publish with: .venv/bin/python scripts/publish/publish_baseline_ppo.py
 # CPUS=1 (a taskset list) runs it on those cores only (one XLA device per core): beside the
-# Fig. 3 sweep pinned to the other core (CPUS=0 scripts/fig3_paper.sh).
+# Fig. 3 sweep pinned to the other core (CPUS=0 scripts/run/fig3_paper.sh).
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 # shellcheck source=scripts/lower_priority.sh
 source scripts/lower_priority.sh
 lower_priority  # a background launch (setsid) yields the CPUs to interactive work

@@ -1,4 +1,4 @@
-# Sourced by scripts/fig3_paper.sh and scripts/fast_preset.sh: seed_run OUT PUBLISHED copies a
+# Sourced by scripts/run/fig3_paper.sh and scripts/run/fast_preset.sh: seed_run OUT PUBLISHED copies a
 # published sweep's continuation state (sweep.json, every point's config.json, metrics.jsonl and
 # compact.npz; a point that never ran has only its config) into OUT when OUT holds no sweep yet, so
 # that `nmrl sweep --resume` continues it from the compact states on a fresh clone.

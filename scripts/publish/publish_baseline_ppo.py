@@ -1,17 +1,17 @@
 """Publish the PPO baseline against the nm-period actor-critic under results/baseline_ppo/.
 
-    .venv/bin/python scripts/publish_baseline_ppo.py [--src runs/baseline_ppo] [--dest results/baseline_ppo]
+    .venv/bin/python scripts/publish/publish_baseline_ppo.py [--src runs/baseline_ppo] [--dest results/baseline_ppo]
 
 Reads every seed's run directory SRC/ppo_s{seed} (``nmrl baseline ppo``), the actor-critic's
 learning curves of l = 1 and l = 10 from results/fig3_paper/points/*/metrics.jsonl (per-point
 control steps = steps per environment x its environments), the actor-critic's deterministic
-evaluations at the budgets (DEST/ac_milestones.json, scripts/ac_milestones.py) and, if present, the
+evaluations at the budgets (DEST/ac_milestones.json, scripts/lab/ac_milestones.py) and, if present, the
 wall times of benchmarks/results.json's ``baseline`` section. Writes, atomically:
 
 * ``ppo_s{seed}/{config.json, metrics.jsonl, resumes.jsonl}``: each PPO run's config, rows per
   iteration and resumes, and, only while the seed is unfinished, ``compact.npz``, its newest
   parameters (nmrl.runs.checkpoint.save_tree_compact, ~1 MB): what a fresh clone needs to continue
-  the run (scripts/baseline_ppo.sh seeds runs/ from it). A finished seed's compact.npz is not
+  the run (scripts/run/baseline_ppo.sh seeds runs/ from it). A finished seed's compact.npz is not
   published (and removed from DEST): its ``--resume`` does nothing and needs no parameters;
 * ``comparison.png``: the average reward per control step during learning against control steps
   (PPO's exploring policy, the actor-critic's exploring policy; mean over seeds, each seed thin),
@@ -25,7 +25,7 @@ wall times of benchmarks/results.json's ``baseline`` section. Writes, atomically
   like ``nmrl baseline eval``, only when the published eval.json is not of that seed and step:
   eval.json, strobe.png, gait.gif) and ``gaits.png``, its strobe above those of the
   actor-critic's best l = 1 and l = 10 seeds at 10^5 trials (results/fig3_paper/gaits/, written by
-  scripts/publish_fig3_paper.py) where they exist.
+  scripts/publish/publish_fig3_paper.py) where they exist.
 
 The numbers (which rows, which seeds, the intervals, the table) are nmrl/analysis/publish_ppo.py's;
 this script copies, draws and writes.
@@ -43,7 +43,7 @@ from nmrl.analysis import stats
 from nmrl.analysis.publish_ppo import AC_LS, BUDGETS, ac_curves, ppo_runs, summary, table  # noqa: F401
 from nmrl.runs import store
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
+ROOT = pathlib.Path(__file__).resolve().parents[2]
 
 
 def draw(ppo: dict, curves: dict, ac: dict, path: pathlib.Path) -> None:

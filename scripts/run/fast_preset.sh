@@ -5,9 +5,9 @@
 #
 # Resumable: run it again; it continues from the checkpoints in $OUT (runs/ is not in git: on a
 # fresh clone it starts over, ~1 h of a quiet 2-core machine). Publish with:
-#   .venv/bin/python scripts/publish_fast_preset.py --run $PRESET=$OUT
+#   .venv/bin/python scripts/publish/publish_fast_preset.py --run $PRESET=$OUT
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 # shellcheck source=scripts/lower_priority.sh
 source scripts/lower_priority.sh
 lower_priority  # a background launch (setsid) yields the CPUs to interactive work

@@ -29,7 +29,7 @@ Decision rule: a candidate "changes the robot's behaviour measurably" if
 
 Prints a markdown table and the verdicts; writes JSON to ``--out`` (atomically).
 
-    python scripts/physics_fidelity.py [--quick]
+    python scripts/lab/physics_fidelity.py [--quick]
 """
 
 from __future__ import annotations
@@ -69,7 +69,7 @@ REL_TOL = 0.05
 STAND_TOL_M = 0.01
 FLOOR_FACTOR = 10.0
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
+ROOT = pathlib.Path(__file__).resolve().parents[2]
 #: a published Fig. 3 point (its compact continuation state; nmrl eval reads it): the paper-scale
 #: sweep's best l = 10 seed at 10^5 trials, whose gait is published; the table in docs/performance.md
 #: is measured on it.
@@ -338,7 +338,7 @@ def main(argv: list[str] | None = None) -> dict:
         print(f"- {name}: {verdict}" + (f" ({'; '.join(reasons)})" if reasons else ""))
 
     result = {
-        "what": "physics fidelity of candidate env options vs the reference (scripts/physics_fidelity.py)",
+        "what": "physics fidelity of candidate env options vs the reference (scripts/lab/physics_fidelity.py)",
         "quick": bool(args.quick),
         "run_dir": str(args.run_dir),
         "control_dt": dt,

@@ -1,6 +1,6 @@
 """Publish the paper-scale Fig. 3 sweep as it grows: results/fig3_paper/ (committed whenever it is published).
 
-    .venv/bin/python scripts/publish_fig3_paper.py [--src runs/fig3_paper] [--dest results/fig3_paper]
+    .venv/bin/python scripts/publish/publish_fig3_paper.py [--src runs/fig3_paper] [--dest results/fig3_paper]
 
 Writes into ``dest`` (each file atomically):
 
@@ -9,7 +9,7 @@ Writes into ``dest`` (each file atomically):
   l whose every seed reached it (never points at different budgets on one curve;
   nmrl.analysis.plots.fig3_milestones), the paper's 3.28 and 4.59 marked;
 * ``points/l{l}_s{seed}/{config.json, metrics.jsonl, compact.npz}``: everything a fresh clone needs
-  to continue the sweep (``scripts/fig3_paper.sh`` seeds ``runs/fig3_paper`` from it when the full
+  to continue the sweep (``scripts/run/fig3_paper.sh`` seeds ``runs/fig3_paper`` from it when the full
   checkpoints are gone; nmrl.runs.checkpoint.restore_compact);
 * ``learning_curves.png``: average reward per step during learning against trials, every l (mean
   over seeds, thin lines per seed), the paper's 3.28 (l = 1) and 4.59 (l = 10) marked;

@@ -14,7 +14,7 @@ Its learning curves are compared, seed by seed, with the sweep's points, which s
 (``--sweep``, default runs/fig3_paper): the average reward per step during learning at 2,000, 5,000
 and 10,000 trials (mean over the chunks whose trial count lies in (0.9 M, M]).
 
-    .venv/bin/python scripts/phase_check.py [--ls 10 30] [--seeds 3] [--trials 10000]
+    .venv/bin/python scripts/lab/phase_check.py [--ls 10 30] [--seeds 3] [--trials 10000]
 
 Writes runs/phase_check/<l>_s<seed>.jsonl (one row per chunk) and results/phase_check/phase_check.json.
 """

@@ -8,14 +8,14 @@
 # checkpoints in $OUT when they exist; otherwise it seeds $OUT from the published, committed
 # $PUBLISHED (sweep.json, every point's config, metrics and compact continuation state) and
 # continues from the compact states (statistically, not bitwise, equal: every environment starts
-# a new trial). Publish the progress with: .venv/bin/python scripts/publish_fig3_paper.py
+# a new trial). Publish the progress with: .venv/bin/python scripts/publish/publish_fig3_paper.py
 #
 # PRESET=fast uses the "fast" step sizes (nmrl/paper/learner.py) instead of the paper's.
 # CPUS=0 (a taskset list) runs it on those cores only, with one XLA device per core: the way to
-# share the machine with another long run (scripts/baseline_ppo.sh with CPUS=1), since the sweep's
+# share the machine with another long run (scripts/run/baseline_ppo.sh with CPUS=1), since the sweep's
 # devices step in one program and one busy core holds them all back.
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 # shellcheck source=scripts/lower_priority.sh
 source scripts/lower_priority.sh
 lower_priority  # a background launch (setsid) yields the CPUs to interactive work
@@ -24,7 +24,7 @@ OUT=${OUT:-runs/fig3_$PRESET}
 PUBLISHED=${PUBLISHED:-results/fig3_$PRESET}
 TRIALS=${TRIALS:-100000}
 NUM_ENVS=${NUM_ENVS:-32}
-. scripts/seed_run.sh
+. scripts/run/seed_run.sh
 seed_run "$OUT" "$PUBLISHED"
 PIN=()
 if [ -n "${CPUS:-}" ]; then PIN=(taskset -c "$CPUS"); fi

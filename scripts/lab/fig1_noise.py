@@ -3,7 +3,7 @@
 Sigma = 1, alpha = 0.99, nm-periods of 10 steps, 100 steps; period starts are marked.
 Writes scripts/out/fig1_noise.png.
 
-    python scripts/fig1_noise.py [--steps 100 --alpha 0.99 --period 10 --seed 0]
+    python scripts/lab/fig1_noise.py [--steps 100 --alpha 0.99 --period 10 --seed 0]
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--alpha", type=float, default=0.99)
     p.add_argument("--period", type=int, default=10, help="nm-period length l")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "out" / "fig1_noise.png")
+    p.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1] / "out" / "fig1_noise.png")
     args = p.parse_args(argv)
 
     xi = np.asarray(piecewise_ar(jax.random.key(args.seed), args.steps, 1, args.alpha, args.period))[:, 0]

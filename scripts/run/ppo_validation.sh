@@ -9,11 +9,11 @@
 # checkpoints in $OUT when they exist; otherwise it seeds $OUT from the published, committed
 # $PUBLISHED (sweep.json, every point's config, metrics and compact continuation state: parameters,
 # Adam state and observation statistics; every environment starts a new trial).
-# Publish the progress with: .venv/bin/python scripts/publish_ppo_validation.py
+# Publish the progress with: .venv/bin/python scripts/publish/publish_ppo_validation.py
 # PHYSICS=c runs the same on MuJoCo C (the C physics' learning check, against the MJX runs):
-#   OUT=runs/ppo_validation_c PUBLISHED=results/physics_c/ppo/validation PHYSICS=c scripts/ppo_validation.sh
+#   OUT=runs/ppo_validation_c PUBLISHED=results/physics_c/ppo/validation PHYSICS=c scripts/run/ppo_validation.sh
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 # shellcheck source=scripts/lower_priority.sh
 source scripts/lower_priority.sh
 lower_priority  # a background launch (setsid) yields the CPUs to interactive work
@@ -21,7 +21,7 @@ OUT=${OUT:-runs/ppo_validation}
 PUBLISHED=${PUBLISHED:-results/ppo/validation}
 STEPS=${STEPS:-81920}
 PHYSICS=${PHYSICS:-mjx}
-. scripts/seed_run.sh
+. scripts/run/seed_run.sh
 seed_run "$OUT" "$PUBLISHED"
 if [ -f "$OUT/sweep.json" ]; then
   exec nice -n "${NICE:-19}" .venv/bin/nmrl sweep --resume --out "$OUT" --steps "$STEPS" --checkpoint-every 1

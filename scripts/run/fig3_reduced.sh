@@ -4,5 +4,5 @@
 # stopped at 2500 trials per point. Wall time measured: docs/fig3.md (reduced scale).
 # Resumable: run it again to continue; raise TRIALS to go further.
 set -euo pipefail
-cd "$(dirname "$0")/.."
-PRESET=fast TRIALS=${TRIALS:-2500} OUT=${OUT:-runs/fig3_reduced} exec scripts/fig3_paper.sh
+cd "$(dirname "$0")/../.."
+PRESET=fast TRIALS=${TRIALS:-2500} OUT=${OUT:-runs/fig3_reduced} exec scripts/run/fig3_paper.sh

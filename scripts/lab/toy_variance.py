@@ -12,7 +12,7 @@ reports the Monte Carlo variance of
 The stationary variance grows like 1/delta_t; the nm-period one stays bounded.
 Writes scripts/out/toy_variance.png and scripts/out/toy_variance.md.
 
-    python scripts/toy_variance.py [--samples 20000]
+    python scripts/lab/toy_variance.py [--samples 20000]
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--rho", type=float, default=0.8, help="noise correlation over --tau seconds")
     p.add_argument("--tau", type=float, default=0.02, help="time over which the correlation is --rho")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "out")
+    p.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1] / "out")
     return p.parse_args(argv)
 
 

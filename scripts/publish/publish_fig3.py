@@ -1,6 +1,6 @@
 """Publish a sweep's results under results/: CSV, Fig. 3, learning curves, best policies, gaits.
 
-    python scripts/publish_fig3.py runs/fig3_fast results/fig3_fast [--ls 1 10] [--seconds 10]
+    python scripts/publish/publish_fig3.py runs/fig3_fast results/fig3_fast [--ls 1 10] [--seconds 10]
 
 Copies results.csv, sweep.json, fig3.png and every point's metrics.jsonl; for each l in --ls takes
 the seed with the highest avg_reward, publishes its newest checkpoint's *policy* (actor and critic

@@ -19,7 +19,7 @@ The numbers per point (end value, peak, collapse, milestones, mean curves) are
 nmrl/analysis/publish_presets.py's, defined there; this script reads, writes and draws.
 
 Usage (the full command that wrote the published files: results/fast_preset/README.md):
-    python scripts/publish_fast_preset.py --run fast_clip=runs/fast_preset/fast_clip \
+    python scripts/publish/publish_fast_preset.py --run fast_clip=runs/fast_preset/fast_clip \
         [--screen NAME=DIR ...] [--rename OLD=NEW ...]
 """
 
@@ -36,7 +36,7 @@ from nmrl.analysis.publish_presets import (MILESTONES, SMOOTH, at_trials, mean_c
                                            running_mean)
 from nmrl.runs import store
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
+ROOT = pathlib.Path(__file__).resolve().parents[2]
 BASELINE = ROOT / "results" / "fig3_fast" / "metrics"
 OUT = ROOT / "results" / "fast_preset"
 COLUMNS = ("l", "seed", "preset", "trials", "avg_reward", "peak", "collapsed", "diverged",

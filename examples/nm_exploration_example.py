@@ -18,7 +18,7 @@ the exploration scheme on its own. It runs in about a minute on one CPU core, mo
 MJX's step (measured: 68-79 s in all, ~45 s of compiles, then ~0.08 s per iteration of 32 x 60
 control steps, on a core shared with a niced run):
 
-    .venv/bin/python scripts/nm_exploration_example.py --l 10
+    .venv/bin/python examples/nm_exploration_example.py --l 10
 
 It prints the deterministic policy's average reward per step (its fingertip's mean distance to the
 target, negated) before and after learning. Tested in tests/test_example.py (it learns; bad

@@ -1,8 +1,8 @@
 """The nm-period actor-critic's deterministic policies at a sample budget, for the PPO comparison.
 
-    python scripts/ac_milestones.py --src runs/ac_1e6 --label 1e6                 # a sweep directory
-    python scripts/ac_milestones.py --git-rev cc7020e --label 1e7                 # published compact states
-    python scripts/ac_milestones.py --src results/fig3_paper --label 2.5e7
+    python scripts/lab/ac_milestones.py --src runs/ac_1e6 --label 1e6                 # a sweep directory
+    python scripts/lab/ac_milestones.py --git-rev REV --label 1e7                     # published compact states
+    python scripts/lab/ac_milestones.py --src results/fig3_paper --label 2.5e7
 
 For every point l{l}_s{seed} of ``--ls`` (default 1 and 10) under SRC/points/ (a sweep directory
 with checkpoints, or published compact states: ``nmrl eval`` reads either), or under
@@ -25,7 +25,7 @@ import tempfile
 from nmrl.analysis import evaluate
 from nmrl.runs import checkpoint, store
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
+ROOT = pathlib.Path(__file__).resolve().parents[2]
 PUBLISHED = "results/fig3_paper/points"
 
 
