@@ -8,13 +8,16 @@
   (devices, run store, checkpoints, the driver) < ``nmrl.analysis`` (statistics, figures,
   evaluation) < ``nmrl.experiments`` (sweep, study, gradient variance) < ``nmrl.cli``;
 * the package imports nothing from the checkout around it (``benchmarks``, ``scripts``, ``tests``),
-  and neither scripts/, examples/ nor benchmarks/ edit ``sys.path`` (``pip install -e .`` is the way in).
+  and neither scripts/, examples/ nor benchmarks/ edit ``sys.path`` (``pip install -e .`` is the way in);
+* no script commits to git: what enters the history is the caller's, never a launcher's or a
+  publisher's.
 """
 
 from __future__ import annotations
 
 import ast
 import pathlib
+import re
 
 import pytest
 
@@ -199,3 +202,15 @@ def test_scripts_and_benchmarks_do_not_edit_sys_path():
                     and node.value.id == "sys"):
                 hit.append(f"{p.relative_to(REPO)}:{node.lineno}")
     assert not hit, f"sys.path edited in {hit}; the package is installed (pip install -e .)"
+
+
+def test_no_script_commits():
+    commit = re.compile(r"""git\s+(-\S+\s+)*commit\b|["']git["'],\s*["']commit["']""")
+    hit = []
+    for p in sorted([*(REPO / "scripts").rglob("*.sh"), *(REPO / "scripts").rglob("*.py"),
+                     *(REPO / "benchmarks").glob("*.py")]):
+        for n, line in enumerate(p.read_text().splitlines(), 1):
+            code = line.split("#", 1)[0] if p.suffix == ".sh" else line
+            if commit.search(code):
+                hit.append(f"{p.relative_to(REPO)}:{n}")
+    assert not hit, f"git commit run by {hit}"

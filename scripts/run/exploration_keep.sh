@@ -1,19 +1,19 @@
 #!/usr/bin/env bash
-# Keeps the exploration study (scripts/exploration_study.sh) going and its progress committed, so a
-# machine that goes away mid-session loses at most one interval of it.
+# Keeps the exploration study (scripts/exploration_study.sh) going and its progress published into
+# results/exploration at an interval, so a commit of that folder at any moment holds the study's
+# state of at most one interval ago. It commits nothing itself: what enters git is the caller's.
 #
 #   scripts/run/exploration_keep.sh start        # start or resume the study (also on a fresh clone)
 #   scripts/run/exploration_keep.sh stop         # SIGTERM, wait for the saves, evaluate, publish
-#   scripts/run/exploration_keep.sh watch [MIN]  # forever: every MIN minutes (default 40) stop, publish,
-#                                            # commit results/exploration, start again
+#   scripts/run/exploration_keep.sh watch [MIN]  # forever: every MIN minutes (default 40) stop,
+#                                                # publish results/exploration, start again
 #
 # stop: the study saves every active point after the chunk in flight (full checkpoints in runs/, so
 #   the restart continues bit-exactly); `--phases eval` then evaluates every finished run and writes
 #   summary.json, and scripts/publish_exploration.py writes results/exploration. Exits 1 if the study
 #   did not stop within STOP_TIMEOUT seconds (default 900), without publishing.
-# watch: commits only results/exploration (`git commit -- results/exploration`), with a message that
-#   names the runs published; a commit that fails (e.g. another commit holds the index) is tried
-#   again at the next interval. Run it in the background, e.g.
+# watch: writes only results/exploration (through stop) and prints, after each publish, how many
+#   runs results.csv holds. Run it in the background, e.g.
 #     (setsid nohup scripts/run/exploration_keep.sh watch 45 >> runs/exploration_keep.log 2>&1 < /dev/null &)
 #   and end it (pkill -f 'exploration_keep.sh watch') before a final `stop`.
 set -euo pipefail
@@ -43,13 +43,10 @@ stop() {
   fi
 }
 
-commit() {
-  git add results/exploration
-  if git diff --cached --quiet -- results/exploration; then echo "nothing new to commit"; return 0; fi
+published() {
   local n
   n=$("$PY" -c 'import csv; print(sum(1 for _ in csv.DictReader(open("results/exploration/results.csv"))))' 2>/dev/null || echo "?")
-  git commit -q -m "Exploration study progress: published with compact states ($n runs in results.csv)" \
-    -- results/exploration || echo "commit failed; tried again at the next interval" >&2
+  echo "$(date -u +%FT%TZ) published results/exploration ($n runs in results.csv)"
 }
 
 case "${1:-}" in
@@ -67,7 +64,7 @@ case "${1:-}" in
     while true; do
       sleep "${INTERVAL_S:-$((min * 60))}"
       echo "$(date -u +%FT%TZ) publishing"
-      if stop; then commit; fi
+      if stop; then published; fi
       start
     done ;;
   *) echo "usage: scripts/run/exploration_keep.sh start|stop|watch [MIN]" >&2; exit 2 ;;
