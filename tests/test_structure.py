@@ -9,6 +9,7 @@
   evaluation) < ``nmrl.experiments`` (sweep, study, gradient variance) < ``nmrl.cli``;
 * the package imports nothing from the checkout around it (``benchmarks``, ``scripts``, ``tests``),
   and neither scripts/, examples/ nor benchmarks/ edit ``sys.path`` (``pip install -e .`` is the way in);
+* benchmarks/ holds the code that measures, its measurements live in results/benchmarks/;
 * no script commits to git: what enters the history is the caller's, never a launcher's or a
   publisher's.
 """
@@ -214,3 +215,13 @@ def test_no_script_commits():
             if commit.search(code):
                 hit.append(f"{p.relative_to(REPO)}:{n}")
     assert not hit, f"git commit run by {hit}"
+
+
+def test_benchmarks_hold_code_only():
+    import subprocess
+
+    files = subprocess.run(["git", "ls-files", "benchmarks"], cwd=REPO, capture_output=True, text=True,
+                           check=True).stdout.split()
+    assert files, "git ls-files found nothing under benchmarks/"
+    outputs = [f for f in files if not f.endswith(".py")]
+    assert not outputs, f"measurements beside the benchmarks' code (their place: results/benchmarks/): {outputs}"

@@ -6,7 +6,7 @@ Reads every seed's run directory SRC/ppo_s{seed} (``nmrl baseline ppo``), the ac
 learning curves of l = 1 and l = 10 from results/fig3_paper/points/*/metrics.jsonl (per-point
 control steps = steps per environment x its environments), the actor-critic's deterministic
 evaluations at the budgets (DEST/ac_milestones.json, scripts/lab/ac_milestones.py) and, if present, the
-wall times of benchmarks/results.json's ``baseline`` section. Writes, atomically:
+wall times of results/benchmarks/results.json's ``baseline`` section. Writes, atomically:
 
 * ``ppo_s{seed}/{config.json, metrics.jsonl, resumes.jsonl}``: each PPO run's config, rows per
   iteration and resumes, and, only while the seed is unfinished, ``compact.npz``, its newest
@@ -182,7 +182,7 @@ def main() -> None:
     ac_file = a.dest / "ac_milestones.json"
     ac = json.loads(ac_file.read_text()) if ac_file.is_file() else {}
     summ = summary(ppo, ac)
-    bench = ROOT / "benchmarks" / "results.json"
+    bench = ROOT / "results" / "benchmarks" / "results.json"
     if bench.is_file():
         ba = json.loads(bench.read_text()).get("baseline") or {}
         summ["hours_per_1e7_steps"] = ba.get("hours_per_1e7_steps")
