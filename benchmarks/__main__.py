@@ -381,10 +381,7 @@ def table(res: dict) -> str:
 
 
 def plot(res: dict, path: pathlib.Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from nmrl.analysis.plots import plt, save
 
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
     env = res.get("env")
@@ -436,8 +433,7 @@ def plot(res: dict, path: pathlib.Path) -> None:
                  f"{m.get('cpu_count')} cores, load avg {la[0]:.1f} at start; jax {m.get('jax')}, "
                  f"mujoco {m.get('mujoco')}", fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save(fig, path, dpi=120)
 
 
 # ------------------------------------------------------------------------------- main

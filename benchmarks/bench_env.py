@@ -324,10 +324,7 @@ def run(quick: bool, extras: bool = True, worker_timeout: float = 900) -> dict:
 
 
 def plot(res: dict, path: pathlib.Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from nmrl.analysis.plots import plt, save
 
     fig, ax = plt.subplots(figsize=(6, 4))
     for key, label, st in (("1dev_single", "MJX, 1 CPU device", "o-"),
@@ -349,7 +346,7 @@ def plot(res: dict, path: pathlib.Path) -> None:
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    save(fig, path, dpi=120)
 
 
 def _worker_main(args) -> None:

@@ -171,10 +171,7 @@ def run(quick: bool = False, smoke: bool = False) -> dict:
 
 
 def plot(data: dict, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from nmrl.analysis.plots import plt, save
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     styles = {"tridiagonal": "C0o-", "dense_solve": "C3s-", "dense_kron_solve": "C1^-",
@@ -206,8 +203,7 @@ def plot(data: dict, path: Path) -> None:
     fig.suptitle(f"jit, {mach['jax_backend']} ({mach['device']}, {mach['cpu_count']} CPUs), jax {mach['jax_version']}",
                  fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save(fig, path, dpi=120)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -9,6 +9,9 @@
   evaluation) < ``nmrl.experiments`` (sweep, study, gradient variance) < ``nmrl.cli``;
 * the package imports nothing from the checkout around it (``benchmarks``, ``scripts``, ``tests``),
   and neither scripts/, examples/ nor benchmarks/ edit ``sys.path`` (``pip install -e .`` is the way in);
+* matplotlib's backend is set in one place, nmrl/analysis/plots.py, which the scripts, the
+  benchmarks and the gait pictures draw with (the exploration study's figures aside: their module
+  sets its own);
 * benchmarks/ holds the code that measures, its measurements live in results/benchmarks/;
 * no script commits to git: what enters the history is the caller's, never a launcher's or a
   publisher's.
@@ -225,3 +228,17 @@ def test_benchmarks_hold_code_only():
     assert files, "git ls-files found nothing under benchmarks/"
     outputs = [f for f in files if not f.endswith(".py")]
     assert not outputs, f"measurements beside the benchmarks' code (their place: results/benchmarks/): {outputs}"
+
+
+def test_matplotlib_backend_is_set_in_one_place():
+    own = {"nmrl/analysis/plots.py", "nmrl/analysis/exploration_results.py"}
+    hit = []
+    for top in ("nmrl", "scripts", "benchmarks", "examples"):
+        for p in sorted((REPO / top).rglob("*.py")):
+            rel = str(p.relative_to(REPO))
+            for node in ast.walk(ast.parse(p.read_text())):
+                if (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr == "use"
+                        and isinstance(node.func.value, ast.Name) and node.func.value.id == "matplotlib"
+                        and rel not in own):
+                    hit.append(f"{rel}:{node.lineno}")
+    assert not hit, f"matplotlib.use outside nmrl/analysis/plots.py (draw with its plt and save): {hit}"

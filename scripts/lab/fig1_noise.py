@@ -13,11 +13,9 @@ from pathlib import Path
 
 
 import jax  # noqa: E402
-import matplotlib  # noqa: E402
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+
+from nmrl.analysis.plots import plt, save  # noqa: E402
 
 from nmrl.paper.noise import piecewise_ar  # noqa: E402
 
@@ -47,8 +45,7 @@ def main(argv: list[str] | None = None) -> None:
                  rf"$t_{{k+1}}-t_k\equiv{args.period}$")
     fig.tight_layout()
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(args.out, dpi=130)
-    plt.close(fig)
+    save(fig, args.out, dpi=130)
     print(f"wrote {args.out}")
 
 

@@ -23,11 +23,9 @@ from pathlib import Path
 
 
 import jax  # noqa: E402
-import matplotlib  # noqa: E402
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+
+from nmrl.analysis.plots import plt, save  # noqa: E402
 
 from nmrl.paper import toy  # noqa: E402
 
@@ -123,8 +121,7 @@ def plot(rows: list[dict], path: Path, args: argparse.Namespace) -> None:
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save(fig, path, dpi=120)
 
 
 def main(argv: list[str] | None = None) -> None:

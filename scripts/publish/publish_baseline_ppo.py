@@ -47,10 +47,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[2]
 
 
 def draw(ppo: dict, curves: dict, ac: dict, path: pathlib.Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
+    from nmrl.analysis.plots import plt, save
 
     fig, (a, b) = plt.subplots(1, 2, figsize=(13, 4.8), dpi=110)
     colors = {"ppo": "C3", 1: "C0", 10: "C2"}
@@ -86,9 +83,7 @@ def draw(ppo: dict, curves: dict, ac: dict, path: pathlib.Path) -> None:
         a.annotate(f"paper, l = {l}: {v}", (0.01, v), xycoords=("axes fraction", "data"), ha="left", va="bottom",
                    fontsize=7, color=colors[l])
     fig.tight_layout()
-    with store.atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png")
-    plt.close(fig)
+    save(fig, path, format="png")
 
 
 def _mean_line(ax, series: list[list[tuple[float, float]]], color: str, label: str) -> None:
@@ -145,10 +140,7 @@ def gaits(dest: pathlib.Path, ppo: dict[int, list[dict]], ac_gaits: pathlib.Path
 
 def side_by_side(panels: list[tuple[str, pathlib.Path]], path: pathlib.Path) -> None:
     """The strobe pictures ``panels`` (title, png) one above the other in one figure."""
-    import matplotlib
-
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
+    from nmrl.analysis.plots import plt, save
 
     imgs = [plt.imread(p) for _, p in panels]
     width = max(i.shape[1] for i in imgs) / 100
@@ -159,9 +151,7 @@ def side_by_side(panels: list[tuple[str, pathlib.Path]], path: pathlib.Path) -> 
         ax.set_axis_off()
         ax.set_title(title, fontsize=11)
     fig.tight_layout()
-    with store.atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png")
-    plt.close(fig)
+    save(fig, path, format="png")
 
 
 def main() -> None:

@@ -169,10 +169,7 @@ def main() -> None:
     if screens:
         store.atomic_write_text(out / "screening.md", screening_table(screens, sets["fast"]))
 
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from nmrl.analysis.plots import plt, save
 
     ls = sorted({l for pts in sets.values() for l, _ in pts})
     cols = 4
@@ -205,8 +202,7 @@ def main() -> None:
     fig.suptitle("fast presets on the reduced Fig. 3 layout: each seed, 5-chunk running mean (64 environments "
                  "per point); dashed: screening runs")
     fig.tight_layout()
-    with store.atomic_path(out / "learning_curves.png") as tmp:
-        fig.savefig(tmp, dpi=110)
+    save(fig, out / "learning_curves.png", dpi=110)
     print(json.dumps({k: {kk: v[kk] for kk in ("points", "collapsed", "diverged", "min_trials",
                                                "mean_reward_up_to_old_first_collapse", "vs_old_fast_same_points")}
                       for k, v in summary["presets"].items()} | {"old_first_collapse": t_c}, indent=1))

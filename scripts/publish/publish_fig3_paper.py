@@ -108,7 +108,7 @@ def answers(p: dict, spec: sweep.SweepSpec) -> dict:
 
 
 def learning_curves(src: pathlib.Path, spec: sweep.SweepSpec, path: pathlib.Path) -> None:
-    import matplotlib.pyplot as plt
+    from nmrl.analysis.plots import plt, save
 
     cmap = plt.get_cmap("viridis")
     fig, ax = plt.subplots(figsize=(9, 5))
@@ -139,11 +139,7 @@ def learning_curves(src: pathlib.Path, spec: sweep.SweepSpec, path: pathlib.Path
     ax.set_title("Fig. 3 at the paper's budget and step sizes: learning curves (x: diverged)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, ncol=4)
-    try:
-        with store.atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=110, bbox_inches="tight")
-    finally:
-        plt.close(fig)
+    save(fig, path, dpi=110, bbox_inches="tight")
 
 
 GAIT_LS = (1, 10)

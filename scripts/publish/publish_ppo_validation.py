@@ -39,10 +39,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[2]
 
 def draw(native: dict, peer: dict, path: pathlib.Path, names: tuple[str, str] = ("native PPO", "Brax PPO"),
          title: str = "Native PPO (white noise) vs Brax PPO, the same robot and settings") -> None:
-    import matplotlib
-
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
+    from nmrl.analysis.plots import plt, save
 
     fig, ax = plt.subplots(figsize=(8, 4.8), dpi=110)
     steps, lo, hi = pv.band(peer)
@@ -62,10 +59,7 @@ def draw(native: dict, peer: dict, path: pathlib.Path, names: tuple[str, str] = 
     ax.grid(alpha=0.3)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp.png")
-    fig.savefig(tmp)
-    plt.close(fig)
-    tmp.replace(path)
+    save(fig, path)
 
 
 def _evals(points: pathlib.Path) -> dict[int, dict]:
