@@ -9,6 +9,8 @@
   evaluation) < ``nmrl.experiments`` (sweep, study, gradient variance) < ``nmrl.cli``;
 * the package imports nothing from the checkout around it (``benchmarks``, ``scripts``, ``tests``),
   and neither scripts/, examples/ nor benchmarks/ edit ``sys.path`` (``pip install -e .`` is the way in);
+* ``Trainer`` means one thing, the learner contract's Protocol (nmrl/learners/contract.py): no other
+  class has that name, and every other module that names it takes that one;
 * matplotlib's backend is set in one place, nmrl/analysis/plots.py, which the scripts, the
   benchmarks and the gait pictures draw with (the exploration study's figures aside: their module
   sets its own);
@@ -242,3 +244,18 @@ def test_matplotlib_backend_is_set_in_one_place():
                         and rel not in own):
                     hit.append(f"{rel}:{node.lineno}")
     assert not hit, f"matplotlib.use outside nmrl/analysis/plots.py (draw with its plt and save): {hit}"
+
+
+def test_trainer_names_one_thing():
+    classes, others = [], []
+    for p in sorted(PKG.rglob("*.py")):
+        rel = str(p.relative_to(REPO))
+        for node in ast.parse(p.read_text()).body:
+            if isinstance(node, ast.ClassDef) and node.name == "Trainer":
+                classes.append(rel)
+            elif (isinstance(node, ast.Assign) and any(isinstance(t, ast.Name) and t.id == "Trainer"
+                                                       for t in node.targets)
+                  and ast.unparse(node.value) != "learners.Trainer"):
+                others.append(f"{rel}: Trainer = {ast.unparse(node.value)}")
+    assert classes == ["nmrl/learners/contract.py"], classes
+    assert not others, others

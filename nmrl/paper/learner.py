@@ -381,7 +381,11 @@ class TrainState:
     opt_v: OptState  #: optax state of the critic's optimizer
 
 
-class Trainer(NamedTuple):
+class ACTrainer(NamedTuple):
+    """The actor-critic's training functions, as :func:`make_train` builds them: the learner
+    contract's ``Trainer`` (nmrl/learners/contract.py: ``config``, ``env``, ``init``, ``chunk``) and
+    ``init_opt``, which the contract does not ask for."""
+
     config: TrainConfig
     env: HalfCheetah
     init: Callable[..., TrainState]
@@ -408,7 +412,7 @@ def _with_learning_rate(state: OptState, learning_rate: jax.Array) -> OptState:
 
 
 def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = None,
-               num_shards: int = 1) -> Trainer:
+               num_shards: int = 1) -> ACTrainer:
     """Build the pure functions of a training run (see the module docstring).
 
     ``env`` defaults to ``HalfCheetah(config.env_config())``; any environment with the same interface
@@ -590,4 +594,4 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
             out["g_sqnorm"] = jnp.sum(stats["g_sqnorm"])
         return ts, out
 
-    return Trainer(config=cfg, env=env, init=init, chunk=chunk, init_opt=init_opt)
+    return ACTrainer(config=cfg, env=env, init=init, chunk=chunk, init_opt=init_opt)
