@@ -191,3 +191,18 @@ def test_physics_fidelity_reads_a_published_point(tmp_path, capsys):
         fid.parse_args(["--run-dir", str(tmp_path)])
     err = capsys.readouterr().err
     assert f"--run-dir {tmp_path}" in err and "compact.npz" in err
+
+
+def test_fast_preset_baseline_is_the_published_fig3_fast_sweep():
+    """The fast-preset publisher reads its baseline, the published reduced sweep, in the sweeps'
+    layout (points/l<l>_s<seed>/metrics.jsonl): all 24 points, each with every row of its file."""
+    import json
+
+    pub = _publisher("publish/publish_fast_preset")
+    got = pub.points_of(pub.BASELINE)
+    root = pathlib.Path(__file__).resolve().parents[1] / "results" / "fig3_fast" / "points"
+    want = {}
+    for d in sorted(root.iterdir()):
+        l, s = d.name[1:].split("_s")
+        want[(int(l), int(s))] = [json.loads(x) for x in (d / "metrics.jsonl").read_text().splitlines() if x.strip()]
+    assert len(want) == 24 and got == want

@@ -2,7 +2,7 @@
 
 Reads per-point metrics (``metrics.jsonl``, one row per chunk) of
 
-* the ``fast`` preset's reduced Fig. 3 sweep, ``results/fig3_fast/metrics/l<l>_s<seed>.jsonl``
+* the ``fast`` preset's reduced Fig. 3 sweep, ``results/fig3_fast/points/l<l>_s<seed>/metrics.jsonl``
   (8 l x 3 seeds, 64 environments per point, 250-step chunks, ~5,200 trials per point; sgd with
   beta^theta = 1e-5, beta^v = 5e-4), used as the baseline as it is (not re-run);
 * the candidate sweeps given with ``--run NAME=DIR`` (``DIR/points/l<l>_s<seed>/metrics.jsonl``,
@@ -37,20 +37,19 @@ from nmrl.analysis.publish_presets import (MILESTONES, SMOOTH, at_trials, mean_c
 from nmrl.runs import store
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
-BASELINE = ROOT / "results" / "fig3_fast" / "metrics"
+BASELINE = ROOT / "results" / "fig3_fast"
 OUT = ROOT / "results" / "fast_preset"
 COLUMNS = ("l", "seed", "preset", "trials", "avg_reward", "peak", "collapsed", "diverged",
            "first_below_half", "chunks")
 
 
-def points_of(src: pathlib.Path, baseline: bool) -> dict[tuple[int, int], list[dict]]:
-    """Every point's metrics rows by (l, seed): ``src/l<l>_s<seed>.jsonl`` (baseline) or
-    ``src/points/l<l>_s<seed>/metrics.jsonl`` (a sweep)."""
+def points_of(src: pathlib.Path) -> dict[tuple[int, int], list[dict]]:
+    """Every point's metrics rows by (l, seed): ``src/points/l<l>_s<seed>/metrics.jsonl`` (a sweep,
+    running or published)."""
     pat = re.compile(r"l(\d+)_s(\d+)")
-    files = sorted(src.glob("*.jsonl")) if baseline else sorted((src / "points").glob("*/metrics.jsonl"))
     out = {}
-    for f in files:
-        m = pat.fullmatch(f.stem if baseline else f.parent.name)
+    for f in sorted((src / "points").glob("*/metrics.jsonl")):
+        m = pat.fullmatch(f.parent.name)
         rows = store.read_jsonl(f)
         if m and rows:
             out[(int(m.group(1)), int(m.group(2)))] = rows
@@ -108,10 +107,10 @@ def main() -> None:
     args = ap.parse_args()
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    sets = {"fast": points_of(BASELINE, baseline=True)}
+    sets = {"fast": points_of(BASELINE)}
     for spec in args.run:
         name, _, d = spec.partition("=")
-        sets[name] = points_of(pathlib.Path(d), baseline=False)
+        sets[name] = points_of(pathlib.Path(d))
     screens: dict = {}
     for spec in args.screen:
         name, _, d = spec.partition("=")

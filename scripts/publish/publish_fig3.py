@@ -58,7 +58,7 @@ def main() -> None:
     sweep.draw(src, results, dest / "fig3.png")
     for r in results:
         store.atomic_copy(sweep.point_dir(src, r["l"], r["seed"]) / "metrics.jsonl",
-              dest / "metrics" / f"l{r['l']}_s{r['seed']}.jsonl")
+                          dest / "points" / f"l{r['l']}_s{r['seed']}" / "metrics.jsonl")
     summary = {}
     for l in args.ls:
         rows = [r for r in results if r["l"] == l and not r["diverged"] and r["checkpoint"]]
