@@ -58,10 +58,9 @@ of the run's identity; its state (e.g. Adam's moments) is in ``opt_theta`` / ``o
 presets name ``sgd`` for both networks, and a chain of one ``sgd`` is ``optax.sgd`` itself (no
 ``optax.chain`` around it).
 
-The sgd chain is bit-identical to the paper's update written by hand, ``theta + beta * sum_e d_e
-z_e`` (scripts/lab/check_optax_update.py compares the two: Half-Cheetah, the paper's networks and
-preset, N = 1 and 8, and the tiny test environment; the parameters after every chunk are equal bit
-for bit, since -beta * -S == beta * S exactly in floating point).
+The sgd chain is the paper's update written by hand, ``theta + beta * sum_e d_e z_e``: optax.sgd
+adds -beta * -S, and -beta * -S == beta * S exactly in floating point (tests/test_learner.py
+recomputes the hand-written rule around every control step of a chunk and compares).
 """
 
 from __future__ import annotations
