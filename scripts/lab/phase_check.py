@@ -16,7 +16,8 @@ and 10,000 trials (mean over the chunks whose trial count lies in (0.9 M, M]).
 
     .venv/bin/python scripts/lab/phase_check.py [--ls 10 30] [--seeds 3] [--trials 10000]
 
-Writes runs/phase_check/<l>_s<seed>.jsonl (one row per chunk) and results/phase_check/phase_check.json.
+Writes runs/phase_check/points/l<l>_s<seed>/metrics.jsonl (one row per chunk, the sweeps' layout)
+and results/phase_check/phase_check.json with a copy of those metrics.
 """
 
 from __future__ import annotations
@@ -95,7 +96,8 @@ def main(argv=None) -> int:
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     for n in names:
-        (out / f"{n}.jsonl").unlink(missing_ok=True)
+        _metrics(out, n).unlink(missing_ok=True)
+        _metrics(out, n).parent.mkdir(parents=True, exist_ok=True)
     done = np.zeros(P, bool)
     t0 = time.time()
     while not done.all():
@@ -109,13 +111,18 @@ def main(argv=None) -> int:
                 continue
             row = driver.metrics_row(cfgs[i], store.to_python({k: v[j] for k, v in m.items()}), wall,
                                   points=int((~done).sum()))
-            with open(out / f"{names[i]}.jsonl", "a") as f:
+            with open(_metrics(out, names[i]), "a") as f:
                 f.write(json.dumps(row) + "\n")
             done[i] = row["trials"] >= args.trials or store.is_diverged(row)
         print(f"phase_check: {time.time() - t0:,.0f} s, trials "
               f"{min(int(t) for t in np.asarray(ts.trials)):,}", file=sys.stderr, flush=True)
 
     return summarize(args, names, out)
+
+
+def _metrics(root: pathlib.Path, name: str) -> pathlib.Path:
+    """A run's rows in a sweep's layout: ``root/points/<name>/metrics.jsonl``."""
+    return root / "points" / name / "metrics.jsonl"
 
 
 def _read(path: pathlib.Path) -> list[dict]:
@@ -133,7 +140,7 @@ def summarize(args, names, out: pathlib.Path) -> int:
     for l in args.ls:
         e = {}
         for M in MILESTONES:
-            mixed = [stats.at_milestone(_read(out / f"l{l}_s{s}.jsonl"), M) for s in range(args.seeds)]
+            mixed = [stats.at_milestone(_read(_metrics(out, f"l{l}_s{s}")), M) for s in range(args.seeds)]
             inph = [stats.at_milestone(store.read_metrics(sweep.point_dir(pathlib.Path(args.sweep), l, s)), M) for s in range(args.seeds)]
             diff = [a - b for a, b in zip(mixed, inph) if a is not None and b is not None]
             # a paired comparison: the same initial networks (PRNGKey(seed)), different phases and noise
@@ -147,7 +154,7 @@ def summarize(args, names, out: pathlib.Path) -> int:
     dest.mkdir(parents=True, exist_ok=True)
     store.atomic_write_text(dest / "phase_check.json", json.dumps(res, indent=1) + "\n")
     for n in names:
-        store.atomic_write_text(dest / f"{n}.jsonl", (out / f"{n}.jsonl").read_text())
+        store.atomic_copy(_metrics(out, n), _metrics(dest, n))
     print(json.dumps(res["by_l"], indent=1))
     return 0
 
