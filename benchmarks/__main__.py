@@ -1,7 +1,7 @@
 """Run every nmrl benchmark, write one JSON file, a markdown table and a throughput figure.
 
-    python -m benchmarks                 # full run   -> benchmarks/results.json, throughput.png
-    python -m benchmarks --quick         # ~1 minute  -> benchmarks/results_quick.json, throughput_quick.png
+    python -m benchmarks                 # full run   -> results/benchmarks/results.json, throughput.png
+    python -m benchmarks --quick         # ~1 minute  -> results/benchmarks/results_quick.json, throughput_quick.png
     python -m benchmarks --only env,sweep --out /tmp/r.json
     python -m benchmarks --smoke         # every section at its smallest setting: checks that the
                                          # harness runs (tests/test_benchmarks.py); writes nothing
@@ -58,6 +58,8 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # see benchmarks/bench_likel
 
 HERE = pathlib.Path(__file__).resolve().parent
 ROOT = HERE.parent
+#: where the measurements go, apart from the code that takes them (results/README.md)
+OUT = ROOT / "results" / "benchmarks"
 
 SECTIONS = ("env", "learning", "likelihood", "sweep", "scaling", "distributed", "baseline", "explore", "ppo",
             "physics_c")
@@ -379,10 +381,7 @@ def table(res: dict) -> str:
 
 
 def plot(res: dict, path: pathlib.Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from nmrl.analysis.plots import plt, save
 
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
     env = res.get("env")
@@ -434,8 +433,7 @@ def plot(res: dict, path: pathlib.Path) -> None:
                  f"{m.get('cpu_count')} cores, load avg {la[0]:.1f} at start; jax {m.get('jax')}, "
                  f"mujoco {m.get('mujoco')}", fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save(fig, path, dpi=120)
 
 
 # ------------------------------------------------------------------------------- main
@@ -457,7 +455,8 @@ def main(argv: list[str] | None = None) -> int:
                       help="every section at its smallest setting, to check that the harness runs (numbers "
                            "meaningless); writes only --out, if given, and no figure")
     ap.add_argument("--out", type=pathlib.Path, default=None,
-                    help="JSON output (default benchmarks/results.json; --quick: benchmarks/results_quick.json)")
+                    help="JSON output (default results/benchmarks/results.json; --quick: "
+                         "results/benchmarks/results_quick.json)")
     ap.add_argument("--only", default=",".join(SECTIONS),
                     help=f"comma-separated subset of {','.join(SECTIONS)} (default: all)")
     ap.add_argument("--no-plot", action="store_true", help="do not write the figure")
@@ -468,7 +467,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"--only: unknown benchmark(s) {bad}; choose from {','.join(SECTIONS)}", file=sys.stderr)
         return 2
     size = "smoke" if args.smoke else "quick" if args.quick else "full"
-    out = args.out if args.out or args.smoke else HERE / ("results_quick.json" if args.quick else "results.json")
+    out = args.out if args.out or args.smoke else OUT / ("results_quick.json" if args.quick else "results.json")
     png = None if args.smoke or args.no_plot else (
         out.with_name("throughput_quick.png" if args.quick else "throughput.png") if args.out is None
         else out.with_suffix(".png"))

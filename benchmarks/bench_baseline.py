@@ -6,7 +6,7 @@ nm-period actor-critic (``nmrl train``, Table II), both on every core (2 CPU dev
   steady-state speed is the median of the per-iteration ``steps_per_s`` in metrics.jsonl without
   the first two iterations (both compile: ``WARMUP``); their extra time is reported as compile time.
 * Actor-critic: ``nmrl train --preset paper --l 10`` with ``AC_ENVS`` environments (32 per device:
-  the per-point layout of scripts/fig3_paper.sh is 32 environments on one device, here one run
+  the per-point layout of scripts/run/fig3_paper.sh is 32 environments on one device, here one run
   uses both), chunks of ``AC_CHUNK`` steps; median of the per-chunk ``steps_per_s`` without chunk 1.
 
 The contenders alternate (PPO, AC, PPO, ...); the ratio is the median over rounds of the per-round

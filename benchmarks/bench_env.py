@@ -1,6 +1,6 @@
 """Throughput of the batched MJX Half-Cheetah vs MuJoCo C (``mujoco.rollout``), 1 vs 2 CPU devices.
 
-Run: ``python benchmarks/bench_env.py [--quick] [--out benchmarks/env.json]``
+Run: ``python benchmarks/bench_env.py [--quick] [--out results/benchmarks/env.json]``
 
 * MJX: ``jit`` of a ``lax.scan`` over T control steps of ``vmap(env.step)`` with random actions
   (a ~ N(0, 1), a^0 = 0.1 a as in Sec. V-C); compile time (first call) apart from the steady state
@@ -324,10 +324,7 @@ def run(quick: bool, extras: bool = True, worker_timeout: float = 900) -> dict:
 
 
 def plot(res: dict, path: pathlib.Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from nmrl.analysis.plots import plt, save
 
     fig, ax = plt.subplots(figsize=(6, 4))
     for key, label, st in (("1dev_single", "MJX, 1 CPU device", "o-"),
@@ -349,7 +346,7 @@ def plot(res: dict, path: pathlib.Path) -> None:
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    save(fig, path, dpi=120)
 
 
 def _worker_main(args) -> None:
@@ -360,7 +357,7 @@ def _worker_main(args) -> None:
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="batch sizes 64, 256 only; fewer steps")
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "env.json"))
+    ap.add_argument("--out", default=str(ROOT / "results" / "benchmarks" / "env.json"))
     ap.add_argument("--physics", action="store_true",
                     help="run the physics-option study (timestep x solver iterations) instead")
     ap.add_argument("--no-extras", action="store_true",

@@ -11,7 +11,7 @@ all jitted, compile (first call) apart from steady state (median of repeats):
 * ``lr_tridiagonal`` / ``lr_dense``: the full likelihood ratio for the paper's actor
   (31 -> 100 arctan -> 6), ``nmrl.paper.noise.likelihood_ratio`` vs the same vjp with the dense solve.
 
-    python benchmarks/bench_likelihood.py            # full run, writes likelihood_ratio.{json,png}
+    python benchmarks/bench_likelihood.py            # full run, writes results/benchmarks/likelihood_ratio.{json,png}
     python benchmarks/bench_likelihood.py --quick    # a few seconds, prints only (unless --out)
 
 ``run(quick, smoke=False)`` returns the results as a dict (for a ``python -m benchmarks`` harness).
@@ -40,7 +40,7 @@ import numpy as np  # noqa: E402
 
 from nmrl.paper.noise import lambda_inv_matvec, likelihood_ratio  # noqa: E402
 
-HERE = Path(__file__).resolve().parent
+OUT = Path(__file__).resolve().parents[1] / "results" / "benchmarks"  # measurements apart from the code
 FULL_L = (1, 2, 5, 10, 30, 100, 300, 1000)
 QUICK_L = (1, 10, 100)
 SMOKE_L = (1, 10)  # the smallest setting: the harness's paths, one or two calls each
@@ -171,10 +171,7 @@ def run(quick: bool = False, smoke: bool = False) -> dict:
 
 
 def plot(data: dict, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from nmrl.analysis.plots import plt, save
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     styles = {"tridiagonal": "C0o-", "dense_solve": "C3s-", "dense_kron_solve": "C1^-",
@@ -206,18 +203,17 @@ def plot(data: dict, path: Path) -> None:
     fig.suptitle(f"jit, {mach['jax_backend']} ({mach['device']}, {mach['cpu_count']} CPUs), jax {mach['jax_version']}",
                  fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save(fig, path, dpi=120)
 
 
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--quick", action="store_true", help="l in {1, 10, 100}, few repeats")
     p.add_argument("--out", type=Path, default=None,
-                   help="output stem (default benchmarks/likelihood_ratio for a full run; none for --quick)")
+                   help="output stem (default results/benchmarks/likelihood_ratio for a full run; none for --quick)")
     args = p.parse_args(argv)
     data = run(args.quick)
-    stem = args.out if args.out is not None else (None if args.quick else HERE / "likelihood_ratio")
+    stem = args.out if args.out is not None else (None if args.quick else OUT / "likelihood_ratio")
     if stem is not None:
         stem.with_suffix(".json").write_text(json.dumps(data, indent=2) + "\n")
         plot(data, stem.with_suffix(".png"))

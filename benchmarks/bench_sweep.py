@@ -25,7 +25,7 @@ import time
 
 LS = (1, 2, 3, 5, 10, 15, 20, 30)
 SEEDS = 3
-NUM_ENVS = 32  # per point, the layout of nmrl sweep (scripts/fig3_paper.sh)
+NUM_ENVS = 32  # per point, the layout of nmrl sweep (scripts/run/fig3_paper.sh)
 OLD_NUM_ENVS = 64  # per point, results/fig3_fast
 CHUNK_STEPS = {True: 10, False: 40}  # control steps per call, (a); (b) runs the same total work
 #: the smallest setting: l = 1, 10, one seed, 4 (a) / 8 (b) environments, 4-step calls, one round

@@ -25,7 +25,7 @@ by nmrl/runs/launch.py, which reports JAX's aborts (an unreachable coordinator, 
 clear errors.
 
 The benchmarks are not a command: they live in the checkout (``python -m benchmarks``, which
-writes its measurements beside itself in benchmarks/), not in the installed package.
+writes its measurements into results/benchmarks/), not in the installed package.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""scripts/background.sh on stand-in runs: the sweep on core 0 and PPO on core 1 while PPO has
+"""scripts/run/background.sh on stand-in runs: the sweep on core 0 and PPO on core 1 while PPO has
 seeds to run; the hand-off that moves the sweep to every core once PPO ends having finished every
 seed; no hand-off once `stop` has begun; and `start` with PPO already done (runs/, or only the
 published copy of a fresh clone) putting the sweep on every core and PPO nowhere.
@@ -29,8 +29,9 @@ pytestmark = pytest.mark.skipif(shutil.which("setsid") is None or shutil.which("
 def layout(tmp_path):
     tag = uuid.uuid4().hex[:12]
     sweep_pat, ppo_pat = f"standin-sweep-{tag}", f"standin-ppo-{tag}"
-    (tmp_path / "scripts").mkdir()
-    shutil.copy(REPO / "scripts" / "background.sh", tmp_path / "scripts" / "background.sh")
+    run = tmp_path / "scripts" / "run"
+    run.mkdir(parents=True)
+    shutil.copy(REPO / "scripts" / "run" / "background.sh", run / "background.sh")
     scripts = {
         # the sweep: says on which cores it was started, then runs until signalled
         "fig3_paper.sh": f'echo "sweep started CPUS=${{CPUS:-every}}"\nexec -a {sweep_pat} sleep 300\n',
@@ -41,8 +42,8 @@ def layout(tmp_path):
                             f"echo '{{\"step\": 40}}' > $d/metrics.jsonl; exec -a {ppo_pat} sleep 300\n"),
     }
     for name, body in scripts.items():
-        (tmp_path / "scripts" / name).write_text("#!/usr/bin/env bash\n" + body)
-        (tmp_path / "scripts" / name).chmod(0o755)
+        (run / name).write_text("#!/usr/bin/env bash\n" + body)
+        (run / name).chmod(0o755)
     fake_py = tmp_path / "python"  # this interpreter, with `import brax` answered yes
     fake_py.write_text(f'#!/usr/bin/env bash\nif [ "$*" = "-c import brax" ]; then exit 0; fi\n'
                        f'exec {sys.executable} "$@"\n')
@@ -60,7 +61,7 @@ def layout(tmp_path):
 
 
 def _bg(root, env, cmd):
-    p = subprocess.run(["bash", "scripts/background.sh", cmd], cwd=root, env=env, capture_output=True,
+    p = subprocess.run(["bash", "scripts/run/background.sh", cmd], cwd=root, env=env, capture_output=True,
                        text=True, timeout=60)
     return p.stdout + p.stderr
 
@@ -106,7 +107,7 @@ def test_no_hand_off_once_stop_has_begun(layout):
     (root / "runs" / "background.stopping").touch()  # what `stop` leaves, as if it ran meanwhile
     # start clears the flag, so set it again right after: the PPO stand-in finishes a moment later
     (root / "ppo_finishes").touch()
-    slow = root / "scripts" / "baseline_ppo.sh"
+    slow = root / "scripts" / "run" / "baseline_ppo.sh"
     slow.write_text(slow.read_text().replace("#!/usr/bin/env bash\n", "#!/usr/bin/env bash\nsleep 2\n"))
     _bg(root, env, "start")
     (root / "runs" / "background.stopping").touch()

@@ -1,10 +1,10 @@
 """The README and docs/*.md say only what the tree holds and what the command line accepts.
 
 * every relative link (``[text](path#anchor)``) names a file that exists, and its anchor a heading
-  of that file;
+  of that file (also in results/README.md and each results folder's README.md);
 * every repository path named in code (inline or fenced: ``nmrl/...``, ``scripts/...``,
-  ``results/...``, ...) exists; a path with a placeholder (``<point>``, ``{md,json}``, ``*``) is a
-  pattern, not a name, and is not checked;
+  ``results/...``, ...) exists, in the docs and the results' READMEs alike; a path with a
+  placeholder (``<point>``, ``{md,json}``, ``*``) is a pattern, not a name, and is not checked;
 * every ``nmrl ...`` command line in a fenced block parses with nmrl's own argparse parsers, without
   running: ``train``, ``sweep`` and ``eval`` with ``nmrl.cli.build_parser(learner)`` (the learner
   ``--learner`` names, as ``nmrl.cli.main`` builds it), ``baseline`` and ``study`` with the parser
@@ -28,8 +28,10 @@ import pytest
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
 PAGES = [README, *sorted((ROOT / "docs").glob("*.md"))]
+#: the results' index and the folders' own notes: their links and named paths are checked as the docs'
+RESULT_PAGES = [ROOT / "results" / "README.md", *sorted((ROOT / "results").glob("*/README.md"))]
 #: top-level entries of the repository a path in the docs may start with
-TOP = ("nmrl/", "scripts/", "results/", "docs/", "benchmarks/", "tests/", "models/", ".ci/")
+TOP = ("nmrl/", "scripts/", "examples/", "results/", "docs/", "benchmarks/", "tests/", "models/", ".ci/")
 PATTERN = re.compile(r"[<>{}*…]|\.\.\.")
 FENCE = re.compile(r"^```[^\n]*\n(.*?)^```", re.S | re.M)
 LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)\)")
@@ -64,7 +66,7 @@ def _rel(page: pathlib.Path) -> str:
 
 
 def _links():
-    for page in PAGES:
+    for page in PAGES + RESULT_PAGES:
         for target in LINK.findall(_prose(_text(page))):
             if not re.match(r"[a-z]+:", target):
                 yield pytest.param(page, target, id=f"{_rel(page)}:{target}")
@@ -92,7 +94,7 @@ def _path_tokens(text: str):
 
 
 def _paths():
-    for page in PAGES:
+    for page in PAGES + RESULT_PAGES:
         for tok in sorted(set(_path_tokens(_text(page)))):
             yield pytest.param(page, tok, id=f"{_rel(page)}:{tok}")
 

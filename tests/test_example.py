@@ -1,4 +1,4 @@
-"""scripts/nm_exploration_example.py, the exploration scheme reused on another MJX robot:
+"""examples/nm_exploration_example.py, the exploration scheme reused on another MJX robot:
 
 * its policy gradient equals autodiff of the same estimator written with dense linear algebra:
   each period's log-density of the Delta-sampled actions under N(m(theta), Lambda_hat (x) Sigma)
@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 from jax.scipy.stats import multivariate_normal
 
-SCRIPT = pathlib.Path(__file__).resolve().parents[1] / "scripts" / "nm_exploration_example.py"
+SCRIPT = pathlib.Path(__file__).resolve().parents[1] / "examples" / "nm_exploration_example.py"
 
 
 def _module():

@@ -1,6 +1,6 @@
 """The publishers' plain answers and tables, on made-up values: the paper-scale Fig. 3
-(scripts/publish_fig3_paper.py) against scipy's Welch interval and a direct reading of the table;
-the PPO comparison's table (scripts/publish_baseline_ppo.py) against scipy's t-interval."""
+(scripts/publish/publish_fig3_paper.py) against scipy's Welch interval and a direct reading of the table;
+the PPO comparison's table (scripts/publish/publish_baseline_ppo.py) against scipy's t-interval."""
 
 from __future__ import annotations
 
@@ -18,8 +18,8 @@ from nmrl.runs import store
 SCRIPTS = pathlib.Path(__file__).resolve().parents[1] / "scripts"
 
 
-def _publisher(name: str = "publish_fig3_paper"):
-    spec = importlib.util.spec_from_file_location(name, SCRIPTS / f"{name}.py")
+def _publisher(name: str = "publish/publish_fig3_paper"):
+    spec = importlib.util.spec_from_file_location(pathlib.Path(name).name, SCRIPTS / f"{name}.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
@@ -68,7 +68,7 @@ def test_answers_compare_l10_with_l1_and_name_the_best_l():
 def test_ppo_table_gives_an_interval_only_over_seeds():
     """One PPO seed at a budget: its value and 'seed N only', never a '± 0.00' interval; three
     seeds: mean ± the 95% t-interval; a budget not reached: a dash."""
-    pub = _publisher("publish_baseline_ppo")
+    pub = _publisher("publish/publish_baseline_ppo")
     rows = {0: [{"step": 327_680 * k, "eval_avg_reward": -1.0 + 0.1 * k, "eval_forward_speed": 0.1 * k}
                 for k in range(0, 4)]}
     ac = {"1e6": {"rows": [{"l": l, "seed": s, "control_steps": 1_000_000, "avg_reward": v, "forward_speed": 1.0}
@@ -91,7 +91,7 @@ def test_ppo_seed_is_published_with_its_parameters_only_while_unfinished(tmp_pat
 
     from nmrl.experiments import baseline_ppo as bp
 
-    pub = _publisher("publish_baseline_ppo")
+    pub = _publisher("publish/publish_baseline_ppo")
     cfg = bp.PPOConfig(num_timesteps=120, num_envs=4, batch_size=4, num_minibatches=2, unroll_length=5)
     assert cfg.steps_per_iteration == 40 and cfg.iterations == 3
     src, dest = tmp_path / "runs" / "ppo_s0", tmp_path / "results" / "ppo_s0"
@@ -184,10 +184,25 @@ def test_fig3_milestone_lines_hold_only_the_l_whose_every_seed_reached_them(tmp_
 def test_physics_fidelity_reads_a_published_point(tmp_path, capsys):
     """The fidelity script's default policy is a published compact state (a clean clone has no
     checkpoints); a folder with neither checkpoints nor a compact state is refused by name."""
-    fid = _publisher("physics_fidelity")
+    fid = _publisher("lab/physics_fidelity")
     a = fid.parse_args([])
     assert (a.run_dir / "compact.npz").is_file() and not (a.run_dir / "checkpoints").exists()
     with pytest.raises(SystemExit):
         fid.parse_args(["--run-dir", str(tmp_path)])
     err = capsys.readouterr().err
     assert f"--run-dir {tmp_path}" in err and "compact.npz" in err
+
+
+def test_fast_preset_baseline_is_the_published_fig3_fast_sweep():
+    """The fast-preset publisher reads its baseline, the published reduced sweep, in the sweeps'
+    layout (points/l<l>_s<seed>/metrics.jsonl): all 24 points, each with every row of its file."""
+    import json
+
+    pub = _publisher("publish/publish_fast_preset")
+    got = pub.points_of(pub.BASELINE)
+    root = pathlib.Path(__file__).resolve().parents[1] / "results" / "fig3_fast" / "points"
+    want = {}
+    for d in sorted(root.iterdir()):
+        l, s = d.name[1:].split("_s")
+        want[(int(l), int(s))] = [json.loads(x) for x in (d / "metrics.jsonl").read_text().splitlines() if x.strip()]
+    assert len(want) == 24 and got == want

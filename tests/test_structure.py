@@ -8,13 +8,22 @@
   (devices, run store, checkpoints, the driver) < ``nmrl.analysis`` (statistics, figures,
   evaluation) < ``nmrl.experiments`` (sweep, study, gradient variance) < ``nmrl.cli``;
 * the package imports nothing from the checkout around it (``benchmarks``, ``scripts``, ``tests``),
-  and neither scripts/ nor benchmarks/ edit ``sys.path`` (``pip install -e .`` is the way in).
+  and neither scripts/, examples/ nor benchmarks/ edit ``sys.path`` (``pip install -e .`` is the way in);
+* ``Trainer`` means one thing, the learner contract's Protocol (nmrl/learners/contract.py): no other
+  class has that name, and every other module that names it takes that one;
+* matplotlib's backend is set in one place, nmrl/analysis/plots.py, which the scripts, the
+  benchmarks and the gait pictures draw with (the exploration study's figures aside: their module
+  sets its own);
+* benchmarks/ holds the code that measures, its measurements live in results/benchmarks/;
+* no script commits to git: what enters the history is the caller's, never a launcher's or a
+  publisher's.
 """
 
 from __future__ import annotations
 
 import ast
 import pathlib
+import re
 
 import pytest
 
@@ -192,9 +201,61 @@ def test_package_imports_nothing_from_the_checkout():
 
 def test_scripts_and_benchmarks_do_not_edit_sys_path():
     hit = []
-    for p in sorted((REPO / "scripts").glob("*.py")) + sorted((REPO / "benchmarks").glob("*.py")):
+    for p in [*sorted((REPO / "scripts").rglob("*.py")), *sorted((REPO / "examples").rglob("*.py")),
+              *sorted((REPO / "benchmarks").glob("*.py"))]:
         for node in ast.walk(ast.parse(p.read_text())):
             if (isinstance(node, ast.Attribute) and node.attr == "path" and isinstance(node.value, ast.Name)
                     and node.value.id == "sys"):
                 hit.append(f"{p.relative_to(REPO)}:{node.lineno}")
     assert not hit, f"sys.path edited in {hit}; the package is installed (pip install -e .)"
+
+
+def test_no_script_commits():
+    commit = re.compile(r"""git\s+(-\S+\s+)*commit\b|["']git["'],\s*["']commit["']""")
+    hit = []
+    for p in sorted([*(REPO / "scripts").rglob("*.sh"), *(REPO / "scripts").rglob("*.py"),
+                     *(REPO / "benchmarks").glob("*.py")]):
+        for n, line in enumerate(p.read_text().splitlines(), 1):
+            code = line.split("#", 1)[0] if p.suffix == ".sh" else line
+            if commit.search(code):
+                hit.append(f"{p.relative_to(REPO)}:{n}")
+    assert not hit, f"git commit run by {hit}"
+
+
+def test_benchmarks_hold_code_only():
+    import subprocess
+
+    files = subprocess.run(["git", "ls-files", "benchmarks"], cwd=REPO, capture_output=True, text=True,
+                           check=True).stdout.split()
+    assert files, "git ls-files found nothing under benchmarks/"
+    outputs = [f for f in files if not f.endswith(".py")]
+    assert not outputs, f"measurements beside the benchmarks' code (their place: results/benchmarks/): {outputs}"
+
+
+def test_matplotlib_backend_is_set_in_one_place():
+    own = {"nmrl/analysis/plots.py", "nmrl/analysis/exploration_results.py"}
+    hit = []
+    for top in ("nmrl", "scripts", "benchmarks", "examples"):
+        for p in sorted((REPO / top).rglob("*.py")):
+            rel = str(p.relative_to(REPO))
+            for node in ast.walk(ast.parse(p.read_text())):
+                if (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr == "use"
+                        and isinstance(node.func.value, ast.Name) and node.func.value.id == "matplotlib"
+                        and rel not in own):
+                    hit.append(f"{rel}:{node.lineno}")
+    assert not hit, f"matplotlib.use outside nmrl/analysis/plots.py (draw with its plt and save): {hit}"
+
+
+def test_trainer_names_one_thing():
+    classes, others = [], []
+    for p in sorted(PKG.rglob("*.py")):
+        rel = str(p.relative_to(REPO))
+        for node in ast.parse(p.read_text()).body:
+            if isinstance(node, ast.ClassDef) and node.name == "Trainer":
+                classes.append(rel)
+            elif (isinstance(node, ast.Assign) and any(isinstance(t, ast.Name) and t.id == "Trainer"
+                                                       for t in node.targets)
+                  and ast.unparse(node.value) != "learners.Trainer"):
+                others.append(f"{rel}: Trainer = {ast.unparse(node.value)}")
+    assert classes == ["nmrl/learners/contract.py"], classes
+    assert not others, others

@@ -20,10 +20,8 @@ GIF_FPS = 25.0
 
 
 def pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
+    """matplotlib's pyplot on the Agg backend (nmrl.analysis.plots), imported when first drawn."""
+    from nmrl.analysis.plots import plt
 
     return plt
 
@@ -95,12 +93,9 @@ def plot_strobe(
     fig, ax = plt.subplots(figsize=(width, 0.25 + 2.0 * (y_hi + 0.1) + 0.6), dpi=100)
     draw_strobe(ax, pos, frames, control_dt, extent, every_s, title)
     fig.tight_layout()
-    try:
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp)
-    finally:
-        plt.close(fig)
-    return path
+    from nmrl.analysis.plots import save
+
+    return save(fig, path)
 
 
 def write_gif(

@@ -1,5 +1,7 @@
 """Figures drawn from rows: the paper's Fig. 3 (average reward against l), learning curves, the
-finer-delta study's figures.
+finer-delta study's figures; and the Agg set-up (matplotlib's backend set on import, before pyplot:
+no display is needed) and the figure save (:func:`save`) that the gait pictures, the scripts and
+the benchmarks take from here (``plt``, ``save``).
 
 Every figure takes the rows it draws (results or study tables, metrics rows) as arguments and
 reads no run directory: the experiments (nmrl/experiments/) gather them. Fig. 3 of the paper plots
@@ -26,12 +28,22 @@ from nmrl.runs.store import atomic_path  # noqa: E402
 PAPER_FIG3 = {1: 3.28, 10: 4.59}
 
 
-def _save(fig, path: pathlib.Path) -> None:
+def save(fig, path: str | os.PathLike, **savefig) -> pathlib.Path:
+    """Write ``fig`` to ``path`` atomically (a reader sees the old picture or the whole new one,
+    never half of one; the format from the suffix) and close it, also when writing fails.
+    ``savefig`` are matplotlib's options for this figure (``dpi``, ``bbox_inches``, ...), passed
+    unchanged: each figure keeps its own."""
+    path = pathlib.Path(path)
     try:
         with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=110, bbox_inches="tight")
+            fig.savefig(tmp, **savefig)
     finally:
         plt.close(fig)
+    return path
+
+
+def _save(fig, path: pathlib.Path) -> None:
+    save(fig, path, dpi=110, bbox_inches="tight")
 
 
 def fig3(results: list[dict], curves: dict[int, list[list[dict]]], path: str | os.PathLike) -> pathlib.Path:
@@ -96,7 +108,7 @@ def milestone_series(by_l: dict, milestones) -> list[dict]:
     """The lines of :func:`fig3_milestones`: per milestone (trials), the l whose every seed reached it,
     with the mean and 95% half-width over the seeds. ``by_l`` maps l (int or str) -> milestone (int
     or str) -> ``{"mean", "ci95", "seeds"}``, the mean None while a seed is short of it (as
-    scripts/publish_fig3_paper.py's progress.json). A milestone no l reached is left out."""
+    scripts/publish/publish_fig3_paper.py's progress.json). A milestone no l reached is left out."""
     out = []
     for m in milestones:
         got = [(int(k), by_l[k][str(m)]) for k in sorted(by_l, key=int)

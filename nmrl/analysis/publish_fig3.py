@@ -1,6 +1,6 @@
 """The paper-scale Fig. 3's plain answers and its progress page, from the progress record.
 
-The record (``results/fig3_paper/progress.json``, built by scripts/publish_fig3_paper.py from the
+The record (``results/fig3_paper/progress.json``, built by scripts/publish/publish_fig3_paper.py from the
 sweep's points) holds per l and milestone the seeds' average reward per step during learning and
 their mean +/- 95% CI, every point's trials, collapse and largest fall. From it:
 

@@ -4,8 +4,8 @@ sample budgets, as ``results/baseline_ppo/summary.json`` and its markdown table 
 Read from run directories (``metrics.jsonl`` rows): PPO's deterministic evaluation at the iteration
 boundary nearest each budget (10^6, 10^7, 2.5*10^7 control steps; a seed short of 98% of a budget
 has not reached it), the actor-critic's deterministic evaluations at the same budgets
-(``ac_milestones.json``, scripts/ac_milestones.py), each as mean +/- the 95% t-interval over seeds
-(:func:`nmrl.analysis.stats.mean_ci95`). scripts/publish_baseline_ppo.py writes and draws them.
+(``ac_milestones.json``, scripts/lab/ac_milestones.py), each as mean +/- the 95% t-interval over seeds
+(:func:`nmrl.analysis.stats.mean_ci95`). scripts/publish/publish_baseline_ppo.py writes and draws them.
 """
 
 from __future__ import annotations

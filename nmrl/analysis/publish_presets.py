@@ -11,7 +11,7 @@ Per point (``rows`` = its ``metrics.jsonl`` rows, one per chunk, in order):
 * ``first_below_half``: the trials at which the running mean first fell below half of the running
   peak, once that peak exceeded 0.3 (empty if never).
 
-scripts/publish_fast_preset.py reads the points, writes the tables and draws the figure.
+scripts/publish/publish_fast_preset.py reads the points, writes the tables and draws the figure.
 """
 
 from __future__ import annotations

@@ -58,10 +58,9 @@ of the run's identity; its state (e.g. Adam's moments) is in ``opt_theta`` / ``o
 presets name ``sgd`` for both networks, and a chain of one ``sgd`` is ``optax.sgd`` itself (no
 ``optax.chain`` around it).
 
-The sgd chain is bit-identical to the paper's update written by hand, ``theta + beta * sum_e d_e
-z_e`` (scripts/check_optax_update.py compares the two: Half-Cheetah, the paper's networks and
-preset, N = 1 and 8, and the tiny test environment; the parameters after every chunk are equal bit
-for bit, since -beta * -S == beta * S exactly in floating point).
+The sgd chain is the paper's update written by hand, ``theta + beta * sum_e d_e z_e``: optax.sgd
+adds -beta * -S, and -beta * -S == beta * S exactly in floating point (tests/test_learner.py
+recomputes the hand-written rule around every control step of a chunk and compares).
 """
 
 from __future__ import annotations
@@ -381,7 +380,11 @@ class TrainState:
     opt_v: OptState  #: optax state of the critic's optimizer
 
 
-class Trainer(NamedTuple):
+class ACTrainer(NamedTuple):
+    """The actor-critic's training functions, as :func:`make_train` builds them: the learner
+    contract's ``Trainer`` (nmrl/learners/contract.py: ``config``, ``env``, ``init``, ``chunk``) and
+    ``init_opt``, which the contract does not ask for."""
+
     config: TrainConfig
     env: HalfCheetah
     init: Callable[..., TrainState]
@@ -408,7 +411,7 @@ def _with_learning_rate(state: OptState, learning_rate: jax.Array) -> OptState:
 
 
 def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = None,
-               num_shards: int = 1) -> Trainer:
+               num_shards: int = 1) -> ACTrainer:
     """Build the pure functions of a training run (see the module docstring).
 
     ``env`` defaults to ``HalfCheetah(config.env_config())``; any environment with the same interface
@@ -590,4 +593,4 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
             out["g_sqnorm"] = jnp.sum(stats["g_sqnorm"])
         return ts, out
 
-    return Trainer(config=cfg, env=env, init=init, chunk=chunk, init_opt=init_opt)
+    return ACTrainer(config=cfg, env=env, init=init, chunk=chunk, init_opt=init_opt)

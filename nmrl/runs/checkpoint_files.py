@@ -45,10 +45,10 @@ ITEMS = ("state", "policy", "meta")
 
 _SEP = "."
 Params = Any
-#: A learner's config (nmrl/learners/contract.py), its state and its Trainer.
+#: A learner's config (nmrl/learners/contract.py), its state and its trainer (the contract's Protocol).
 Config = Any
 State = Any
-Trainer = Any
+Trainer = learners.Trainer
 
 
 class CheckpointError(Exception):

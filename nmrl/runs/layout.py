@@ -31,9 +31,9 @@ from nmrl.runs.errors import RunError
 from nmrl.runs.loop import compile_chunk
 from nmrl.runs.store import to_python, truncate_metrics
 
-#: A learner's config and Trainer (nmrl/learners/contract.py).
+#: A learner's config and trainer (nmrl/learners/contract.py).
 Config = object
-Trainer = object
+Trainer = learners.Trainer
 
 
 def _train_devices(cfg: Config, devices: int | None = None) -> list:

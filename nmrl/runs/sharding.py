@@ -3,7 +3,7 @@
 On a CPU machine XLA runs one vmapped MJX program on essentially one thread; with
 ``XLA_FLAGS=--xla_force_host_platform_device_count=N`` (set before JAX starts) and the batch split
 with ``jax.shard_map`` each device runs its shard on its own thread. Measured on the 2-core
-reference machine (benchmarks/env.json, docs/performance.md): batch 256, 4 solver iterations,
+reference machine (results/benchmarks/env.json, docs/performance.md): batch 256, 4 solver iterations,
 42-46k physics steps/s on 2 devices vs 15-23k on 1; GSPMD (``jit`` with sharded inputs) ~= 1
 device (26k); ``pmap`` slower (9.5k).
 
