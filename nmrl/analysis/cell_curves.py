@@ -99,5 +99,5 @@ def figure(panels: Mapping[str, Mapping[str, Sequence[tuple[np.ndarray, np.ndarr
         row[0].set_ylabel(ylabel)
     if title:
         fig.suptitle(title)
-    plots._save(fig, path)
+    plots.save(fig, path, dpi=110, bbox_inches="tight")
     return path

@@ -444,7 +444,7 @@ def _snr_report(dest: pathlib.Path) -> None:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
     axes[0][0].set_ylabel("gradient SNR per second of experience")
-    plots._save(fig, dest / SNR_FIGURE)
+    plots.save(fig, dest / SNR_FIGURE, dpi=110, bbox_inches="tight")
 
 
 STUDY = kit.Study(name="exploration2", cells=SIGMA_SCREEN, endpoint=kit.Endpoint(seconds=10.0, rollouts=8,
