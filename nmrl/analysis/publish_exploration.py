@@ -7,8 +7,9 @@ cell with ``nmrl sweep --resume``) and the evaluated gaits under ``gaits/``. :fu
 the rest from them, so that the published files follow from the committed data alone:
 
 * ``summary.json``: the study's analysis of its rows (nmrl.analysis.exploration_answers.analysis),
-  the control's learning curves by iteration from the runs' metrics, and the parts that record how
-  the study ran (the screen's rule on the grid's first iterations, the re-run commands);
+  the screen's rule on the grid's first iterations and the control's learning curves by iteration
+  from the runs' metrics, and the parts that record how the study ran (the control's design, the
+  re-run commands);
 * ``answers.md``: the tables of those numbers (nmrl.analysis.exploration_report) with the answers in
   words, which are prose and live in docs/exploration-study.md;
 * ``learning_curves.png``, ``summary.png``, ``control.png`` (nmrl.analysis.exploration_figures) and
@@ -49,16 +50,36 @@ def _runs(record: pathlib.Path, phase: str, dt: float, process: str, seeds: int)
     return [m for s in range(seeds) for m in [store.read_metrics(cell / f"s{s}")] if m]
 
 
+def screen_from_grid(record: pathlib.Path, study: dict, results: Sequence[dict]) -> list[dict]:
+    """The screen's rule (nmrl.analysis.exploration_answers.score) applied to the grid's runs at the
+    screen's control step: the seeds the screen ran, their first iterations as many as the screen's
+    runs had. `white` (the limit of every correlated process as its correlation shrinks) gets the
+    score the screen has no run of; a chosen setting repeats its screen runs."""
+    dt, n = study["screen_dt"], study["screen_iterations"]
+    if dt not in study["dts"]:
+        return []
+    rows = []
+    for p in PROCESSES:
+        setting = next((r["setting"] for r in results if float(r["control_dt"]) == dt and r["exploration"] == p), "-")
+        for s in range(min(study["screen_seeds"], study["seeds"])):
+            m = store.read_metrics(record / "runs" / "grid" / f"dt{dt:g}" / p / "points" / f"s{s}")
+            if len(m) >= n:
+                rows.append({"exploration": p, "setting": setting, "seed": s, "score": xa.score(m[:n])})
+    return rows
+
+
 def summary(record: pathlib.Path) -> dict:
-    """``summary.json`` of the record: its recorded parts with the numbers made anew from the rows."""
+    """``summary.json`` of the record: the numbers made anew from its rows and runs; the design of
+    the control and the re-run commands as recorded."""
     study = json.loads((record / "study.json").read_text())
     dts, iterations, seeds = tuple(study["dts"]), study["iterations"], study["seeds"]
     out = json.loads((record / "summary.json").read_text())
+    results = store.read_csv(record / "results.csv")
     control = store.read_csv(record / "control.csv") if (record / "control.csv").exists() else []
-    numbers = xa.analysis(store.read_csv(record / "results.csv"), control, store.read_csv(record / "screen.csv"),
-                          dts, PROCESSES, iterations)
+    numbers = xa.analysis(results, control, store.read_csv(record / "screen.csv"), dts, PROCESSES, iterations)
     ctl = numbers.pop("control", None)
     out.update(numbers)
+    out["screen_from_grid"] = screen_from_grid(record, study, results)
     if ctl is not None and out.get("control"):
         coarse, fine = max(dts), min(dts)
         out["control"].update(ctl)
