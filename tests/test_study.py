@@ -345,7 +345,7 @@ def test_beta_theta_cap_reuses_the_grid(tiny_study, tmp_path):
 @pytest.mark.parametrize("name", ["timescale", "timescale_cap", "timescale_cap300"])
 def test_a_published_study_json_loads_as_the_spec_and_keeps_every_stored_value(name):
     """Every published study.json (of older formats too: fewer fields, the defaults then) is a valid
-    spec whose JSON holds every stored value as it was, and reads back to the same spec."""
+    spec whose JSON holds every stored value unchanged, and reads back to the same spec."""
     d = json.loads((REPO / "results" / name / "study.json").read_text())
     spec = TimescaleSpec.from_json(d)
     spec.validate()
