@@ -1,5 +1,4 @@
-"""Command line: ``nmrl train``, ``nmrl sweep``, ``nmrl eval``, ``nmrl study``, ``nmrl explore-study``,
-``nmrl baseline``.
+"""Command line: ``nmrl train``, ``nmrl sweep``, ``nmrl eval``, ``nmrl study``, ``nmrl baseline``.
 
 ``--learner NAME`` picks the learner (nmrl/learners/; default ``ac``, the paper's actor-critic;
 a resume takes the run's own). Every field of the learner's config is an option of ``train`` and
@@ -576,8 +575,6 @@ def build_parser(learner=None) -> argparse.ArgumentParser:
     sub.add_parser("baseline", help="Brax PPO on the paper's robot: nmrl baseline --help "
                    "(nmrl/experiments/baseline_ppo.py)", add_help=False)
     sub.add_parser("study", help="the finer-delta study: nmrl study --help (nmrl/experiments/study.py)", add_help=False)
-    sub.add_parser("explore-study", help="exploration process x control step with PPO: nmrl explore-study --help "
-                   "(nmrl/experiments/exploration_study.py)", add_help=False)
     return ap
 
 
@@ -657,14 +654,6 @@ def _command(argv: list[str], guard: "_signals.Guard | None") -> int:
         from nmrl.experiments import study
 
         return study.main(argv[1:])
-    if argv[:1] == ["explore-study"]:  # its own parser; every core a device (before JAX is imported)
-        try:
-            _devices.configure(_devices.requested(argv))
-        except ValueError as e:
-            return _fail(str(e))
-        from nmrl.experiments import exploration_study
-
-        return exploration_study.main([a for a in argv[1:] if not a.startswith("--devices")])
     learner = None
     if argv[:1] in (["train"], ["sweep"]):
         try:

@@ -164,7 +164,7 @@ def _top_parser(sub: str, argv: list[str]) -> argparse.ArgumentParser:
 
         learner = cli._learner(cli.learner_name([sub, *argv])) if sub in ("train", "sweep") else None
         return cli.build_parser(learner)  # as cli.main builds it: with the options of the learner named
-    own = {"baseline": "baseline_ppo", "study": "study", "explore-study": "exploration_study"}
+    own = {"baseline": "baseline_ppo", "study": "study"}
     if sub not in own:
         pytest.fail(f"nmrl has no command {sub!r}")
     import importlib

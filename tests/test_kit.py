@@ -255,3 +255,13 @@ def test_the_asymptote_runs_white_against_the_best_correlated_arm_at_4x_the_budg
         assert [s for _, s in spec.points()] == [0, 1, 2, 3]
         assert cfg.control_dt == 0.005 and cfg.steps * cfg.control_dt == pytest.approx(64 * 102.4)
     assert _spec(cells["asymptote/dt0.005/colored"].sweep).base.beta == 0.5  # its 2.5 ms choice
+
+
+def test_the_nm_periods_arms_take_the_papers_correlation_time_to_five_digits():
+    """nms and nmp run at alpha = 0.8 per 20 ms as a correlation time, -0.02 s / ln 0.8, written
+    with 5 digits (the cells' options, unchanged since the study began)."""
+    import math
+
+    for arm in ("nms", "nmp"):
+        options = exploration2.ARMS[arm]
+        assert options[options.index("--corr-time-s") + 1] == "0.08963" == f"{-0.02 / math.log(0.8):.5f}"

@@ -126,7 +126,6 @@ def test_a_fresh_start_refuses_a_directory_holding_other_files(tmp_path, cmd):
     ["eval", "{tmp}/" + "n" * 300],
     ["eval", "{tmp}", "--out", "{tmp}/" + "n" * 300],
     ["study", "--phases", "plot", "--out", "{tmp}/file/sub"],
-    ["explore-study", "--phases", "eval", "--out", "{tmp}/file/sub"],
 ])
 def test_paths_the_file_system_cannot_take_are_one_line(tmp_path, argv):
     (tmp_path / "file").write_text("a file\n")

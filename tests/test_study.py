@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import pathlib
 
 import numpy as np
 import pytest
@@ -12,7 +13,9 @@ import pytest
 from nmrl.runs import driver as run
 from nmrl.experiments import gradvar, study
 from nmrl.paper.learner import TrainConfig
-from nmrl.experiments.timescale import DELTA_0
+from nmrl.experiments.timescale import DELTA_0, TimescaleSpec
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
 
 # ------------------------------------------------------------------ gradvar.summarize vs numpy / MC
 
@@ -63,7 +66,7 @@ def test_summarize_rejects_bad_sums():
 
 
 def test_arm_configs_follow_the_per_second_rules():
-    spec = study.StudySpec()
+    spec = TimescaleSpec()
     for dt in spec.dts:
         k = dt / DELTA_0
         for p in spec.periods:
@@ -90,7 +93,7 @@ def test_arm_configs_follow_the_per_second_rules():
 ])
 def test_bad_spec(kw, needle):
     with pytest.raises(ValueError, match=needle):
-        study.StudySpec(**kw).validate()
+        TimescaleSpec(**kw).validate()
 
 
 def test_cli_bad_value_writes_nothing(tmp_path, capsys):
@@ -109,7 +112,7 @@ def test_cli_bad_period(capsys):
 
 # ------------------------------------------------------------------ a whole (tiny) study
 
-TINY = study.StudySpec(dts=(0.02,), periods=(None, 0.04), beta_theta_grid=(1e-5, 3e-5), beta_v_grid=(5e-4,),
+TINY = TimescaleSpec(dts=(0.02,), periods=(None, 0.04), beta_theta_grid=(1e-5, 3e-5), beta_v_grid=(5e-4,),
                        grid_seconds=2.0, final_seconds=2.0, chunk_seconds=1.0, seeds=2, num_envs=4,
                        checkpoint_every=1, gradvar_envs=4, gradvar_batches=2,
                        base=TrainConfig(hidden_actor=8, hidden_critic=8))
@@ -167,7 +170,7 @@ def _row(step, avg, theta=10.0, speed=0.0, diverged=False):
 def test_rows_from_hand_written_metrics(tmp_path):
     """grid.csv and final.csv from metrics.jsonl rows written here, at delta = 0.01 s (where the
     received reward is 0.5 r_t and a second has 100 steps), against values computed by hand."""
-    spec = study.StudySpec(dts=(0.01,), periods=(None, 0.04), beta_theta_grid=(1e-5, 3e-5), beta_v_grid=(5e-4,),
+    spec = TimescaleSpec(dts=(0.01,), periods=(None, 0.04), beta_theta_grid=(1e-5, 3e-5), beta_v_grid=(5e-4,),
                            chunk_seconds=0.1, grid_seconds=0.4, final_seconds=2.0, seeds=2)
     grid = tmp_path / "grid" / "dt0.01" / "points"
     # stationary: the second half decides (1e-5: 1.5 although its whole mean is lower than 3e-5's)
@@ -337,3 +340,16 @@ def test_beta_theta_cap_reuses_the_grid(tiny_study, tmp_path):
     assert {float(r["beta_theta"]) for r in got["final"]} == {1e-5}
     with pytest.raises(ValueError, match="beta_theta_cap"):
         dataclasses.replace(TINY, beta_theta_cap=1e-7).validate()
+
+
+@pytest.mark.parametrize("name", ["timescale", "timescale_cap", "timescale_cap300"])
+def test_a_published_study_json_loads_as_the_spec_and_keeps_every_stored_value(name):
+    """Every published study.json (of older formats too: fewer fields, the defaults then) is a valid
+    spec whose JSON holds every stored value unchanged, and reads back to the same spec."""
+    d = json.loads((REPO / "results" / name / "study.json").read_text())
+    spec = TimescaleSpec.from_json(d)
+    spec.validate()
+    again = spec.to_json()
+    assert {k: again[k] for k in d if k != "base"} == {k: v for k, v in d.items() if k != "base"}
+    assert {k: again["base"][k] for k in d["base"]} == d["base"]
+    assert TimescaleSpec.from_json(again) == spec and spec.base == TrainConfig(**d["base"])

@@ -27,11 +27,13 @@ import sys
 import numpy as np
 
 from nmrl.experiments import kit
+from nmrl.explore.spec import PAPER_CORR_TIME_S
 
 ITERATION_S = 102.4  #: simulated seconds per environment in one PPO iteration (256 unrolls of 0.4 s)
 SIGMAS = (0.064, 0.16, 0.4, 1.0)
 SCREEN_SEED0, SCREEN_SEEDS, SCREEN_ITERATIONS = 100, 2, 4
-NM_CORR_TIME_S = 0.08963  #: the paper's alpha = 0.8 per 20 ms step as a correlation time
+#: the paper's alpha = 0.8 per 20 ms step as a correlation time, to the 5 digits the cells' options give
+NM_CORR_TIME_S = round(PAPER_CORR_TIME_S, 5)
 #: each arm's exploration options at the middle of its screened time constant
 ARMS = {
     "white": ("--exploration", "white"),

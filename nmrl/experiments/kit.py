@@ -48,6 +48,10 @@ COLUMNS = ("cell", "point", "seed", "field", "value", "control_dt", "steps", "bu
 _PUBLISHED_POINT_FILES = ("config.json", "metrics.jsonl", "compact.npz", ENDPOINT)
 
 
+class StudyError(Exception):
+    """A study cannot start or continue: its settings or its directory say why (bad input, exit status 2)."""
+
+
 class StudyStopped(RuntimeError):
     """A cell's sweep ended without finishing (a signal, an error); ``status`` is its exit status."""
 

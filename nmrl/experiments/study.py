@@ -36,7 +36,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import math
 import pathlib
 import sys
 import time
@@ -47,10 +46,11 @@ import numpy as np
 
 from nmrl.analysis import stats
 from nmrl.experiments import gradvar
-from nmrl.experiments.timescale import DELTA_0, at_control_step
+from nmrl.experiments.kit import StudyError
+from nmrl.experiments.timescale import DELTA_0, TimescaleSpec, arm_name
 from nmrl import learners
-from nmrl.paper.env import PHYSICS, PHYSICS_HELP
-from nmrl.runs import bounds, checkpoint, command, driver, lock, parser, store
+from nmrl.paper.env import PHYSICS_HELP
+from nmrl.runs import checkpoint, command, driver, lock, parser, store
 from nmrl.runs.store import read_csv, read_metrics, write_csv
 
 #: the study's learner: the paper's actor-critic (its arms are period lengths l, its grid the step sizes)
@@ -70,116 +70,6 @@ GRADVAR_COLUMNS = ("policy", "dt", "arm", "period_s", "l", "periods", "trcov", "
                    "mean_sq_ci", "snr_per_s")
 
 
-class StudyError(Exception):
-    """The study cannot start or continue (the message says why)."""
-
-
-def arm_name(period: float | None) -> str:
-    return "stationary" if period is None else f"p{period:g}s"
-
-
-@dataclasses.dataclass(frozen=True)
-class StudySpec:
-    dts: tuple[float, ...] = (0.02, 0.01, 0.005)
-    periods: tuple[float | None, ...] = (None, 0.1, 0.2, 0.4)  #: None = the stationary policy
-    beta_theta_grid: tuple[float, ...] = (3e-6, 1e-5, 3e-5)
-    beta_v_grid: tuple[float, ...] = (5e-5, 1.5e-4, 5e-4)
-    grid_seconds: float = 40.0  #: simulated seconds per environment in a grid run
-    final_seconds: float = 150.0  #: simulated seconds per environment in a final run
-    chunk_seconds: float = 5.0  #: simulated seconds per jitted chunk
-    seeds: int = 3
-    num_envs: int = 32
-    checkpoint_every: int = 3  #: chunks between checkpoints
-    gradvar_envs: int = 64
-    gradvar_batches: int = 8
-    base: TrainConfig = TrainConfig()  #: the paper's constants at delta_0 = 0.02 s
-    #: if set, the rule chooses only among grid pairs with beta^theta <= this (the same for every arm)
-    beta_theta_cap: float | None = None
-    physics: str = "mjx"  #: every run's physics engine (nmrl/paper/env.py PHYSICS)
-
-    def validate(self) -> None:
-        def bad(name, allowed):
-            return ValueError(f"{name}={getattr(self, name)!r} is invalid: {allowed}")
-
-        if self.physics not in PHYSICS:
-            raise bad("physics", f"choose one of {', '.join(PHYSICS)}")
-
-        bounds.control_steps("dts", self.dts, "0.02 0.01 0.005")
-        if not self.periods or any(p is not None and not (isinstance(p, (int, float)) and p > 0) for p in self.periods):
-            raise bad("periods", "give durations > 0 s (None = the stationary policy)")
-        if len(set(self.periods)) != len(self.periods):
-            raise bad("periods", "each period may appear once")
-        for name in ("beta_theta_grid", "beta_v_grid"):
-            g = getattr(self, name)
-            if len(g) < 1 or any(not (isinstance(b, (int, float)) and b > 0 and math.isfinite(b)) for b in g):
-                raise bad(name, "give step sizes > 0")
-        bounds.positive_ints(self, ("seeds", "num_envs", "checkpoint_every", "gradvar_envs", "gradvar_batches"))
-        if self.beta_theta_cap is not None and not (
-                isinstance(self.beta_theta_cap, (int, float)) and self.beta_theta_cap >= min(self.beta_theta_grid)):
-            raise bad("beta_theta_cap", f"must be >= the smallest grid value {min(self.beta_theta_grid):g}")
-        if self.gradvar_batches < 2:
-            raise bad("gradvar_batches", "need >= 2 batches for an interval")
-        for name in ("grid_seconds", "final_seconds", "chunk_seconds"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and v > 0):
-                raise bad(name, "must be > 0 s")
-        for name in ("grid_seconds", "final_seconds"):
-            if abs(getattr(self, name) / self.chunk_seconds - round(getattr(self, name) / self.chunk_seconds)) > 1e-9:
-                raise bad(name, f"must be a multiple of chunk_seconds={self.chunk_seconds:g}")
-        for dt in self.dts:
-            self._steps(self.chunk_seconds, dt, "chunk_seconds")
-            for p in self.periods:
-                self.arm_config(dt, p)  # raises if period / dt is not an integer
-
-    @staticmethod
-    def _steps(seconds: float, dt: float, what: str) -> int:
-        n = round(seconds / dt)
-        if n < 1 or abs(seconds / dt - n) > 1e-6:
-            raise ValueError(f"{what}={seconds:g} s is not a whole number of control steps of {dt:g} s")
-        return n
-
-    def arm_config(self, dt: float, period: float | None) -> TrainConfig:
-        cfg = at_control_step(self.base, dt, period)
-        return dataclasses.replace(cfg, num_envs=self.num_envs, physics=self.physics,
-                                   chunk_steps=self._steps(self.chunk_seconds, dt, "chunk_seconds"))
-
-    def grid_points(self, dt: float) -> tuple[list[str], list[TrainConfig]]:
-        names, cfgs = [], []
-        steps = self._steps(self.grid_seconds, dt, "grid_seconds")
-        for p in self.periods:
-            for bt in self.beta_theta_grid:
-                for bv in self.beta_v_grid:
-                    names.append(f"{arm_name(p)}_bt{bt:.1e}_bv{bv:.1e}")
-                    cfgs.append(dataclasses.replace(self.arm_config(dt, p), beta_theta=bt, beta_v=bv,
-                                                    steps=steps, seed=0))
-        return names, cfgs
-
-    def final_points(self, dt: float, chosen: dict[str, tuple[float, float]]) -> tuple[list[str], list[TrainConfig]]:
-        names, cfgs = [], []
-        steps = self._steps(self.final_seconds, dt, "final_seconds")
-        for p in self.periods:
-            bt, bv = chosen[arm_name(p)]
-            for s in range(self.seeds):
-                names.append(f"{arm_name(p)}_s{s}")
-                cfgs.append(dataclasses.replace(self.arm_config(dt, p), beta_theta=bt, beta_v=bv,
-                                                steps=steps, seed=s))
-        return names, cfgs
-
-    def to_json(self) -> dict:
-        d = dataclasses.asdict(self)
-        d["dts"], d["periods"] = list(self.dts), list(self.periods)
-        d["beta_theta_grid"], d["beta_v_grid"] = list(self.beta_theta_grid), list(self.beta_v_grid)
-        return d
-
-    @staticmethod
-    def from_json(d: dict) -> "StudySpec":
-        d = dict(d)
-        for k in ("dts", "periods", "beta_theta_grid", "beta_v_grid"):
-            d[k] = tuple(d[k])
-        d["base"] = TrainConfig(**d["base"])
-        return StudySpec(**d)
-
-
 def _dt_dir(out: pathlib.Path, phase: str, dt: float) -> pathlib.Path:
     return out / phase / f"dt{dt:g}"
 
@@ -190,7 +80,7 @@ def _point_done(d: pathlib.Path, steps: int) -> bool:
 
 
 def _run_phase(out: pathlib.Path, phase: str, dt: float, names: list[str], cfgs: list[TrainConfig],
-               spec: StudySpec, progress: bool) -> None:
+               spec: TimescaleSpec, progress: bool) -> None:
     d = _dt_dir(out, phase, dt)
     steps = cfgs[0].steps
     phase_names = list(names)  # every point of this phase: the finished ones are the phase's, too
@@ -225,7 +115,7 @@ def _run_phase(out: pathlib.Path, phase: str, dt: float, names: list[str], cfgs:
                      checkpoint_every=spec.checkpoint_every, on_chunk=on_chunk)
 
 
-def _grid_rows(out: pathlib.Path, spec: StudySpec) -> list[dict]:
+def _grid_rows(out: pathlib.Path, spec: TimescaleSpec) -> list[dict]:
     rows = []
     for dt in spec.dts:
         names, cfgs = spec.grid_points(dt)
@@ -259,7 +149,7 @@ def chosen_betas(grid_rows: list[dict], dt: float) -> dict[str, tuple[float, flo
             if float(r["dt"]) == dt and r["chosen"]}
 
 
-def _final_rows(out: pathlib.Path, spec: StudySpec, grid_rows: list[dict]) -> list[dict]:
+def _final_rows(out: pathlib.Path, spec: TimescaleSpec, grid_rows: list[dict]) -> list[dict]:
     rows = []
     for dt in spec.dts:
         names, cfgs = spec.final_points(dt, chosen_betas(grid_rows, dt))
@@ -280,7 +170,7 @@ def _final_rows(out: pathlib.Path, spec: StudySpec, grid_rows: list[dict]) -> li
     return rows
 
 
-def _policies(out: pathlib.Path, spec: StudySpec) -> list[tuple[str, object, object]]:
+def _policies(out: pathlib.Path, spec: TimescaleSpec) -> list[tuple[str, object, object]]:
     """The fixed policies whose gradient variance is measured at every delta: the initial one (seed 0)
     and the final policies of the stationary arm and of the 0.2 s arm (or the first period arm)
     learned at the paper's control step (the largest delta of the study), each from its seed with the
@@ -306,7 +196,7 @@ def _policies(out: pathlib.Path, spec: StudySpec) -> list[tuple[str, object, obj
     return pols
 
 
-def _gradvar(out: pathlib.Path, spec: StudySpec, progress: bool) -> list[dict]:
+def _gradvar(out: pathlib.Path, spec: TimescaleSpec, progress: bool) -> list[dict]:
     path = out / "gradvar.csv"
     if path.exists():
         return read_csv(path)
@@ -338,7 +228,7 @@ def _gradvar(out: pathlib.Path, spec: StudySpec, progress: bool) -> list[dict]:
 PHASES = ("grid", "final", "gradvar", "plot")
 
 
-def run_study(spec: StudySpec, out: str | pathlib.Path, *, phases: Sequence[str] = PHASES,
+def run_study(spec: TimescaleSpec, out: str | pathlib.Path, *, phases: Sequence[str] = PHASES,
               progress: bool = True) -> dict:
     """Run (or continue) the study into ``out``; returns {"grid": rows, "final": rows, "gradvar": rows}."""
     spec.validate()
@@ -350,10 +240,10 @@ def run_study(spec: StudySpec, out: str | pathlib.Path, *, phases: Sequence[str]
         held.release(remove_if_empty=True)
 
 
-def _run_study(spec: StudySpec, out: pathlib.Path, phases: Sequence[str], progress: bool) -> dict:
+def _run_study(spec: TimescaleSpec, out: pathlib.Path, phases: Sequence[str], progress: bool) -> dict:
     spec_path = out / SPEC_FILE
     if spec_path.exists():
-        saved = StudySpec.from_json(json.loads(spec_path.read_text()))
+        saved = TimescaleSpec.from_json(json.loads(spec_path.read_text()))
         diff = [f.name for f in dataclasses.fields(spec) if getattr(saved, f.name) != getattr(spec, f.name)]
         gv_fields = {"gradvar_envs", "gradvar_batches"}
         longer = "final_seconds" in diff and spec.final_seconds > saved.final_seconds
@@ -424,7 +314,7 @@ def _period(s: str) -> float | None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     ap = parser.OneLineParser(prog="nmrl study", description=__doc__.split("\n\n")[0])
-    d = StudySpec()
+    d = TimescaleSpec()
     ap.add_argument("--out", required=True, help="study directory (continued if it exists)")
     ap.add_argument("--dt", type=float, nargs="+", default=list(d.dts), help="control steps [s]")
     ap.add_argument("--periods", type=_period, nargs="+", default=list(d.periods),
@@ -445,7 +335,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--phases", nargs="+", default=list(PHASES), help=f"any of {list(PHASES)}")
     ap.add_argument("--quiet", action="store_true")
     a = ap.parse_args(argv)
-    spec = StudySpec(physics=a.physics, dts=tuple(a.dt), periods=tuple(a.periods), beta_theta_grid=tuple(a.beta_theta),
+    spec = TimescaleSpec(physics=a.physics, dts=tuple(a.dt), periods=tuple(a.periods), beta_theta_grid=tuple(a.beta_theta),
                      beta_v_grid=tuple(a.beta_v), grid_seconds=a.grid_seconds, final_seconds=a.final_seconds,
                      chunk_seconds=a.chunk_seconds, seeds=a.seeds, num_envs=a.num_envs,
                      checkpoint_every=a.checkpoint_every, gradvar_envs=a.gradvar_envs,

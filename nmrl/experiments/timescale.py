@@ -18,6 +18,11 @@ second is unchanged (k = delta / delta_0):
   scale. The average reward per second, sum of the received rewards over a second, is then
   mean(r_t) / delta_0, directly comparable across delta.
 Step sizes are not converted: they are chosen per arm by a grid (the study's rule).
+
+:class:`TimescaleSpec` is the study's design: the control steps, the arms (the stationary policy
+and nm-periods of fixed durations), the step-size grid and the budgets in simulated seconds, and
+every run's config made from the paper's constants by :func:`at_control_step`. It is stored as the
+study's ``study.json`` (:meth:`TimescaleSpec.to_json`).
 """
 
 from __future__ import annotations
@@ -25,7 +30,9 @@ from __future__ import annotations
 import dataclasses
 import math
 
+from nmrl.paper.env import PHYSICS
 from nmrl.paper.learner import TrainConfig
+from nmrl.runs import bounds
 
 #: The paper's control step [s].
 DELTA_0 = 0.02
@@ -60,3 +67,109 @@ def at_control_step(base: TrainConfig, control_dt: float, period_seconds: float 
     )
     cfg.validate()
     return cfg
+
+
+def arm_name(period: float | None) -> str:
+    return "stationary" if period is None else f"p{period:g}s"
+
+
+@dataclasses.dataclass(frozen=True)
+class TimescaleSpec:
+    dts: tuple[float, ...] = (0.02, 0.01, 0.005)
+    periods: tuple[float | None, ...] = (None, 0.1, 0.2, 0.4)  #: None = the stationary policy
+    beta_theta_grid: tuple[float, ...] = (3e-6, 1e-5, 3e-5)
+    beta_v_grid: tuple[float, ...] = (5e-5, 1.5e-4, 5e-4)
+    grid_seconds: float = 40.0  #: simulated seconds per environment in a grid run
+    final_seconds: float = 150.0  #: simulated seconds per environment in a final run
+    chunk_seconds: float = 5.0  #: simulated seconds per jitted chunk
+    seeds: int = 3
+    num_envs: int = 32
+    checkpoint_every: int = 3  #: chunks between checkpoints
+    gradvar_envs: int = 64
+    gradvar_batches: int = 8
+    base: TrainConfig = TrainConfig()  #: the paper's constants at delta_0 = 0.02 s
+    #: if set, the rule chooses only among grid pairs with beta^theta <= this (the same for every arm)
+    beta_theta_cap: float | None = None
+    physics: str = "mjx"  #: every run's physics engine (nmrl/paper/env.py PHYSICS)
+
+    def validate(self) -> None:
+        def bad(name, allowed):
+            return ValueError(f"{name}={getattr(self, name)!r} is invalid: {allowed}")
+
+        if self.physics not in PHYSICS:
+            raise bad("physics", f"choose one of {', '.join(PHYSICS)}")
+
+        bounds.control_steps("dts", self.dts, "0.02 0.01 0.005")
+        if not self.periods or any(p is not None and not (isinstance(p, (int, float)) and p > 0) for p in self.periods):
+            raise bad("periods", "give durations > 0 s (None = the stationary policy)")
+        if len(set(self.periods)) != len(self.periods):
+            raise bad("periods", "each period may appear once")
+        for name in ("beta_theta_grid", "beta_v_grid"):
+            g = getattr(self, name)
+            if len(g) < 1 or any(not (isinstance(b, (int, float)) and b > 0 and math.isfinite(b)) for b in g):
+                raise bad(name, "give step sizes > 0")
+        bounds.positive_ints(self, ("seeds", "num_envs", "checkpoint_every", "gradvar_envs", "gradvar_batches"))
+        if self.beta_theta_cap is not None and not (
+                isinstance(self.beta_theta_cap, (int, float)) and self.beta_theta_cap >= min(self.beta_theta_grid)):
+            raise bad("beta_theta_cap", f"must be >= the smallest grid value {min(self.beta_theta_grid):g}")
+        if self.gradvar_batches < 2:
+            raise bad("gradvar_batches", "need >= 2 batches for an interval")
+        for name in ("grid_seconds", "final_seconds", "chunk_seconds"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and v > 0):
+                raise bad(name, "must be > 0 s")
+        for name in ("grid_seconds", "final_seconds"):
+            if abs(getattr(self, name) / self.chunk_seconds - round(getattr(self, name) / self.chunk_seconds)) > 1e-9:
+                raise bad(name, f"must be a multiple of chunk_seconds={self.chunk_seconds:g}")
+        for dt in self.dts:
+            self._steps(self.chunk_seconds, dt, "chunk_seconds")
+            for p in self.periods:
+                self.arm_config(dt, p)  # raises if period / dt is not an integer
+
+    @staticmethod
+    def _steps(seconds: float, dt: float, what: str) -> int:
+        n = round(seconds / dt)
+        if n < 1 or abs(seconds / dt - n) > 1e-6:
+            raise ValueError(f"{what}={seconds:g} s is not a whole number of control steps of {dt:g} s")
+        return n
+
+    def arm_config(self, dt: float, period: float | None) -> TrainConfig:
+        cfg = at_control_step(self.base, dt, period)
+        return dataclasses.replace(cfg, num_envs=self.num_envs, physics=self.physics,
+                                   chunk_steps=self._steps(self.chunk_seconds, dt, "chunk_seconds"))
+
+    def grid_points(self, dt: float) -> tuple[list[str], list[TrainConfig]]:
+        names, cfgs = [], []
+        steps = self._steps(self.grid_seconds, dt, "grid_seconds")
+        for p in self.periods:
+            for bt in self.beta_theta_grid:
+                for bv in self.beta_v_grid:
+                    names.append(f"{arm_name(p)}_bt{bt:.1e}_bv{bv:.1e}")
+                    cfgs.append(dataclasses.replace(self.arm_config(dt, p), beta_theta=bt, beta_v=bv,
+                                                    steps=steps, seed=0))
+        return names, cfgs
+
+    def final_points(self, dt: float, chosen: dict[str, tuple[float, float]]) -> tuple[list[str], list[TrainConfig]]:
+        names, cfgs = [], []
+        steps = self._steps(self.final_seconds, dt, "final_seconds")
+        for p in self.periods:
+            bt, bv = chosen[arm_name(p)]
+            for s in range(self.seeds):
+                names.append(f"{arm_name(p)}_s{s}")
+                cfgs.append(dataclasses.replace(self.arm_config(dt, p), beta_theta=bt, beta_v=bv,
+                                                steps=steps, seed=s))
+        return names, cfgs
+
+    def to_json(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["dts"], d["periods"] = list(self.dts), list(self.periods)
+        d["beta_theta_grid"], d["beta_v_grid"] = list(self.beta_theta_grid), list(self.beta_v_grid)
+        return d
+
+    @staticmethod
+    def from_json(d: dict) -> "TimescaleSpec":
+        d = dict(d)
+        for k in ("dts", "periods", "beta_theta_grid", "beta_v_grid"):
+            d[k] = tuple(d[k])
+        d["base"] = TrainConfig(**d["base"])
+        return TimescaleSpec(**d)

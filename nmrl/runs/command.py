@@ -1,7 +1,7 @@
 """How a long command ends: saved after a signal, refused by a lock, failed on the disk, or bad input.
 
-``nmrl study`` and ``nmrl explore-study`` run many sweeps under one signal guard
-(nmrl/runs/signals.py) and share this ending: a signal stops them after the chunk in flight with
+``nmrl study`` runs many sweeps under one signal guard (nmrl/runs/signals.py) and ends this way:
+a signal stops it after the chunk in flight with
 every active point saved; a second writer is refused naming the first; a disk or file-system
 failure is one line (nmrl/runs/io_errors.py); bad input is one line with exit status 2; anything
 else is a bug and raises. The statuses are nmrl/runs/exits.py's.
