@@ -249,6 +249,8 @@ class TrainConfig:
     trial_s: float | None = None  #: mean trial length [s] (stop_prob = control_dt / trial_s); None: stop_prob
     physics: str = "mjx"  #: "mjx" or "c" (MuJoCo C on the CPU; nmrl/physics/mujoco_c.py)
     physics_timestep: float | None = None  #: MuJoCo's timestep [s]; None: the model's (0.005 s)
+    #: the environment by name: the paper's robot or a Gymnasium task (nmrl/tasks/, built by the learner ``ac``)
+    env: str = "paper-cheetah"
     # batching and budget
     num_envs: int = 256  #: N environments in lock-step
     chunk_steps: int = 250  #: control steps per environment in one jitted chunk
@@ -408,12 +410,15 @@ def _with_learning_rate(state: OptState, learning_rate: jax.Array) -> OptState:
 
 
 def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = None,
-               num_shards: int = 1) -> Trainer:
+               num_shards: int = 1, action_map: Callable[[jax.Array], jax.Array] | None = None) -> Trainer:
     """Build the pure functions of a training run (see the module docstring).
 
-    ``env`` defaults to ``HalfCheetah(config.env_config())``; any environment with the same interface
-    (``obs_dim``, ``act_dim``, ``reward_terms``, ``reset(key)``, ``step(state, action)`` with auto-reset,
-    ``State`` with ``obs``, ``reward``, ``done``, ``metrics`` incl. ``forward_speed`` and ``nonfinite``) works.
+    ``env`` defaults to ``HalfCheetah(config.env_config())`` (a config naming another ``env`` must
+    bring it); any environment with the same interface (``obs_dim``, ``act_dim``, ``reward_terms``,
+    ``reset(key)``, ``step(state, action)`` with auto-reset, ``State`` with ``obs``, ``reward``,
+    ``done``, ``metrics`` incl. ``forward_speed`` and ``nonfinite``) works. ``action_map`` turns the
+    action a_t of (6) into the environment's action (None: a_t itself, the paper's robot;
+    nmrl/learners/ac.py maps it onto a Gymnasium task's action space).
 
     With ``axis_name`` and ``num_shards`` > 1, ``chunk`` is written for ``jax.shard_map`` over the
     environment axis of ``TrainState.slots`` (nmrl/runs/layout.py does that): each shard steps its
@@ -423,6 +428,8 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
     """
     check_shards(config.num_envs, num_shards, axis_name)
     cfg = config.resolved()
+    if env is None and cfg.env != "paper-cheetah":
+        raise ValueError(f"env={cfg.env!r}: make_train builds the paper's robot only; pass the environment")
     env = env or HalfCheetah(cfg.env_config())
     OBS_DIM, ACT_DIM = env.obs_dim, env.act_dim
     REWARD_TERMS = tuple(env.reward_terms)
@@ -483,7 +490,7 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
         sampled = jnp.remainder(i_used, h.delta) == 0
         olr = noise.online_lr_add(olr, actor.apply, theta, obs, xi, h.alpha ** h.delta, h.sigma,
                                   active=sampled)
-        env_state = env.step(slot.env, mean + xi)
+        env_state = env.step(slot.env, mean + xi if action_map is None else action_map(mean + xi))
         r = env_state.reward * cfg.reward_scale
         rbar = rbar + gpow * r
         gpow = gpow * h.gamma
