@@ -91,6 +91,7 @@ class StudySpec:
     eval_seconds: float = 10.0
     snr_batches: int = 4
     physics: str = "mjx"  #: every run's physics engine (nmrl/paper/env.py PHYSICS)
+    env: str = "paper-cheetah"  #: every run's environment (nmrl.tasks.ENVS; docs/tasks.md)
 
     def validate(self) -> None:
         def bad(name, allowed):
@@ -112,7 +113,7 @@ class StudySpec:
         step = physics_timestep()
         for dt in self.dts + (self.screen_dt,):
             n = dt / step
-            if abs(n - round(n)) > 1e-6 or round(n) < 1:
+            if self.env == "paper-cheetah" and (abs(n - round(n)) > 1e-6 or round(n) < 1):  # a task checks its own
                 raise ValueError(f"control step {dt:g} s is invalid: must be a positive multiple of the physics "
                                  f"timestep {step:g} s")
             for proc in PROCESSES:
@@ -127,11 +128,15 @@ class StudySpec:
         return {f: vals[len(vals) // 2]}
 
     def config(self, dt: float, process: str, **setting) -> PPOConfig:
-        """A run's config: the native PPO with its settings in seconds, the study's networks, reward
-        scale delta / 0.02 s (the value's scale kept, docs/ppo.md), nm-periods with the paper's
-        correlation time unless given."""
+        """A run's config: the native PPO on the study's env with its settings in seconds, the study's
+        networks, reward scale delta / 0.02 s on the paper's robot (the value's scale kept, docs/ppo.md;
+        a task's rewards already are rates integrated over the step: scale 1), nm-periods with the
+        paper's correlation time unless given."""
         extra = {"corr_time_s": NM_CORR_TIME_S} if process == "nm-periods" and "corr_time_s" not in setting else {}
-        return PPOConfig(exploration=process, control_dt=dt, reward_scale=dt / xr.DELTA_0, num_envs=self.num_envs,
+        if self.env != "paper-cheetah":
+            extra["env"] = self.env
+        scale = dt / xr.DELTA_0 if self.env == "paper-cheetah" else 1.0
+        return PPOConfig(exploration=process, control_dt=dt, reward_scale=scale, num_envs=self.num_envs,
                          value_layers=self.value_layers, value_width=self.value_width, batch_size=self.batch_size,
                          num_minibatches=self.num_minibatches, epochs=self.epochs, physics=self.physics, **extra,
                          **setting)
@@ -140,8 +145,11 @@ class StudySpec:
         return self.config(dt, "white").resolved().iteration_steps
 
     def to_json(self) -> dict:
+        """The spec as study.json holds it (the paper's robot, every study's env before tasks, unnamed)."""
         d = dataclasses.asdict(self)
         d["dts"] = list(self.dts)
+        if d["env"] == "paper-cheetah":
+            del d["env"]
         return d
 
     @staticmethod
@@ -579,12 +587,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--eval-seconds", type=float, default=d.eval_seconds)
     ap.add_argument("--snr-batches", type=int, default=d.snr_batches)
     ap.add_argument("--physics", default=d.physics, help=PHYSICS_HELP)
+    ap.add_argument("--env", default=d.env, help="every run's environment: paper-cheetah, halfcheetah-v5, hopper-v5, "
+                                                 "walker2d-v5 (docs/tasks.md)")
     ap.add_argument("--phases", nargs="+", default=list(PHASES), help=f"any of {list(PHASES)}")
     ap.add_argument("--quiet", action="store_true")
     a = ap.parse_args(argv)
 
     def body() -> None:
-        spec = StudySpec(physics=a.physics, dts=tuple(a.dt), seeds=a.seeds, iterations=a.iterations, screen_dt=a.screen_dt,
+        spec = StudySpec(env=a.env, physics=a.physics, dts=tuple(a.dt), seeds=a.seeds, iterations=a.iterations, screen_dt=a.screen_dt,
                          screen_seeds=a.screen_seeds, screen_iterations=a.screen_iterations, num_envs=a.num_envs,
                          value_layers=a.value_layers, value_width=a.value_width, batch_size=a.batch_size,
                          num_minibatches=a.num_minibatches, epochs=a.epochs, checkpoint_every=a.checkpoint_every,

@@ -18,6 +18,11 @@ second is unchanged (k = delta / delta_0):
   scale. The average reward per second, sum of the received rewards over a second, is then
   mean(r_t) / delta_0, directly comparable across delta.
 Step sizes are not converted: they are chosen per arm by a grid (the study's rule).
+
+On a Gymnasium task (``env``, docs/tasks.md) the trial's end and the reward's scale are the task's
+own: it ends by its own rule and time limit (the stop probability stays the default it refuses to
+change), and its rewards already are rates integrated over the control step (r_t = r_gym delta /
+dt0), so ``reward_scale`` is not converted; the average reward per second is mean(r_t) / delta.
 """
 
 from __future__ import annotations
@@ -53,10 +58,11 @@ def at_control_step(base: TrainConfig, control_dt: float, period_seconds: float 
     else:
         l, lam = _as_int(period_seconds / control_dt, "period_seconds / control_dt"), base.lam
     delta = _as_int(base.delta / k, "Delta_0 * delta_0 / control_dt") if k < 1 else max(1, math.floor(base.delta / k))
+    paper = base.env == "paper-cheetah"  # a task keeps its own end of a trial and its rates (above)
     cfg = dataclasses.replace(
         base, control_dt=control_dt, l=l, lam=lam, delta=delta,
-        gamma=base.gamma ** k, alpha=base.alpha ** k, stop_prob=base.stop_prob * k,
-        reward_scale=base.reward_scale * k,
+        gamma=base.gamma ** k, alpha=base.alpha ** k, stop_prob=base.stop_prob * k if paper else base.stop_prob,
+        reward_scale=base.reward_scale * k if paper else base.reward_scale,
     )
     cfg.validate()
     return cfg
