@@ -72,6 +72,26 @@ def test_ac_trains_on_a_task_with_the_control_cost_of_an_action_inside_the_space
     assert identity.identity_config(checkpoint.load_run_config(out))["env"] == "hopper-v5"
 
 
+def test_ac_learns_from_a_fall_with_the_value_after_it_0():
+    """On Hopper-v5 a fall ends the actor-critic's period and is learned from with the value after it
+    0; nothing else ends a trial within 100 steps. With l = 1, the step sizes 0 and a critic V = c
+    everywhere, every step is a learned period with d = r + gamma c - c, or r - c where it fell: the
+    chunk's summed TD error is sum r + c (gamma (n - falls) - n)."""
+    c, gamma, N, T = 5.0, 0.9, 4, 100
+    cfg = TrainConfig(env="hopper-v5", control_dt=0.008, physics="c", l=1, sigma=10.0, gamma=gamma, num_envs=N,
+                      chunk_steps=T, hidden_actor=8, hidden_critic=8, beta_theta=0.0, beta_v=0.0)
+    tr = ac.make(cfg)
+    ts = tr.init(jax.random.PRNGKey(0))
+    v = jax.tree.map(lambda x: x, ts.v)
+    v["params"]["output"]["bias"] = jnp.full_like(v["params"]["output"]["bias"], c)
+    ts, m = jax.jit(tr.chunk)(ts.replace(v=v))
+    n, falls = int(m["periods_in_chunk"]), int(m["trials_in_chunk"])
+    assert falls > 0 and n == N * T
+    td_sum = float(m["td_mean"]) * n
+    want = float(m["avg_reward"]) * N * T + c * (gamma * (n - falls) - n)
+    assert td_sum == pytest.approx(want, rel=1e-4, abs=1e-3)
+
+
 def test_runs_without_env_keep_their_identity():
     """Checkpoints written before the field (tests/data, by f021abf's code) carry the identity digest
     their code computed; the config read back today gives the same digest. Every committed run

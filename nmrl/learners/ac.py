@@ -22,7 +22,9 @@ is a twentieth of it. On a task the same u is mapped onto the task's action spac
 its squashed action (``ppo_networks.action_range``, ``Task.action_scale``/``action_offset``):
 offset + scale * clip(a / 20, -1, 1), so the task sees an action inside Gymnasium's
 ``action_space`` and the noise keeps its share of the range. On the paper's robot a goes to the
-robot unchanged (its torque saturates by itself).
+robot unchanged (its torque saturates by itself). A task's termination (a fall) ends the period,
+which is learned from with the value after it 0 (nmrl/paper/learner.py, Table II step 2); its
+truncation (the time limit) discards the period, as the paper's random stop does.
 """
 
 from __future__ import annotations

@@ -12,7 +12,9 @@ Per environment e, per nm-period k (Table II):
    accumulate r_bar_k = sum_i gamma^i r_{t_k+i}; accumulate the Delta-sampled likelihood ratio
    grad ln pi_Ahat(Ahat_k; S_k, theta) online (nmrl.paper.noise.online_lr_add, the innovation form of (7));
 2. if the trial was stopped within the period, discard it: no update, traces z, y := 0 (a new trial
-   begins), and a new period starts at the reset state;
+   begins), and a new period starts at the reset state; an environment that ends trials by a rule
+   of its own (a Gymnasium task's ``terminated``: a fall) ends the period there instead, and it is
+   learned from with the value after the end 0 (V~(s_{t_{k+1}}) := 0 in 3.), then the traces are 0;
 3. d_k = r_bar_k + gamma_k V~(s_{t_{k+1}}; v) - V~(s_{t_k}; v), gamma_k = gamma^{l_k};
 4. z := lambda gamma_k z + grad ln pi_Ahat,   theta += beta^theta d_k z;
 5. y := lambda gamma_k y + dV~(s_{t_k}; v)/dv,  v += beta^v d_k y.
@@ -433,6 +435,8 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
     env = env or HalfCheetah(cfg.env_config())
     OBS_DIM, ACT_DIM = env.obs_dim, env.act_dim
     REWARD_TERMS = tuple(env.reward_terms)
+    #: whether the environment ends trials by a rule of its own (a Gymnasium task's ``terminated``)
+    TERMINATES = "terminated" in jax.eval_shape(env.reset, jax.random.PRNGKey(0)).info
     actor = networks.make_actor(cfg.hidden_actor, ACT_DIM)
     critic = networks.make_critic(cfg.hidden_critic)
     N = cfg.num_envs
@@ -498,6 +502,10 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
         completed = (ar.i == 0) & ~stopped
         v_start, g_v = jax.value_and_grad(lambda p: networks.value(critic, p, s_start))(v)
         v_next = networks.value(critic, v, env_state.obs)
+        if TERMINATES:  # a task's own end (a fall): the period is learned from, the value after it is 0
+            terminal = stopped & (env_state.info["terminated"] > 0)
+            completed = completed | terminal
+            v_next = jnp.where(terminal, 0.0, v_next)
         d = rbar + gpow * v_next - v_start
         decay = h.lam * gpow
         z_new = jax.tree.map(lambda z, g: decay * z + g, slot.z, olr.grad)
@@ -536,6 +544,11 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
         v = tree_where(take, v, ts.v)
         opt_theta = tree_where(take, opt_theta, ts.opt_theta)
         opt_v = tree_where(take, opt_v, ts.opt_v)
+        if TERMINATES:  # a new trial after a fall: its traces start at 0 (after they took part above)
+            ended = slots.env.done > 0
+            zero = lambda t: jax.tree.map(  # noqa: E731
+                lambda x: jnp.where(ended.reshape((-1,) + (1,) * (x.ndim - 1)), 0.0, x), t)
+            slots = slots.replace(z=zero(slots.z), y=zero(slots.y))
         new = ts.replace(theta=theta, v=v, slots=slots, key=key, step=ts.step + 1,
                          trials=ts.trials + n_done, periods=ts.periods + n_learn,
                          diverged=ts.diverged | ~ok, opt_theta=opt_theta, opt_v=opt_v)
