@@ -156,13 +156,35 @@ def test_the_studies_take_env_into_every_cell():
 
     xspec = xs.StudySpec(env="walker2d-v5", dts=(0.008, 0.016), screen_dt=0.008)
     xspec.validate()
-    cells = [*xs.screen_cells(xspec), *xs.grid_cells(xspec, None)]
-    assert cells
+    cells = [*xs.screen_cells(xspec), *xs.grid_cells(xspec, None), xs.control_cell(xspec)]
+    assert len(cells) >= 3 and cells[-1] is not None
     for cell in cells:
         base = cell.sweep_spec(xspec).base
         assert (base.env, base.reward_scale) == ("walker2d-v5", 1.0)
     assert xs.StudySpec.from_json(xspec.to_json()) == xspec
+    assert (xspec.step_s(0.008), xs.StudySpec().step_s(0.005)) == (0.008, 0.02)  # the rows' seconds per reward
     assert "env" not in xs.StudySpec().to_json()  # study.json of the paper's robot as before
+
+
+def test_explore_study_rows_of_a_task_run_are_per_second_of_the_task(tmp_path):
+    """A row of the exploration study's results for a task run: the exploring reward per second is
+    the metrics' per-step reward over the control step (a task's rewards are integrated over it), the
+    deterministic one the eval's returns summed over its episodes' steps, per control step."""
+    from nmrl.analysis import exploration_results as xr
+
+    p = tmp_path / "s0"
+    (p / "eval").mkdir(parents=True)
+    rows = [{"step": 10 * (i + 1), "avg_reward": 0.008 * (i + 1), "forward_speed": 0.1, "diverged": False}
+            for i in range(4)]
+    (p / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    ev = {"step": 40, "deterministic": {"episodes": 2, "return": {"each": [30.0, 50.0]}, "length": [100, 300],
+                                        "forward_speed": 0.5}}
+    (p / "eval" / "eval.json").write_text(json.dumps(ev))
+    r = xr.run_row(p, exploration="white", setting="", control_dt=0.008, seed=0, num_envs=4, iteration_steps=10,
+                   step_s=0.008)
+    assert r["avg_reward_per_s"] == pytest.approx(0.032 / 0.008)
+    assert r["auc_reward_per_s"] == pytest.approx(np.mean([0.008, 0.016, 0.024, 0.032]) / 0.008)
+    assert r["det_reward_per_s"] == pytest.approx(80.0 / 400 / 0.008) and r["det_forward_speed"] == 0.5
 
 
 def test_the_endpoint_on_a_task_is_a_gymnasium_episodes_return_per_second():

@@ -71,22 +71,33 @@ def eval_summary(point: pathlib.Path) -> dict | None:
     return {"step": d.get("step"), **d["deterministic"]}
 
 
+def det_reward(ev: dict) -> float:
+    """The deterministic policy's average reward per control step in an eval: ``avg_reward`` of the
+    paper robot's rollout, or a task's (nmrl/analysis/task_eval.py) returns summed over its
+    episodes' steps."""
+    if "avg_reward" in ev:
+        return ev["avg_reward"]
+    return float(np.sum(ev["return"]["each"]) / max(1, int(np.sum(ev["length"]))))
+
+
 def run_row(point: pathlib.Path, *, exploration: str, setting: str, control_dt: float, seed: int,
-            num_envs: int, iteration_steps: int) -> dict | None:
-    """One row of results.csv for the run in ``point`` (None if it has no metrics)."""
+            num_envs: int, iteration_steps: int, step_s: float = DELTA_0) -> dict | None:
+    """One row of results.csv for the run in ``point`` (None if it has no metrics). ``step_s``: the
+    seconds a per-step reward is the rate over (:data:`DELTA_0` on the paper's robot; a Gymnasium
+    task's rewards are integrated over the control step: ``control_dt``)."""
     m = store.read_metrics(point)
     if not m:
         return None
     step = int(m[-1]["step"])
     ev = eval_summary(point)
-    det = ev["avg_reward"] if ev is not None and ev.get("step") == step else float("nan")
+    det = det_reward(ev) if ev is not None and ev.get("step") == step else float("nan")
     det_speed = ev["forward_speed"] if ev is not None and ev.get("step") == step else float("nan")
     avg = stats.final_avg(m, "avg_reward")
     return {"learner": "ppo", "exploration": exploration, "setting": setting, "control_dt": control_dt,
             "seed": seed, "control_steps": step * num_envs, "simulated_s": step * num_envs * control_dt,
-            "iterations": step // iteration_steps, "avg_reward": avg, "avg_reward_per_s": avg / DELTA_0,
-            "auc_reward_per_s": float(np.mean([r["avg_reward"] for r in m])) / DELTA_0,
-            "det_reward": det, "det_reward_per_s": det / DELTA_0,
+            "iterations": step // iteration_steps, "avg_reward": avg, "avg_reward_per_s": avg / step_s,
+            "auc_reward_per_s": float(np.mean([r["avg_reward"] for r in m])) / step_s,
+            "det_reward": det, "det_reward_per_s": det / step_s,
             "forward_speed": stats.final_avg(m, "forward_speed"), "det_forward_speed": det_speed,
             "diverged": bool(any(store.is_diverged(r) for r in m))}
 
@@ -202,13 +213,14 @@ def control_answers(control: Sequence[dict], grid: Sequence[dict], coarse: float
     return out
 
 
-def iteration_means(runs: Sequence[Sequence[dict]]) -> list[dict]:
+def iteration_means(runs: Sequence[Sequence[dict]], step_s: float = DELTA_0) -> list[dict]:
     """Per PPO iteration (one ``metrics.jsonl`` row each) that every run of ``runs`` has reached:
-    the exploring policy's average reward per second, mean and 95% t half-width over the runs."""
+    the exploring policy's average reward per second (per-step rewards over ``step_s``, as
+    :func:`run_row`), mean and 95% t half-width over the runs."""
     n = min((len(m) for m in runs), default=0)
     out = []
     for i in range(n):
-        m, h = stats.mean_ci95(np.array([r[i]["avg_reward"] for r in runs], float) / DELTA_0)
+        m, h = stats.mean_ci95(np.array([r[i]["avg_reward"] for r in runs], float) / step_s)
         out.append({"iteration": i + 1, "mean": m, "ci95": h, "runs": len(runs)})
     return out
 

@@ -141,6 +141,11 @@ class StudySpec:
                          num_minibatches=self.num_minibatches, epochs=self.epochs, physics=self.physics, **extra,
                          **setting)
 
+    def step_s(self, dt: float) -> float:
+        """The seconds a run's per-step reward at ``dt`` is a rate over: the paper's 0.02 s on its robot
+        (its rewards (8)-(14) are rates), ``dt`` on a task (its rewards are integrated over the step)."""
+        return xr.DELTA_0 if self.env == "paper-cheetah" else dt
+
     def iteration_steps(self, dt: float) -> int:
         return self.config(dt, "white").resolved().iteration_steps
 
@@ -309,7 +314,7 @@ def evaluate_points(out: pathlib.Path, cell: Cell, spec: StudySpec, progress: bo
         r = evaluate.evaluate(d, seconds=spec.eval_seconds, seed=0, render=False)
         if progress:
             print(f"[eval dt={cell.dt:g} {cell.process} {p}] deterministic avg reward "
-                  f"{r['deterministic']['avg_reward']:+.3f}", file=sys.stderr, flush=True)
+                  f"{xr.det_reward(r['deterministic']):+.3f}", file=sys.stderr, flush=True)
 
 
 # ------------------------------------------------------------------------------------------ study
@@ -385,7 +390,8 @@ def result_rows(out: pathlib.Path, spec: StudySpec, cells: Sequence[Cell]) -> li
         for s in range(c.seeds):
             r = xr.run_row(c.dir(out) / "points" / sweep.point_name(None, s, None), exploration=c.process,
                            setting=setting_label(c), control_dt=c.dt, seed=s,
-                           num_envs=spec.num_envs * c.envs_factor, iteration_steps=spec.iteration_steps(c.dt))
+                           num_envs=spec.num_envs * c.envs_factor, iteration_steps=spec.iteration_steps(c.dt),
+                           step_s=spec.step_s(c.dt))
             if r is not None:
                 rows.append(r)
     return rows
@@ -414,9 +420,9 @@ def control_summary(out: pathlib.Path, spec: StudySpec, cell: Cell, grid: Sequen
                                          for k, dt in (("white_fine", fine), ("white_coarse", coarse))}},
             "command": cell.command(spec, out=f"runs/rerun/control/dt{coarse:g}/white"),
             "answers": xr.control_answers(done, grid, coarse, fine),
-            "iterations": {"control": xr.iteration_means(runs(cell)),
-                           "white_fine": xr.iteration_means(runs(white[fine])),
-                           "white_coarse": xr.iteration_means(runs(white[coarse]))}}
+            "iterations": {"control": xr.iteration_means(runs(cell), spec.step_s(coarse)),
+                           "white_fine": xr.iteration_means(runs(white[fine]), spec.step_s(fine)),
+                           "white_coarse": xr.iteration_means(runs(white[coarse]), spec.step_s(coarse))}}
 
 
 def write_results(out: pathlib.Path, spec: StudySpec, chosen: dict | None) -> list[dict]:
