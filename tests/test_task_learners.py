@@ -92,6 +92,25 @@ def test_ac_learns_from_a_fall_with_the_value_after_it_0():
     assert td_sum == pytest.approx(want, rel=1e-4, abs=1e-3)
 
 
+@pytest.mark.slow
+def test_an_ac_sweep_runs_every_point_on_the_task(tmp_path):
+    """``nmrl sweep --env walker2d-v5`` over l: every point's config and the saved spec name the task
+    and its own control step; each point learned periods of its own l on it."""
+    out = tmp_path / "s"
+    assert cli.main(["sweep", "--env", "walker2d-v5", *AC_TINY[:2], "--num-envs", "2", "--hidden-actor", "8",
+                     "--hidden-critic", "8", "--l", "1", "4", "--seeds", "1", "--chunk-steps", "20", "--steps", "20",
+                     "--out", str(out)]) == 0
+    assert json.loads((out / "sweep.json").read_text())["base"]["env"] == "walker2d-v5"
+    points = sorted((out / "points").iterdir())
+    assert len(points) == 2
+    periods = {}
+    for d in points:
+        cfg = json.loads((d / "config.json").read_text())
+        assert (cfg["env"], cfg["control_dt"]) == ("walker2d-v5", 0.008)
+        periods[cfg["l"]] = json.loads((d / "metrics.jsonl").read_text().splitlines()[-1])["periods_in_chunk"]
+    assert periods[1] >= 30 and 0 < periods[4] <= 12, periods  # 2 environments x 20 steps in periods of l
+
+
 def test_runs_without_env_keep_their_identity():
     """Checkpoints written before the field (tests/data, by f021abf's code) carry the identity digest
     their code computed; the config read back today gives the same digest. Every committed run
@@ -126,6 +145,9 @@ def test_runs_without_env_keep_their_identity():
     (["study", "--env", "ant-v5"], "env='ant-v5' is unknown"),
     (["study", "--env", "halfcheetah-v5"], "0.005"),  # the study's default 5 ms step is not HalfCheetah's
     (["explore-study", "--env", "ant-v5"], "env='ant-v5' is unknown"),
+    # colored's default band (to 25 Hz) needs a step of at most 0.02 s: HalfCheetah's 0.05 s is refused
+    (["train", "--learner", "ppo", "--env", "halfcheetah-v5", "--exploration", "colored"],
+     "f_max_hz must be <= the Nyquist frequency 10 Hz"),
 ])
 def test_bad_env_input_is_refused_in_one_line(tmp_path, capsys, argv, why):
     out = tmp_path / "r"
@@ -248,7 +270,9 @@ def test_every_exploration_process_trains_on_every_task(tmp_path, learner, kind,
         from nmrl.learners import ppo
 
         it = ppo.PPOConfig(env=name, control_dt=dt, num_envs=4, batch_size=4, num_minibatches=2).resolved().iteration_steps
-        argv = [*PPO_TINY, "--exploration", kind, "--steps", str(2 * it)]
+        # colored's default band ends at 25 Hz, above the Nyquist frequency 10 Hz of HalfCheetah's 0.05 s
+        band = ["--f-max-hz", str(0.5 / dt)] if kind == "colored" and 0.5 / dt < 25 else []
+        argv = [*PPO_TINY, "--exploration", kind, *band, "--steps", str(2 * it)]
     else:
         extra = ["--period-s", "0.2", "--corr-time-s", "0.1"] if kind == "nm-periods" else []
         argv = [*AC_TINY, "--exploration", kind, *extra, "--chunk-steps", "20", "--steps", "40"]
