@@ -349,7 +349,7 @@ def test_a_task_runs_eval_scores_episodes_as_a_gymnasium_loop_does(tmp_path):
     import json
 
     from nmrl import cli
-    from nmrl.analysis import task_eval
+    from nmrl.analysis import eval_env, task_eval
     from nmrl.learners import ppo
     from nmrl.runs import checkpoint
 
@@ -364,7 +364,7 @@ def test_a_task_runs_eval_scores_episodes_as_a_gymnasium_loop_does(tmp_path):
     assert not (out / "eval" / "strobe.png").exists()
 
     _, cfg, params = checkpoint.restore_params(out)
-    env = task_eval._env("hopper-v5", float(cfg.control_dt), "c")
+    env = eval_env.eval_env("hopper-v5", float(cfg.control_dt), "c")
     pol = ppo.policy(cfg, env)
     k_reset, _ = jax.random.split(jax.random.PRNGKey(5))
     s0 = jax.vmap(env.reset)(jax.random.split(k_reset, task_eval.EPISODES))

@@ -4,14 +4,21 @@ A policy's quality is its mean action's, not its exploring behaviour's (at a fix
 noise scale, white noise disturbs the robot less at a finer control step, so an exploring reward
 mixes the policy with its noise). :func:`deterministic_endpoint` rolls the learner's deterministic
 policy (``act(params, obs, 0)``, nmrl/learners/contract.py) out ``rollouts`` times for ``seconds``
-from the paper's initial pose with the joints perturbed (``HalfCheetah.perturb``: U(-s, s) rad,
-s N(0, 1) rad/s), trials never stopping, and reports each rollout's mean reward per step divided
-by the paper's 0.02 s (reward per second, nmrl/experiments/timescale.py), on the run's physics.
+in the run's own environment (its ``env``, physics and timestep; nmrl/analysis/eval_env.py):
+
+* the paper's robot starts from the paper's initial pose with the joints perturbed
+  (``HalfCheetah.perturb``: U(-s, s) rad, s N(0, 1) rad/s), trials never stopping, and each rollout
+  reports its mean reward per step divided by the paper's 0.02 s (reward per second,
+  nmrl/experiments/timescale.py);
+* a Gymnasium task starts from its own reset distribution (Gymnasium's reset noise; ``start_noise``
+  does not apply) and runs one episode: a rollout reports the sum of its rewards until the task
+  terminates it (a fall of Hopper or Walker2d) divided by the seconds simulated, at most the task's
+  time limit. The task's rewards are rates integrated over the control step (docs/tasks.md), so
+  this is the return per simulated second at every control step, and a fall forfeits the rest.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 from typing import Any
 
@@ -19,30 +26,44 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nmrl import learners
-from nmrl.paper.env import HalfCheetah
+from nmrl import learners, tasks
+from nmrl.analysis import eval_env
 
 DELTA_0 = 0.02  #: the paper's control step: reward per second = mean r_t / DELTA_0
 START_NOISE = 0.05  #: rad (angles, uniform half-width) and rad/s (velocities, standard deviation)
 
 
+def _is_task(cfg: Any) -> bool:
+    return getattr(cfg, "env", tasks.PAPER) != tasks.PAPER
+
+
+def _steps(cfg: Any, seconds: float) -> int:
+    """Control steps of a rollout of ``seconds`` (a task's: at most its time limit)."""
+    n = max(1, int(round(seconds / cfg.control_dt)))
+    return min(n, eval_env.of_config(cfg).max_steps) if _is_task(cfg) else n
+
+
 @functools.lru_cache(maxsize=8)
 def _program(program: Any, n_steps: int, rollouts: int, start_noise: float):
     cfg = program
-    # the run's own environment (physics, its timestep), trials never stopping
-    env = HalfCheetah(dataclasses.replace(cfg.env_config(), stop_prob=0.0, trial_s=None, auto_reset=False))
+    env = eval_env.of_config(cfg)  # the run's own environment, no automatic reset
     pol = learners.of(cfg).policy(cfg, env)
+    task = _is_task(cfg)
 
     def one(params, key):
         k_reset, k_start = jax.random.split(key)
-        s = env.perturb(env.reset(k_reset), k_start, start_noise)
+        s = env.reset(k_reset) if task else env.perturb(env.reset(k_reset), k_start, start_noise)
         zero = jnp.zeros(env.act_dim, jnp.float32)
 
-        def step(s, _):
+        def step(carry, _):
+            s, alive = carry
             s = env.step(s, pol.act(params, s.obs, zero))
-            return s, (s.reward, s.metrics["forward_speed"], s.metrics["nonfinite"])
+            out = (jnp.where(alive, s.reward, 0.0), jnp.where(alive, s.metrics["forward_speed"], 0.0),
+                   jnp.where(alive, s.metrics["nonfinite"], 0.0))
+            ended = (s.info["terminated"] > 0) if task else jnp.zeros((), bool)
+            return (s, alive & ~ended), out
 
-        _, (r, v, bad) = jax.lax.scan(step, s, None, length=n_steps)
+        _, (r, v, bad) = jax.lax.scan(step, (s, jnp.ones((), bool)), None, length=n_steps)
         return r.mean(), v.mean(), bad.sum()
 
     return jax.jit(lambda params, keys: jax.vmap(one, in_axes=(None, 0))(params, keys))
@@ -52,16 +73,18 @@ def deterministic_endpoint(config: Any, params: dict, *, seconds: float = 10.0, 
                            start_noise: float = START_NOISE, seed: int = 0) -> dict:
     """``{"reward_per_s": mean over rollouts, "rollouts": [per rollout], "forward_speed": [m/s per
     rollout], "nonfinite_steps": int, ...}`` of ``params`` ({field: tree} of the learner's
-    ``policy_fields``) under ``config``."""
+    ``policy_fields``) under ``config`` (``start_noise``: None on a task, which starts from its own
+    reset distribution)."""
     if not (isinstance(rollouts, int) and rollouts >= 1):
         raise ValueError(f"rollouts={rollouts!r} is invalid: must be an integer >= 1")
     if not (np.isfinite(seconds) and seconds > 0):
         raise ValueError(f"seconds={seconds!r} is invalid: must be a finite time > 0 s")
-    n_steps = max(1, int(round(seconds / config.control_dt)))
-    fn = _program(learners.program_key(config), n_steps, rollouts, float(start_noise))
+    task = _is_task(config)
+    n_steps = _steps(config, seconds)
+    fn = _program(learners.program_key(config), n_steps, rollouts, 0.0 if task else float(start_noise))
     keys = jax.random.split(jax.random.PRNGKey(seed), rollouts)
     r, v, bad = (np.asarray(x, np.float64) for x in fn(params, keys))
-    per_s = r / DELTA_0
+    per_s = r / config.control_dt if task else r / DELTA_0
     return {"reward_per_s": float(per_s.mean()), "rollouts": per_s.tolist(), "forward_speed": v.tolist(),
-            "nonfinite_steps": int(bad.sum()), "seconds": n_steps * config.control_dt, "start_noise": start_noise,
-            "seed": seed}
+            "nonfinite_steps": int(bad.sum()), "seconds": n_steps * config.control_dt,
+            "start_noise": None if task else start_noise, "seed": seed}

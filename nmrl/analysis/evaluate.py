@@ -41,9 +41,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from nmrl import learners, tasks
-from nmrl.analysis import task_eval
+from nmrl.analysis import eval_env, task_eval
 from nmrl.analysis.gait_pictures import plot_strobe, write_gif
-from nmrl.paper.env import REWARD_TERMS, EnvConfig, HalfCheetah, forward_kinematics
+from nmrl.paper.env import REWARD_TERMS, EnvConfig, forward_kinematics
 from nmrl.runs import checkpoint, io_errors
 from nmrl.runs.store import atomic_path, atomic_write_text, fsync_path
 
@@ -68,12 +68,6 @@ STAGING = ".staging."
 # ----------------------------------------------------------------------------- rollout
 
 
-@functools.lru_cache(maxsize=4)
-def _env(control_dt: float, physics: str = "mjx", timestep: float | None = None) -> HalfCheetah:
-    return HalfCheetah(EnvConfig(control_dt=control_dt, stop_prob=0.0, auto_reset=False, physics=physics,
-                                 timestep=timestep))
-
-
 def _physics(config: Any) -> str:
     """The physics a run trained on (configs that predate the field: MJX)."""
     return getattr(config, "physics", "mjx")
@@ -85,7 +79,7 @@ def _rollout_fn(program: Any, n_steps: int):
     learner's policy (nmrl/learners/contract.py, ``Policy``): ``a_t = act(params, s_t, noise_scale *
     xi_t)``, xi the learner's exploration noise. ``program``: the config with its traced fields at
     their defaults (:func:`nmrl.learners.program_key`), so every point of a sweep shares it."""
-    env = _env(float(program.control_dt), _physics(program), getattr(program, "physics_timestep", None))
+    env = eval_env.of_config(program)
     pol = learners.of(program).policy(program, env)
 
     def run(params, key, noise_scale, noise_args):
@@ -116,8 +110,7 @@ def rollout_params(config, params: dict, *, seconds: float, seed: int, exploring
     policy or (``exploring``) the exploring one; numpy arrays per step (``pos``: (T+1, 10, 2))."""
     n_steps = _num_steps(seconds, config.control_dt)
     fn = _rollout_fn(learners.program_key(config), n_steps)
-    noise_args = learners.of(config).policy(config, _env(float(config.control_dt), _physics(config),
-                                                         getattr(config, "physics_timestep", None))).noise_args
+    noise_args = learners.of(config).policy(config, eval_env.of_config(config)).noise_args
     traj, pos0, x0 = fn(params, jax.random.PRNGKey(seed), jnp.float32(1.0 if exploring else 0.0), noise_args)
     return _host_traj(traj, pos0, x0, config.control_dt)
 
@@ -131,7 +124,7 @@ def rollout(config, theta, *, seconds: float, seed: int, exploring: bool) -> dic
 @functools.lru_cache(maxsize=8)
 def _policy_rollout_fn(act: Callable, control_dt: float, n_steps: int, physics: str = "mjx"):
     """A jitted (params, key) -> (traj, pos0, x0) for one trial of ``a_t = act(params, s_t)``."""
-    env = _env(control_dt, physics)
+    env = eval_env.eval_env(tasks.PAPER, control_dt, physics)
 
     def run(params, key):
         s0 = env.reset(key)

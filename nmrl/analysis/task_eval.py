@@ -20,22 +20,18 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nmrl import learners, tasks
+from nmrl import learners
+from nmrl.analysis import eval_env
 
 #: episodes per evaluation (a mean over 10 episodes, as CleanRL's and most papers' evaluations)
 EPISODES = 10
-
-
-@functools.lru_cache(maxsize=4)
-def _env(name: str, control_dt: float, physics: str):
-    return tasks.make_env(name, tasks.EnvConfig(control_dt=control_dt, physics=physics, auto_reset=False))
 
 
 @functools.lru_cache(maxsize=8)
 def _episodes_fn(program: Any, n: int):
     """A jitted ``(params, key, noise_scale, noise_args) -> per-step arrays (T, n)`` for ``n``
     episodes of the policy of ``program`` (its traced fields at their defaults)."""
-    env = _env(program.env, float(program.control_dt), getattr(program, "physics", "mjx"))
+    env = eval_env.of_config(program)
     pol = learners.of(program).policy(program, env)
     horizon = env.max_steps
 
@@ -66,7 +62,7 @@ def episodes(config: Any, params: dict, *, n: int = EPISODES, seed: int = 0, exp
     """``n`` episodes of a task run's policy: ``return`` (mean, sd, each), ``length`` (steps, each),
     ``terminated`` (episodes that ended by the task's rule before the time limit), ``forward_speed``
     (m/s, mean of Gymnasium's x velocity over the steps alive), ``nonfinite`` (failed physics steps)."""
-    env = _env(config.env, float(config.control_dt), getattr(config, "physics", "mjx"))
+    env = eval_env.of_config(config)
     noise_args = learners.of(config).policy(config, env).noise_args
     fn = _episodes_fn(learners.program_key(config), int(n))
     traj = jax.device_get(fn(params, jax.random.PRNGKey(seed), jnp.float32(1.0 if exploring else 0.0), noise_args))

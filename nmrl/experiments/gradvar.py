@@ -31,7 +31,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nmrl.paper.learner import Hyper, TrainConfig, make_train
+from nmrl import learners
+from nmrl.paper.learner import Hyper, TrainConfig
 from nmrl.analysis.stats import mean_ci95
 from nmrl.runs.points import stack_trees
 
@@ -83,7 +84,7 @@ def measure(configs: Sequence[TrainConfig], policies: Sequence[tuple], *, batche
         raise ValueError(f"batches={batches!r} is invalid: need an integer >= 2 for an interval")
     cfgs = [dataclasses.replace(c, beta_theta=0.0, beta_v=0.0, grad_stats=True, steps=None, trials=None)
             .resolved() for c in configs]
-    trainer = make_train(cfgs[0])
+    trainer = learners.get("ac").make(cfgs[0])  # with the run's environment (its --env)
     keys = jnp.stack([jax.random.PRNGKey(seed + i) for i in range(len(cfgs))])
     ts = jax.jit(jax.vmap(trainer.init))(keys, stack_trees([Hyper.from_config(c) for c in cfgs]))
     f32 = lambda t: jax.tree.map(lambda a: jnp.asarray(a, jnp.float32), t)  # noqa: E731

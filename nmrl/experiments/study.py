@@ -162,7 +162,8 @@ def _final_rows(out: pathlib.Path, spec: TimescaleSpec, grid_rows: list[dict]) -
             rows.append({"dt": dt, "arm": arm_name(period), "period_s": "" if period is None else period,
                          "l": c.l, "delta": c.delta, "seed": c.seed, "beta_theta": c.beta_theta,
                          "beta_v": c.beta_v, "steps": m[-1]["step"], "seconds": m[-1]["step"] * dt,
-                         "trials": m[-1]["trials"], "avg_reward": avg, "reward_per_s": avg / DELTA_0,
+                         "trials": m[-1]["trials"], "avg_reward": avg,
+                         "reward_per_s": avg / (DELTA_0 if c.env == "paper-cheetah" else dt),
                          "forward_speed": stats.final_avg(m, "forward_speed"),
                          "diverged": any(store.is_diverged(r) for r in m),
                          "theta_norm_first": m[0]["theta_norm"], "theta_norm": m[-1]["theta_norm"],
@@ -332,6 +333,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--beta-theta-cap", type=float, default=None,
                     help="choose only among grid pairs with beta_theta <= this (every arm)")
     ap.add_argument("--physics", default=d.physics, help=PHYSICS_HELP)
+    ap.add_argument("--env", default=d.base.env, help=LEARNER.help["env"])
     ap.add_argument("--phases", nargs="+", default=list(PHASES), help=f"any of {list(PHASES)}")
     ap.add_argument("--quiet", action="store_true")
     a = ap.parse_args(argv)
@@ -339,7 +341,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                      beta_v_grid=tuple(a.beta_v), grid_seconds=a.grid_seconds, final_seconds=a.final_seconds,
                      chunk_seconds=a.chunk_seconds, seeds=a.seeds, num_envs=a.num_envs,
                      checkpoint_every=a.checkpoint_every, gradvar_envs=a.gradvar_envs,
-                     gradvar_batches=a.gradvar_batches, beta_theta_cap=a.beta_theta_cap)
+                     gradvar_batches=a.gradvar_batches, beta_theta_cap=a.beta_theta_cap,
+                     base=dataclasses.replace(d.base, env=a.env))
     return command.run("nmrl study", lambda: run_study(spec, a.out, phases=a.phases, progress=not a.quiet),
                        (StudyError,))
 

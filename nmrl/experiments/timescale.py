@@ -23,6 +23,11 @@ Step sizes are not converted: they are chosen per arm by a grid (the study's rul
 and nm-periods of fixed durations), the step-size grid and the budgets in simulated seconds, and
 every run's config made from the paper's constants by :func:`at_control_step`. It is stored as the
 study's ``study.json`` (:meth:`TimescaleSpec.to_json`).
+
+On a Gymnasium task (``env``, docs/tasks.md) the trial's end and the reward's scale are the task's
+own: it ends by its own rule and time limit (the stop probability stays the default it refuses to
+change), and its rewards already are rates integrated over the control step (r_t = r_gym delta /
+dt0), so ``reward_scale`` is not converted; the average reward per second is mean(r_t) / delta.
 """
 
 from __future__ import annotations
@@ -30,6 +35,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+from nmrl import learners
 from nmrl.paper.env import PHYSICS
 from nmrl.paper.learner import TrainConfig
 from nmrl.runs import bounds
@@ -60,10 +66,11 @@ def at_control_step(base: TrainConfig, control_dt: float, period_seconds: float 
     else:
         l, lam = _as_int(period_seconds / control_dt, "period_seconds / control_dt"), base.lam
     delta = _as_int(base.delta / k, "Delta_0 * delta_0 / control_dt") if k < 1 else max(1, math.floor(base.delta / k))
+    paper = base.env == "paper-cheetah"  # a task keeps its own end of a trial and its rates (above)
     cfg = dataclasses.replace(
         base, control_dt=control_dt, l=l, lam=lam, delta=delta,
-        gamma=base.gamma ** k, alpha=base.alpha ** k, stop_prob=base.stop_prob * k,
-        reward_scale=base.reward_scale * k,
+        gamma=base.gamma ** k, alpha=base.alpha ** k, stop_prob=base.stop_prob * k if paper else base.stop_prob,
+        reward_scale=base.reward_scale * k if paper else base.reward_scale,
     )
     cfg.validate()
     return cfg
@@ -124,7 +131,7 @@ class TimescaleSpec:
         for dt in self.dts:
             self._steps(self.chunk_seconds, dt, "chunk_seconds")
             for p in self.periods:
-                self.arm_config(dt, p)  # raises if period / dt is not an integer
+                learners.get("ac").validate(self.arm_config(dt, p))  # raises if period / dt is not an integer, an unknown env, ...
 
     @staticmethod
     def _steps(seconds: float, dt: float, what: str) -> int:

@@ -14,6 +14,17 @@ noise is l = 1, the paper's nm-periods are l = round(period_s / control_dt) and
 alpha = exp(-control_dt / corr_time_s) (alpha = 0.8 at 0.02 s <-> corr_time_s = 0.0896 s). A
 stationary correlated process (``ou``, ``colored``) has no periods, so its likelihood ratio has no
 period to be accumulated over (Table II, step 1): the actor-critic refuses it.
+
+Environments (``env``, nmrl/tasks/): the paper's robot or a Gymnasium task. The actor's action
+a = a~(s; theta) + xi is in the paper's units, where a = 20 u with u in [-1, 1] spans the robot's
+whole torque range (a^0 = 0.1 a, Sec. V-A; ``ppo_networks.ACTION_SCALE``) and the noise's sigma = 1
+is a twentieth of it. On a task the same u is mapped onto the task's action space the way PPO maps
+its squashed action (``ppo_networks.action_range``, ``Task.action_scale``/``action_offset``):
+offset + scale * clip(a / 20, -1, 1), so the task sees an action inside Gymnasium's
+``action_space`` and the noise keeps its share of the range. On the paper's robot a goes to the
+robot unchanged (its torque saturates by itself). A task's termination (a fall) ends the period,
+which is learned from with the value after it 0 (nmrl/paper/learner.py, Table II step 2); its
+truncation (the time limit) discards the period, as the paper's random stop does.
 """
 
 from __future__ import annotations
@@ -23,7 +34,8 @@ import math
 
 import jax.numpy as jnp
 
-from nmrl import explore
+from nmrl import explore, tasks
+from nmrl.learners import ppo_networks
 from nmrl.learners.contract import Learner, Policy, register
 from nmrl.paper import networks, noise
 from nmrl.paper.env import PHYSICS_HELP, TRIAL_S_HELP
@@ -41,6 +53,25 @@ def check(cfg: TrainConfig) -> None:
         v = getattr(cfg, name)
         if isinstance(v, float) and not math.isfinite(v):
             raise ValueError(f"{name}={v!r} is invalid: must be a finite number")
+    tasks.check_env(cfg.env, cfg.env_config())
+
+
+def action_map(env):
+    """The environment's action for the actor's a (module docstring): None (a itself) for an
+    environment without an action space of its own (the paper's robot), else
+    ``a -> offset + scale * clip(a / 20, -1, 1)`` onto its ``action_scale``/``action_offset``."""
+    if not hasattr(env, "action_scale"):
+        return None
+    scale, offset = ppo_networks.action_range(env)
+    return lambda a: ppo_networks.squash(a / ppo_networks.ACTION_SCALE, "clip", scale, offset)
+
+
+def make(config: TrainConfig, env=None, **kw):
+    """``make_train`` with the run's environment (``tasks.make_env(config.env, ...)`` unless given)
+    and its :func:`action_map`."""
+    cfg = config.resolved()
+    env = env or tasks.make_env(cfg.env, cfg.env_config())
+    return make_train(config, env, action_map=action_map(env), **kw)
 
 
 def exploration_fields(kind: str, control_dt: float, period_s: float | None = None,
@@ -87,10 +118,12 @@ def exploration(cfg: TrainConfig, kind: str | None, params: dict, given: frozens
 
 
 def policy(cfg: TrainConfig, env) -> Policy:
-    """a = a~(s; theta) + xi (eq. (6)); xi the piecewise AR process (4) with the run's l, alpha, sigma."""
+    """a = a~(s; theta) + xi (eq. (6)) through the environment's :func:`action_map`; xi the piecewise AR
+    process (4) with the run's l, alpha, sigma."""
     actor = networks.make_actor(cfg.hidden_actor, env.act_dim)
+    to_env = action_map(env) or (lambda a: a)
     return Policy(
-        act=lambda params, obs, xi: actor.apply(params["theta"], obs) + xi,
+        act=lambda params, obs, xi: to_env(actor.apply(params["theta"], obs) + xi),
         noise_init=noise.ar_init,
         noise_step=lambda a, state, eps: noise.ar_step(state, eps, a["alpha"], a["l"], a["sigma"]),
         noise_args={"alpha": jnp.float32(cfg.alpha), "l": jnp.int32(cfg.l), "sigma": jnp.float32(cfg.sigma)},
@@ -109,7 +142,7 @@ LEARNER = register(Learner(
     config=TrainConfig,
     hyper=Hyper.from_config,
     hyper_fields=tuple(Hyper._fields),
-    make=make_train,
+    make=make,
     env_fields=("slots",),
     compact_fields=("theta", "v", "periods"),
     policy_fields=("theta", "v"),
@@ -119,7 +152,8 @@ LEARNER = register(Learner(
           "actor_opt": f"actor update rule: {OPT_HELP} (default: the preset's)",
           "critic_opt": "critic update rule, as --actor-opt (default: the preset's)",
           "physics": PHYSICS_HELP, "trial_s": TRIAL_S_HELP,
-          "physics_timestep": "MuJoCo's timestep [s] (default: the model's 0.005 s); the control step must be a multiple"},
+          "physics_timestep": "MuJoCo's timestep [s] (default: the model's 0.005 s); the control step must be a multiple",
+          "env": f"the environment: {', '.join(tasks.ENVS)} (docs/tasks.md)"},
     hidden=("grad_stats",),
     restorable=OPT_FIELDS,
     fill=_fill,

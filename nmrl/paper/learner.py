@@ -12,7 +12,9 @@ Per environment e, per nm-period k (Table II):
    accumulate r_bar_k = sum_i gamma^i r_{t_k+i}; accumulate the Delta-sampled likelihood ratio
    grad ln pi_Ahat(Ahat_k; S_k, theta) online (nmrl.paper.noise.online_lr_add, the innovation form of (7));
 2. if the trial was stopped within the period, discard it: no update, traces z, y := 0 (a new trial
-   begins), and a new period starts at the reset state;
+   begins), and a new period starts at the reset state; an environment that ends trials by a rule
+   of its own (a Gymnasium task's ``terminated``: a fall) ends the period there instead, and it is
+   learned from with the value after the end 0 (V~(s_{t_{k+1}}) := 0 in 3.), then the traces are 0;
 3. d_k = r_bar_k + gamma_k V~(s_{t_{k+1}}; v) - V~(s_{t_k}; v), gamma_k = gamma^{l_k};
 4. z := lambda gamma_k z + grad ln pi_Ahat,   theta += beta^theta d_k z;
 5. y := lambda gamma_k y + dV~(s_{t_k}; v)/dv,  v += beta^v d_k y.
@@ -248,6 +250,8 @@ class TrainConfig:
     trial_s: float | None = None  #: mean trial length [s] (stop_prob = control_dt / trial_s); None: stop_prob
     physics: str = "mjx"  #: "mjx" or "c" (MuJoCo C on the CPU; nmrl/physics/mujoco_c.py)
     physics_timestep: float | None = None  #: MuJoCo's timestep [s]; None: the model's (0.005 s)
+    #: the environment by name: the paper's robot or a Gymnasium task (nmrl/tasks/, built by the learner ``ac``)
+    env: str = "paper-cheetah"
     # batching and budget
     num_envs: int = 256  #: N environments in lock-step
     chunk_steps: int = 250  #: control steps per environment in one jitted chunk
@@ -411,12 +415,15 @@ def _with_learning_rate(state: OptState, learning_rate: jax.Array) -> OptState:
 
 
 def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = None,
-               num_shards: int = 1) -> ACTrainer:
+               num_shards: int = 1, action_map: Callable[[jax.Array], jax.Array] | None = None) -> ACTrainer:
     """Build the pure functions of a training run (see the module docstring).
 
-    ``env`` defaults to ``HalfCheetah(config.env_config())``; any environment with the same interface
-    (``obs_dim``, ``act_dim``, ``reward_terms``, ``reset(key)``, ``step(state, action)`` with auto-reset,
-    ``State`` with ``obs``, ``reward``, ``done``, ``metrics`` incl. ``forward_speed`` and ``nonfinite``) works.
+    ``env`` defaults to ``HalfCheetah(config.env_config())`` (a config naming another ``env`` must
+    bring it); any environment with the same interface (``obs_dim``, ``act_dim``, ``reward_terms``,
+    ``reset(key)``, ``step(state, action)`` with auto-reset, ``State`` with ``obs``, ``reward``,
+    ``done``, ``metrics`` incl. ``forward_speed`` and ``nonfinite``) works. ``action_map`` turns the
+    action a_t of (6) into the environment's action (None: a_t itself, the paper's robot;
+    nmrl/learners/ac.py maps it onto a Gymnasium task's action space).
 
     With ``axis_name`` and ``num_shards`` > 1, ``chunk`` is written for ``jax.shard_map`` over the
     environment axis of ``TrainState.slots`` (nmrl/runs/layout.py does that): each shard steps its
@@ -426,9 +433,13 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
     """
     check_shards(config.num_envs, num_shards, axis_name)
     cfg = config.resolved()
+    if env is None and cfg.env != "paper-cheetah":
+        raise ValueError(f"env={cfg.env!r}: make_train builds the paper's robot only; pass the environment")
     env = env or HalfCheetah(cfg.env_config())
     OBS_DIM, ACT_DIM = env.obs_dim, env.act_dim
     REWARD_TERMS = tuple(env.reward_terms)
+    #: whether the environment ends trials by a rule of its own (a Gymnasium task's ``terminated``)
+    TERMINATES = "terminated" in jax.eval_shape(env.reset, jax.random.PRNGKey(0)).info
     actor = networks.make_actor(cfg.hidden_actor, ACT_DIM)
     critic = networks.make_critic(cfg.hidden_critic)
     N = cfg.num_envs
@@ -486,7 +497,7 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
         sampled = jnp.remainder(i_used, h.delta) == 0
         olr = noise.online_lr_add(olr, actor.apply, theta, obs, xi, h.alpha ** h.delta, h.sigma,
                                   active=sampled)
-        env_state = env.step(slot.env, mean + xi)
+        env_state = env.step(slot.env, mean + xi if action_map is None else action_map(mean + xi))
         r = env_state.reward * cfg.reward_scale
         rbar = rbar + gpow * r
         gpow = gpow * h.gamma
@@ -494,6 +505,10 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
         completed = (ar.i == 0) & ~stopped
         v_start, g_v = jax.value_and_grad(lambda p: networks.value(critic, p, s_start))(v)
         v_next = networks.value(critic, v, env_state.obs)
+        if TERMINATES:  # a task's own end (a fall): the period is learned from, the value after it is 0
+            terminal = stopped & (env_state.info["terminated"] > 0)
+            completed = completed | terminal
+            v_next = jnp.where(terminal, 0.0, v_next)
         d = rbar + gpow * v_next - v_start
         decay = h.lam * gpow
         z_new = jax.tree.map(lambda z, g: decay * z + g, slot.z, olr.grad)
@@ -532,6 +547,11 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
         v = tree_where(take, v, ts.v)
         opt_theta = tree_where(take, opt_theta, ts.opt_theta)
         opt_v = tree_where(take, opt_v, ts.opt_v)
+        if TERMINATES:  # a new trial after a fall: its traces start at 0 (after they took part above)
+            ended = slots.env.done > 0
+            zero = lambda t: jax.tree.map(  # noqa: E731
+                lambda x: jnp.where(ended.reshape((-1,) + (1,) * (x.ndim - 1)), 0.0, x), t)
+            slots = slots.replace(z=zero(slots.z), y=zero(slots.y))
         new = ts.replace(theta=theta, v=v, slots=slots, key=key, step=ts.step + 1,
                          trials=ts.trials + n_done, periods=ts.periods + n_learn,
                          diverged=ts.diverged | ~ok, opt_theta=opt_theta, opt_v=opt_v)
