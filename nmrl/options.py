@@ -15,13 +15,14 @@ not the field name with dashes, and whether it is an option at all. From the dec
   cast to float32 or int32 by the field's type; a field whose traced value needs code (PPO's
   ``gamma = exp(-control_dt / discount_horizon_s)``) names its leaf (``traced="gamma"``) and the
   learner gives that leaf's function once;
-* :func:`check`: the type, float32/int32 representability and range of every field (one line
-  ``NAME=VALUE is invalid: ...`` naming what is allowed), what nmrl/runs/bounds.py runs before
-  anything of a run is written.
+* :func:`check`: the type, finiteness and range or choices of every field (one line
+  ``NAME=VALUE is invalid: ...`` naming what is allowed), what a config's ``validate`` runs; with
+  ``limits``, what nmrl/runs/bounds.py runs before anything of a run is written, also float32/int32
+  representability and the caps of sense (a step size at most 1, :attr:`Range.cap`).
 
 A learner computes in float32 and counts in int32, so a value Python holds exactly may not survive
-the cast (``--sigma 1e300`` becomes inf): a ``float`` must be finite in float32 and, when not 0, not
-below float32's smallest normal number; an ``int`` must fit in int32, except a field whose range
+the cast (``--sigma 1e300`` becomes inf): before a run, a ``float`` must be finite in float32 and,
+when not 0, not below float32's smallest normal number; an ``int`` must fit in int32, except a field whose range
 says otherwise (the seed: JAX's PRNG keys take 32-bit unsigned seeds, :data:`SEED_MAX`).
 """
 
@@ -53,9 +54,14 @@ class Range:
     hi: float = math.inf
     open_lo: bool = False
     why: str = ""
+    #: ``hi`` is a cap of sense (a step size at most 1, a noise sigma at most 10), checked before a run
+    #: (nmrl/runs/bounds.py) but not by a config's ``validate``: code may go beyond it (a test that
+    #: makes a run diverge on purpose); False: nothing beyond ``hi`` means anything (a probability)
+    cap: bool = False
 
-    def contains(self, x: float) -> bool:
-        return (x > self.lo if self.open_lo else x >= self.lo) and x <= self.hi
+    def contains(self, x: float, cap: bool = True) -> bool:
+        """``x`` in the range (``cap`` False: a cap's upper end not checked)."""
+        return (x > self.lo if self.open_lo else x >= self.lo) and (x <= self.hi or self.cap and not cap)
 
     def text(self, kind: type = float) -> str:
         """``must be ...`` in words: an interval, or a bound when the range has no upper end."""
@@ -73,7 +79,7 @@ class Range:
 POSITIVE = Range(0.0, open_lo=True)
 NON_NEGATIVE = Range(0.0)
 AT_LEAST_ONE = Range(1)
-STEP_SIZE = Range(0.0, 1.0, why="a step size")
+STEP_SIZE = Range(0.0, 1.0, why="a step size", cap=True)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -158,10 +164,11 @@ def _bad(name: str, value: Any, allowed: str) -> ValueError:
     return ValueError(f"{name}={value!r} is invalid: {allowed}")
 
 
-def check_value(name: str, value: Any, kind_: type | None, decl: Option = Option()) -> None:
-    """ValueError (one line) unless ``value`` is of its kind, representable for its use (float32 for
-    ``float``, int32 for ``int`` unless the range says otherwise) and allowed by the declaration's
-    range or choices. None passes (a field that is None means "the default")."""
+def check_value(name: str, value: Any, kind_: type | None, decl: Option = Option(), limits: bool = True) -> None:
+    """ValueError (one line) unless ``value`` is of its kind, finite, and allowed by the declaration's
+    choices or range; with ``limits`` also representable for its use (float32 for ``float``, int32 for
+    ``int`` unless the range says otherwise) and within a range's cap (:attr:`Range.cap`). None passes
+    (a field that is None means "the default")."""
     if value is None:
         return
     if decl.choices is not None and value not in decl.choices:
@@ -174,33 +181,35 @@ def check_value(name: str, value: Any, kind_: type | None, decl: Option = Option
     if kind_ is int:
         if not isinstance(value, int) or isinstance(value, bool):
             raise _bad(name, value, f"must be {r.text(int)}" if r else "must be an integer")
-        if r is None or r.hi == math.inf:
-            if abs(value) > INT32_MAX:
-                raise _bad(name, value, f"must fit in 32 bits (|{name}| <= {INT32_MAX}), as the counters and "
-                                        f"traced integers do")
+        if limits and (r is None or r.hi == math.inf) and abs(value) > INT32_MAX:
+            raise _bad(name, value, f"must fit in 32 bits (|{name}| <= {INT32_MAX}), as the counters and traced "
+                                    f"integers do")
     elif isinstance(value, (int, float)) and not isinstance(value, bool):
         x = float(value)
+        if not math.isfinite(x) and not limits:
+            raise _bad(name, value, "must be a finite number")
         with np.errstate(over="ignore", under="ignore"):
             x32 = float(np.float32(x))  # rounded to nearest, as the learner's cast does
-        if not math.isfinite(x32):
+        if limits and not math.isfinite(x32):
             raise _bad(name, value, f"must be a finite number in float32 (|{name}| <= {F32_MAX:.4g}); the learner "
                                     f"computes in float32")
-        if x != 0 and abs(x32) < F32_TINY:
+        if limits and x != 0 and abs(x32) < F32_TINY:
             raise _bad(name, value, f"below float32's smallest normal number {F32_TINY:.4g} (it would become 0 "
                                     f"or lose its precision); give 0 or a larger value")
     else:
         raise _bad(name, value, f"must be {r.text(float)}" if r else "must be a number")
-    if r is not None and not r.contains(float(value)):
+    if r is not None and not r.contains(float(value), cap=limits):
         raise _bad(name, value, f"must be {r.text(kind_)}")
 
 
-def check(config: Any, skip: frozenset[str] = frozenset()) -> None:
+def check(config: Any, skip: frozenset[str] = frozenset(), limits: bool = True) -> None:
     """:func:`check_value` for every field of the dataclass ``config`` (but ``skip``), in field
-    order: ValueError for the first that is not allowed."""
+    order: ValueError for the first that is not allowed. A config's ``validate`` checks without
+    ``limits`` (what is meaningless anywhere); nmrl/runs/bounds.py with them, before a run."""
     cls = type(config)
     for name, decl in declarations(cls).items():
         if name not in skip:
-            check_value(name, getattr(config, name), kind(cls, name), decl)
+            check_value(name, getattr(config, name), kind(cls, name), decl, limits)
 
 
 def hyper_type(cls: type, derived: Mapping[str, Callable[[Any], Any]] = {},  # noqa: B006 - read only
@@ -216,6 +225,7 @@ def hyper_type(cls: type, derived: Mapping[str, Callable[[Any], Any]] = {},  # n
     missing = sorted(set(leaves) - set(traced(cls)) - set(derived))
     if missing:
         raise TypeError(f"{cls.__name__}: no function for the derived traced value(s) {missing}")
+
     def from_config(config: Any) -> Any:
         import jax.numpy as jnp  # not at import: the command line sets JAX's devices first
 

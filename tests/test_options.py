@@ -18,6 +18,7 @@ import dataclasses
 import json
 import math
 import pathlib
+import re
 from typing import NamedTuple
 
 import jax
@@ -99,14 +100,26 @@ def test_ppo_hyper_from_the_declarations_gives_the_same_chunk_bit_for_bit():
 
 
 @pytest.mark.parametrize("cls, field, value", [
-    (ppo.PPOConfig, "sigma", 11.0), (ppo.PPOConfig, "learning_rate", 1.5), (ppo.PPOConfig, "clip_eps", 0.0),
-    (ppo.PPOConfig, "control_dt", 2.0), (ppo.PPOConfig, "squash", "sigmoid"), (ppo.PPOConfig, "normalize_obs", 1),
-    (TrainConfig, "sigma", 11.0), (TrainConfig, "beta_v", 2.0), (TrainConfig, "gamma", 1.5),
-    (TrainConfig, "stop_prob", 1.5), (TrainConfig, "preset", "turbo"),
+    (ppo.PPOConfig, "sigma", 0.0), (ppo.PPOConfig, "learning_rate", 0.0), (ppo.PPOConfig, "clip_eps", 0.0),
+    (ppo.PPOConfig, "stop_prob", 1.5), (ppo.PPOConfig, "squash", "sigmoid"), (ppo.PPOConfig, "normalize_obs", 1),
+    (ppo.PPOConfig, "entropy_cost", float("nan")), (TrainConfig, "sigma", 0.0), (TrainConfig, "beta_v", -1.0),
+    (TrainConfig, "gamma", 1.5), (TrainConfig, "stop_prob", 1.5), (TrainConfig, "preset", "turbo"),
 ])
 def test_config_validate_refuses_a_value_outside_its_declared_range(cls, field, value):
     with pytest.raises(ValueError, match=rf"^{field}={value!r} is invalid: "):
         cls(**{field: value}).validate()
+
+
+@pytest.mark.parametrize("cls, field, value, allowed", [
+    (TrainConfig, "beta_theta", 1e3, "[0, 1]"), (ppo.PPOConfig, "learning_rate", 1.5, "(0, 1]"),
+    (ppo.PPOConfig, "sigma", 11.0, "(0, 10]"), (TrainConfig, "control_dt", 2.0, "(0, 1]"),
+])
+def test_a_cap_of_sense_is_checked_before_a_run_not_by_validate(cls, field, value, allowed):
+    """Code may set a step size beyond 1 (a test that makes a run diverge on purpose); a run may not."""
+    cfg = cls(**{field: value})
+    cfg.validate()
+    with pytest.raises(ValueError, match=rf"^{field}={value!r} is invalid: must be in {re.escape(allowed)}"):
+        bounds.check(cfg)
 
 
 def test_a_range_belongs_to_the_config_that_declares_it():

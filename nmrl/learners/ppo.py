@@ -63,7 +63,7 @@ NAME = "ppo"
 BRAX_HORIZON_S = -0.02 / math.log(0.95)
 SQUASHES = ("tanh", "clip")
 #: Adam's step size: > 0 (0 would learn nothing), at most 1
-_LEARNING_RATE = Range(0.0, 1.0, open_lo=True, why="a step size")
+_LEARNING_RATE = Range(0.0, 1.0, open_lo=True, why="a step size", cap=True)
 #: iterations of the budget a run given none gets
 DEFAULT_ITERATIONS = 1
 
@@ -166,11 +166,11 @@ class PPOConfig:
                          physics=self.physics, trial_s=self.trial_s, timestep=self.physics_timestep)
 
     def validate(self) -> None:
-        """Every field by its declaration (type, float32/int32, range, choices; nmrl/options.py), then
+        """Every field by its declaration (type, finiteness, range, choices; nmrl/options.py), then
         what relates fields: the exploration at the control step, the period-wise learning's process,
         times of at least one control step, minibatches of whole environments, chunks of whole
         iterations, one budget, the environment."""
-        options.check(self)
+        options.check(self, limits=False)
         self.spec().validate(self.control_dt)
         if self.period_wise and self.exploration != "nm-periods":
             raise _bad("period_wise", self.period_wise, "true only with --exploration nm-periods (a process whose "

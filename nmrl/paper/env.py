@@ -116,14 +116,14 @@ TRIAL_S_HELP = ("mean trial length [s]: the stop probability per step becomes co
 #: multiple of the physics timestep), a stop probability, a mean trial length, the engine, its timestep
 _ENV_OPTIONS: dict[str, dict[str, Any]] = {
     "control_dt": dict(help="control step [s]", range=Range(0.0, 1.0, open_lo=True,
-                                                           why="seconds per control step, at most 1 s")),
+                                                           why="seconds per control step, at most 1 s", cap=True)),
     "stop_prob": dict(help="probability of stopping a trial after each step",
                       range=Range(0.0, 1.0, why="a probability per control step")),
-    "trial_s": dict(help=TRIAL_S_HELP, range=Range(0.0, 1e6, open_lo=True, why="a mean trial length in seconds")),
+    "trial_s": dict(help=TRIAL_S_HELP, range=Range(0.0, 1e6, open_lo=True, why="a mean trial length in seconds", cap=True)),
     "physics": dict(help=PHYSICS_HELP, choices=PHYSICS),
     "physics_timestep": dict(help="MuJoCo's timestep [s] (default: the model's 0.005 s); the control step must be "
                                   "a multiple",
-                             range=Range(0.0, 0.1, open_lo=True, why="MuJoCo's timestep in seconds")),
+                             range=Range(0.0, 0.1, open_lo=True, why="MuJoCo's timestep in seconds", cap=True)),
 }
 
 

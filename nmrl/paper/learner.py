@@ -257,7 +257,7 @@ class TrainConfig:
     # batching and budget
     num_envs: int = option(256, "N environments in lock-step", range=AT_LEAST_ONE)
     chunk_steps: int = option(250, "control steps per environment in one jitted chunk", range=AT_LEAST_ONE)
-    steps: int | None = run_option("steps", None)
+    steps: int | None = run_option("steps", None, f"budget in control steps per environment (default: {DEFAULT_STEPS})")
     trials: int | None = run_option("trials", None, "budget in trials, summed over environments (the paper's measure)")
     seed: int = run_option("seed", 0)
     max_param_norm: float = run_option("max_param_norm", 1e5)
@@ -285,10 +285,10 @@ class TrainConfig:
 
     def validate(self) -> None:
         """Eq. (4)'s alpha and the period lengths (nmrl.paper.noise), every field by its declaration
-        (type, float32/int32, range, choices; nmrl/options.py), the update rules, one budget, the
+        (type, finiteness, range, choices; nmrl/options.py), the update rules, one budget, the
         environment."""
         noise.validate(alpha=self.alpha, l=self.l, delta=self.delta)
-        options.check(self)
+        options.check(self, limits=False)
         for name in ("actor_opt", "critic_opt"):
             if getattr(self, name) is not None:
                 parse_opt(getattr(self, name), name)

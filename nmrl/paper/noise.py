@@ -94,7 +94,7 @@ def _concrete_scalar(x: Any, name: str) -> Any:
 #: the range of a noise standard deviation sigma every learner takes: actions are clipped to [-1, 1]
 #: (nmrl/paper/env.py), and at sigma = 10, 92 % of the noise values alone exceed that whole range
 SIGMA_RANGE = Range(0.0, 10.0, open_lo=True, why="the exploration noise's standard deviation; actions are "
-                                                 "clipped to [-1, 1]")
+                                                 "clipped to [-1, 1]", cap=True)
 
 
 def validate(alpha: Any = None, l: Any = None, delta: Any = None) -> None:
