@@ -47,10 +47,8 @@ from nmrl.runs import signals as _signals
 # nmrl.paper.learner (and with it JAX) is imported only after nmrl.runs.devices.configure has set the host
 # device count (main()). The budget of a run given none is TrainConfig's (nmrl.paper.learner.DEFAULT_STEPS).
 _SWEEP_SEED = "seed"  # ``nmrl sweep`` gives --seeds (a count) and the learner's sweep_field as a list
-_NOT_OPTIONS = {"grad_stats"}  # diagnostics set by nmrl.experiments.gradvar, not training options
 #: Longest ``nmrl eval --seconds`` (the GIF keeps every frame in memory: 25 per simulated second).
 MAX_EVAL_SECONDS = 600.0
-SEED_MAX = 2**32 - 1  # = nmrl.runs.preflight.SEED_MAX (not imported here: nmrl.runs.preflight imports JAX)
 
 
 def _field_type(cls: type, f: dataclasses.Field) -> type:
@@ -75,14 +73,20 @@ def _learner(name: str | None = None):
     return learners.get(name or learners.DEFAULT)
 
 
-def _options(learner, skip: set[str] = frozenset()) -> list[dataclasses.Field]:
-    return [f for f in dataclasses.fields(learner.config)
-            if f.name not in skip and f.name not in _NOT_OPTIONS and f.name not in learner.hidden]
+def _options(learner, skip: set[str] = frozenset(), group: str | None = None) -> list[dataclasses.Field]:
+    """The config fields that are options of the group ``group`` (None: the learner's own)."""
+    from nmrl import options
+
+    return [f for f in dataclasses.fields(learner.config) if f.name not in skip
+            and options.declaration(learner.config, f.name).cli
+            and options.declaration(learner.config, f.name).group == group]
 
 
 def add_config_options(p: argparse.ArgumentParser, skip: set[str] = frozenset(), learner=None) -> None:
-    """One option per field of the learner's config (nmrl/learners/contract.py), its help from the
-    learner's ``help`` and the field's default."""
+    """One option per field of the learner's config (nmrl/learners/contract.py), spelled and explained
+    by the field's declaration (nmrl/options.py), with its default unless the help names it."""
+    from nmrl import options
+
     learner = learner or _learner()
     g = p.add_argument_group(f"options of the learner {learner.name!r} ({learner.doc})" if learner.doc
                              else f"options of the learner {learner.name!r}")
@@ -90,12 +94,9 @@ def add_config_options(p: argparse.ArgumentParser, skip: set[str] = frozenset(),
         t = _field_type(learner.config, f)
         t = _bool if t is bool else t
         doc = learner.help.get(f.name, "")
-        if f.name in ("actor_opt", "critic_opt") and learner.name == "ac":
-            g.add_argument("--" + f.name.replace("_", "-"), dest=f.name, type=t, default=None, help=doc)
-            continue
         default = f.default if f.default is not dataclasses.MISSING else "?"
-        g.add_argument("--" + f.name.replace("_", "-"), dest=f.name, type=t, default=None,
-                       help=f"{doc} (default: {default})".strip())
+        g.add_argument("--" + options.flag(learner.config, f.name), dest=f.name, type=t, default=None,
+                       help=doc if "(default:" in doc else f"{doc} (default: {default})".strip())
 
 
 def given_options(args: argparse.Namespace, skip: set[str] = frozenset()) -> dict:
@@ -130,40 +131,44 @@ def config_from_args(args: argparse.Namespace, skip: set[str] = frozenset()):
 # ----------------------------------------------------------------------------- exploration processes
 
 def _exploration_params() -> dict[str, tuple[type, str]]:
-    """The parameters of the exploration processes (name -> (type, help)), from nmrl.explore's
-    ExplorationSpec (its ``cli_options``) but ``sigma`` (each learner's own ``--sigma``); the options
-    are ``--<name>`` (``--period-s``, ``--corr-time-s``, ...)."""
+    """The exploration processes' parameters (name -> (type, help)) from nmrl.explore's
+    ExplorationSpec (its ``cli_options``), but ``sigma`` (each learner's own ``--sigma``): one option
+    ``--<name>`` each (``--period-s``, ``--corr-time-s``, ...), parsed into ``<name>``."""
     from nmrl import explore
 
     return {o.field: (o.type, o.help) for o in explore.cli_options() if o.field not in ("kind", "sigma")}
 
 
 def add_exploration_options(p: argparse.ArgumentParser, learner) -> None:
+    """The options of the exploration processes the learner takes (``Learner.explorations``)."""
     from nmrl import explore
 
     kinds = ", ".join(explore.KINDS)
+    own = {f.name: f.default for f in dataclasses.fields(learner.config)}
+    default = (f" (default: {own['exploration']})" if "exploration" in own
+               else " (default: the paper's nm-periods with --l and --alpha)" if learner.name == "ac" else "")
     g = p.add_argument_group("exploration process (nmrl.explore; times in seconds, frequencies in Hz)")
     g.add_argument("--exploration", default=None, metavar="KIND",
                    help=f"the exploration noise process: {kinds}; the learner {learner.name!r} takes "
-                        f"{', '.join(learner.explorations)}" +
-                        (" (default: the paper's nm-periods with --l and --alpha)" if learner.name == "ac" else ""))
+                        f"{', '.join(learner.explorations)}{default}")
     for name, (t, doc) in _exploration_params().items():
-        g.add_argument("--" + name.replace("_", "-"), dest="x_" + name, type=t, default=None, metavar=name.upper(),
-                       help=doc)
+        g.add_argument("--" + name.replace("_", "-"), dest=name, type=t, default=None, metavar=name.upper(), help=doc)
 
 
 def _with_exploration(args: argparse.Namespace, learner, cfg, given: set[str]):
-    """``cfg`` with the process of ``--exploration`` and its parameters applied by the learner
-    (``Learner.exploration``); the config as it is when none is given. ValueError naming a bad
-    process, one the learner cannot use, or a parameter that contradicts another option."""
-    if learner.exploration is None:  # its process is part of its own config (e.g. PPO's --exploration)
-        return cfg
-    kind = getattr(args, "exploration", None)
-    params = {k[2:]: v for k, v in vars(args).items() if k.startswith("x_") and v is not None}
-    if kind is None and not params:
-        return cfg
+    """``cfg`` with the process of ``--exploration`` and its parameters: a learner whose config holds
+    them (fields of the same names, e.g. PPO's) has them already; another maps them onto its own
+    fields (``Learner.exploration``, e.g. the actor-critic's l and alpha). The config as it is when
+    none is given. ValueError naming a bad process, one the learner cannot use, or a parameter that
+    contradicts another option."""
     from nmrl import explore
 
+    fields = {f.name for f in dataclasses.fields(learner.config)}
+    kind = None if "exploration" in fields else getattr(args, "exploration", None)
+    params = {k: getattr(args, k) for k in explore.PARAMETERS
+              if k not in fields and getattr(args, k, None) is not None}
+    if kind is None and not params:
+        return cfg
     if kind is not None and kind not in explore.KINDS:
         raise ValueError(f"--exploration={kind!r} is unknown: choose one of {', '.join(explore.KINDS)}")
     return learner.exploration(cfg, kind, params, frozenset(given))
@@ -364,6 +369,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
     if not (math.isfinite(s) and 0 < s <= MAX_EVAL_SECONDS):
         return _fail(f"--seconds={s!r} is invalid: must be a finite number of simulated seconds in "
                      f"(0, {MAX_EVAL_SECONDS:g}]")
+    from nmrl.options import SEED_MAX
+
     if not 0 <= args.seed <= SEED_MAX:
         return _fail(f"--seed={args.seed} is invalid: must be an integer in [0, {SEED_MAX}]")
     if args.step is not None and args.step < 0:
@@ -414,7 +421,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
     def check() -> "sweep.SweepSpec":
         store.out_path(args.out)
-        if field is not None and getattr(args, "x_period_s", None) is not None:
+        if field is not None and getattr(args, "period_s", None) is not None:
             raise ValueError(f"give the swept period lengths as --{field}, not --period-s")
         base = config_from_args(args, skip=_sweep_skip(learner))
         if args.vary is not None:
@@ -512,7 +519,7 @@ def build_parser(learner=None) -> argparse.ArgumentParser:
     p = sub.add_parser("train", help="train one run of a learner (default: the paper's actor-critic, Table II)")
     _learner_option(p, learner)
     add_config_options(p, learner=learner)
-    if learner.exploration is not None:
+    if learner.explorations:
         add_exploration_options(p, learner)
     p.add_argument("--out", required=True, help="run directory (config, metrics.jsonl, checkpoints)")
     p.add_argument("--resume", action="store_true",
@@ -531,7 +538,7 @@ def build_parser(learner=None) -> argparse.ArgumentParser:
                                      "compiled program")
     _learner_option(p, learner)
     add_config_options(p, skip=_sweep_skip(learner), learner=learner)
-    if learner.exploration is not None:
+    if learner.explorations:
         add_exploration_options(p, learner)
     if field is not None:
         t = _field_type(learner.config, next(f for f in dataclasses.fields(learner.config) if f.name == field))

@@ -30,7 +30,7 @@ import pytest
 REPO = pathlib.Path(__file__).resolve().parents[1]
 PKG = REPO / "nmrl"
 #: layer of each top-level part of nmrl; an import may only go to a layer <= its own
-LAYERS = {"pytrees": 0, "physics": 0, "paper": 0, "tasks": 0, "explore": 1, "learners": 2, "adapters": 2, "runs": 3, "analysis": 4, "experiments": 5,
+LAYERS = {"pytrees": 0, "options": 0, "physics": 0, "paper": 0, "tasks": 0, "explore": 1, "learners": 2, "adapters": 2, "runs": 3, "analysis": 4, "experiments": 5,
           "cli": 6}
 
 

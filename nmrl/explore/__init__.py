@@ -11,11 +11,12 @@ docs/exploration.md has the formulas, the measured approximation error and an ex
 
 from nmrl.explore.process import (NO_RESET, NoiseState, Process, belief, filter_sequence, init, log_prob, reset,
                                   sample, stack)
-from nmrl.explore.spec import (DEFAULT_KIND, DEFAULTS, KINDS, CliOption, ExplorationSpec, alpha_from_corr_time,
-                               cli_options, corr_time_from_alpha, from_options, period_steps)
+from nmrl.explore.spec import (DEFAULT_KIND, DEFAULTS, KINDS, PARAMETERS, CliOption, ExplorationSpec,
+                               alpha_from_corr_time, cli_options, config_option, corr_time_from_alpha, from_options,
+                               period_steps)
 
 __all__ = [
     "NO_RESET", "NoiseState", "Process", "belief", "filter_sequence", "init", "log_prob", "reset", "sample", "stack",
-    "DEFAULT_KIND", "DEFAULTS", "KINDS", "CliOption", "ExplorationSpec", "alpha_from_corr_time", "cli_options",
-    "corr_time_from_alpha", "from_options", "period_steps",
+    "DEFAULT_KIND", "DEFAULTS", "KINDS", "PARAMETERS", "CliOption", "ExplorationSpec", "alpha_from_corr_time",
+    "cli_options", "config_option", "corr_time_from_alpha", "from_options", "period_steps",
 ]

@@ -32,6 +32,7 @@ import numpy as np
 
 from nmrl.explore.colored import colored_components, time_constants
 from nmrl.explore.process import NO_RESET, Process
+from nmrl.options import option
 
 __all__ = [
     "KINDS",
@@ -44,6 +45,8 @@ __all__ = [
     "CliOption",
     "cli_options",
     "from_options",
+    "config_option",
+    "PARAMETERS",
     "corr_time_from_alpha",
     "alpha_from_corr_time",
     "period_steps",
@@ -242,6 +245,10 @@ class ExplorationSpec:
                    corr_time_s=corr_time_from_alpha(alpha, control_dt))
 
 
+#: the spec's parameters (every field but the kind), in field order
+PARAMETERS = tuple(f.name for f in dataclasses.fields(ExplorationSpec) if f.name != "kind")
+
+
 # ---------------------------------------------------------------------- conversions
 
 
@@ -280,24 +287,40 @@ class CliOption(NamedTuple):
     help: str
 
 
+def _help(f: dataclasses.Field) -> str:
+    """A parameter's option help: the kinds that take it, its unit, range and per-kind default."""
+    m = f.metadata
+    dflt = "1.0" if f.name == "sigma" else ", ".join(f"{k}: {DEFAULTS[k][f.name]:.4g}" for k in m["kinds"])
+    unit = f" [{m['unit']}]" if m["unit"] else ""
+    for_kinds = "" if f.name == "sigma" else f"{'/'.join(m['kinds'])} only; "
+    return f"{for_kinds}{m['help']}{unit} (default: {dflt})"
+
+
 def cli_options() -> tuple[CliOption, ...]:
     """The options of the exploration: ``--exploration`` (the kind) and ``--<parameter>`` for every
     parameter (``--sigma``, ``--period-s``, ``--corr-time-s``, ``--beta``, ``--f-min-hz``,
     ``--f-max-hz``, ``--order``)."""
     opts = []
     for f in dataclasses.fields(ExplorationSpec):
-        m = f.metadata
         if f.name == "kind":
             opts.append(CliOption("exploration", "exploration", "kind", str, None, KINDS,
-                                  f"{m['help']} (default: {DEFAULT_KIND}, the paper's eq. (4))"))
+                                  f"{f.metadata['help']} (default: {DEFAULT_KIND}, the paper's eq. (4))"))
             continue
-        dflt = "1.0" if f.name == "sigma" else ", ".join(
-            f"{k}: {DEFAULTS[k][f.name]:.4g}" for k in m["kinds"])
-        unit = f" [{m['unit']}]" if m["unit"] else ""
-        for_kinds = "" if f.name == "sigma" else f"{'/'.join(m['kinds'])} only; "
-        opts.append(CliOption(f.name.replace("_", "-"), f.name, f.name, m["type"], None,
-                              None, f"{for_kinds}{m['help']}{unit} (default: {dflt})"))
+        opts.append(CliOption(f.name.replace("_", "-"), f.name, f.name, f.metadata["type"], None, None, _help(f)))
     return tuple(opts)
+
+
+def config_option(name: str, default: Any = None) -> Any:
+    """The field of a learner's config that holds the spec's ``name`` flat under the same name and
+    option (``exploration`` for the kind, ``period_s`` as ``--period-s``, ...; nmrl/options.py):
+    the kind's choices, or the parameter's help and None (the kind's default), in the exploration
+    option group; a parameter is traced into the learner's noise process (``Hyper.process``)."""
+    if name == "exploration":
+        return option(default, f"the exploration noise process: {', '.join(KINDS)} (docs/exploration.md)",
+                      choices=KINDS, group="exploration")
+    static = name == "order"  # the number of components is a shape of the program
+    return option(default, _help(ExplorationSpec.__dataclass_fields__[name]), traced=not static and "process",
+                  group="exploration")
 
 
 def from_options(options: Mapping) -> ExplorationSpec:

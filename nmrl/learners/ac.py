@@ -34,12 +34,11 @@ import math
 
 import jax.numpy as jnp
 
-from nmrl import explore, tasks
+from nmrl import explore, options, tasks
 from nmrl.learners import ppo_networks
 from nmrl.learners.contract import Learner, Policy, register
 from nmrl.paper import networks, noise
-from nmrl.paper.env import PHYSICS_HELP, TRIAL_S_HELP
-from nmrl.paper.learner import OPT_FIELDS, OPT_HELP, PRESETS, Hyper, TrainConfig, make_train
+from nmrl.paper.learner import OPT_FIELDS, Hyper, TrainConfig, make_train
 
 NAME = "ac"
 #: the exploration processes the actor-critic can use
@@ -141,20 +140,14 @@ LEARNER = register(Learner(
     name=NAME,
     config=TrainConfig,
     hyper=Hyper.from_config,
-    hyper_fields=tuple(Hyper._fields),
+    hyper_fields=options.traced(TrainConfig),
     make=make,
     env_fields=("slots",),
     compact_fields=("theta", "v", "periods"),
     policy_fields=("theta", "v"),
     policy=policy,
     doc="the paper's actor-critic with TD(lambda) over nm-periods (Table II)",
-    help={"preset": f"step-size and update-rule preset: {', '.join(sorted(PRESETS))}",
-          "actor_opt": f"actor update rule: {OPT_HELP} (default: the preset's)",
-          "critic_opt": "critic update rule, as --actor-opt (default: the preset's)",
-          "physics": PHYSICS_HELP, "trial_s": TRIAL_S_HELP,
-          "physics_timestep": "MuJoCo's timestep [s] (default: the model's 0.005 s); the control step must be a multiple",
-          "env": f"the environment: {', '.join(tasks.ENVS)} (docs/tasks.md)"},
-    hidden=("grad_stats",),
+    help=options.helps(TrainConfig),
     restorable=OPT_FIELDS,
     fill=_fill,
     check=check,

@@ -16,8 +16,10 @@ nothing else; the shape is Stoix's ``LearnerFn: state -> (state, metrics)`` and 
   default filled in, e.g. a default budget: what the run records) and ``env_config()`` (the
   ``nmrl.paper.env.EnvConfig`` of its Half-Cheetah, ``auto_reset=True``); ``config()`` (every field
   at its default) is valid, and a resolved config has ``chunk_steps`` and a budget set. Field types
-  are written as ``int``, ``float``, ``str``, ``bool`` or ``X | None`` (the command line makes one
-  option of each; its help comes from :attr:`Learner.help`, the ``#:`` comments are not read).
+  are written as ``int``, ``float``, ``str``, ``bool`` or ``X | None``, each field declared once with
+  :func:`nmrl.options.option` (help, traced or static, range or choices, option spelling): the
+  command line makes one option of each, and ``help``, ``hyper_fields``, ``hyper`` and the bounds
+  checked before a run come from the declarations (nmrl/options.py).
 * ``hyper(config)`` -- the traced hyperparameters, a pytree of arrays (e.g. a NamedTuple whose
   ``from_config`` reads the config fields of the same names). ``hyper_fields`` names those config
   fields: the points of one sweep may differ only in them and in the seed (one compiled program,
@@ -62,7 +64,11 @@ nothing else; the shape is Stoix's ``LearnerFn: state -> (state, metrics)`` and 
   learner may lack, and ``fill(trainer, state) -> state`` that sets them (exactly what the older
   run would have had); ``check(config)``: checks made before ``config.validate()`` (default: none).
 * ``explorations`` / ``exploration``: the exploration processes of nmrl.explore the learner takes
-  and how ``--exploration KIND`` with its parameters in seconds/Hz sets its config (see the fields).
+  and how ``--exploration KIND`` with its parameters in seconds/Hz (one option group for every
+  learner, parsed under the names of ``nmrl.explore.ExplorationSpec``) sets its config: a config
+  that holds the spec's fields itself (declared by ``nmrl.explore.config_option``, e.g. PPO's) takes
+  them as they are; another maps them onto its own fields (``exploration``, e.g. the
+  actor-critic's l and alpha).
 
 A new learner provides these and registers itself at import: ``register(Learner(name="x", ...))``
 in its module, and its module path in :data:`BUILTIN` (or the caller imports it before use; a
@@ -129,10 +135,9 @@ class Learner:
     policy: Callable[[Any, Any], Policy]
     #: one line for ``nmrl train --help``
     doc: str = ""
-    #: option help per config field (``--help``); fields without one show their default only
+    #: option help per config field (``--help``; nmrl.options.helps of the config's declarations);
+    #: fields without one show their default only
     help: dict[str, str] = dataclasses.field(default_factory=dict)
-    #: config fields that are not command-line options (diagnostics)
-    hidden: tuple[str, ...] = ()
     restorable: tuple[str, ...] = ()
     fill: Callable[[Trainer, Any], Any] | None = None
     check: Callable[[Any], None] | None = None
@@ -143,7 +148,8 @@ class Learner:
     #: (None: the learner's default process) and its parameters ``params`` (seconds/Hz, e.g.
     #: ``{"period_s": 0.2}``) applied; ``given`` names the config fields the user set (a parameter that
     #: contradicts one of them is refused). ValueError naming the value and what is allowed, also for a
-    #: process the learner cannot use. None: the learner takes no exploration options.
+    #: process the learner cannot use. None: the config holds the spec's fields itself (or the
+    #: learner takes no exploration options: ``explorations`` empty).
     explorations: tuple[str, ...] = ()
     #: the traced config field ``nmrl sweep`` varies by default (given as a list: ``--l 1 2 10``); None:
     #: a sweep of this learner runs its seeds only

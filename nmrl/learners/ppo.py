@@ -49,19 +49,21 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from nmrl import explore, tasks
+from nmrl import explore, options, tasks
 from nmrl.learners import ppo_losses as L
 from nmrl.learners import ppo_networks as nn_
 from nmrl.learners.contract import Learner, Policy, register
-from nmrl.paper.env import PHYSICS_HELP, TRIAL_S_HELP, EnvConfig
+from nmrl.options import AT_LEAST_ONE, NON_NEGATIVE, POSITIVE, Range, option, run_option
+from nmrl.paper import noise
+from nmrl.paper.env import EnvConfig, env_option
 from nmrl.pytrees import check_shards, global_norm, tree_where
 
 NAME = "ppo"
 #: the horizon (s) of Brax's discounting 0.95 (and GAE lambda 0.95) at the baseline's 0.02 s step
 BRAX_HORIZON_S = -0.02 / math.log(0.95)
 SQUASHES = ("tanh", "clip")
-#: the exploration parameters of the config, as nmrl.explore.ExplorationSpec names them
-SPEC_FIELDS = ("sigma", "period_s", "corr_time_s", "beta", "f_min_hz", "f_max_hz", "order")
+#: Adam's step size: > 0 (0 would learn nothing), at most 1
+_LEARNING_RATE = Range(0.0, 1.0, open_lo=True, why="a step size", cap=True)
 #: iterations of the budget a run given none gets
 DEFAULT_ITERATIONS = 1
 
@@ -70,66 +72,75 @@ def _bad(name: str, value: Any, allowed: str) -> ValueError:
     return ValueError(f"{name}={value!r} is invalid: {allowed}")
 
 
-def _is_int(v: Any) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool)
+def _per_step(horizon: str) -> Callable[["PPOConfig"], jax.Array]:
+    """``exp(-control_dt / horizon_s)`` in float32: a horizon in seconds as a factor per control step."""
+    return lambda c: jnp.asarray(math.exp(-c.control_dt / getattr(c, horizon)), jnp.float32)
 
 
-def _is_num(v: Any) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+_X = explore.config_option
+_TIME = Range(0.0, open_lo=True, why="seconds, at least the control step")
 
 
 @dataclasses.dataclass(frozen=True)
 class PPOConfig:
-    """A PPO run. Defaults at control_dt = 0.02 s are the Brax baseline's (module docstring)."""
+    """A PPO run. Defaults at control_dt = 0.02 s are the Brax baseline's (module docstring). Every
+    field is declared once (nmrl/options.py); ``traced`` ones are :class:`Hyper`'s leaves."""
 
     # exploration: an nmrl.explore.ExplorationSpec, flat (parameters in seconds and Hz)
-    exploration: str = "white"  #: white | nm-periods | ou | colored
-    sigma: float = 1.0  #: marginal std of xi (multiplies std_theta; 1 = Brax's learned std alone)
-    period_s: float | None = None  #: nm-periods: period length [s]
-    corr_time_s: float | None = None  #: nm-periods, ou: correlation time [s]
-    beta: float | None = None  #: colored: 1/f^beta exponent
-    f_min_hz: float | None = None  #: colored: band [Hz]
-    f_max_hz: float | None = None
-    order: int | None = None  #: colored: latent components
-    learn_std: bool = True  #: std_theta(s) = softplus(net) + min_std (Brax); False: std_theta = 1
-    min_std: float = 1e-3
-    squash: str = "tanh"  #: env action = ACTION_SCALE * tanh(x) (Brax) or ACTION_SCALE * clip(x, -1, 1)
-    #: learn on the exploration's periods as wholes (nm-periods): one ratio per period from its density
-    #: (eq. (7)), the advantage and the critic at period starts (ppo_losses.period_gae)
-    period_wise: bool = False
+    exploration: str = _X("exploration", "white")
+    sigma: float = option(1.0, "marginal std of the noise xi, multiplying the learned std_theta (1: Brax's learned "
+                               "std alone)", traced="process", range=noise.SIGMA_RANGE)
+    period_s: float | None = _X("period_s")
+    corr_time_s: float | None = _X("corr_time_s")
+    beta: float | None = _X("beta")
+    f_min_hz: float | None = _X("f_min_hz")
+    f_max_hz: float | None = _X("f_max_hz")
+    order: int | None = _X("order")
+    learn_std: bool = option(True, "learn a state-dependent std_theta(s) = softplus + min_std (Brax); false: "
+                                   "std_theta = 1")
+    min_std: float = option(1e-3, "floor of the learned std (Brax: 0.001)", range=POSITIVE)
+    squash: str = option("tanh", "env action = 20 tanh(x) (Brax) or 20 clip(x, -1, 1)", choices=SQUASHES)
+    period_wise: bool = option(False, "learn on nm-periods as wholes: one ratio per period (eq. (7)), advantage and "
+                                      "critic at period starts (ppo_losses.period_gae; default: per-step conditional "
+                                      "ratios)")
     # PPO, times in seconds
-    discount_horizon_s: float = BRAX_HORIZON_S  #: gamma = exp(-control_dt / discount_horizon_s)
-    gae_horizon_s: float = BRAX_HORIZON_S  #: lambda = exp(-control_dt / gae_horizon_s)
-    unroll_s: float = 0.4  #: unroll T = round(unroll_s / control_dt) control steps
-    batch_size: int = 512  #: unrolls per minibatch
-    num_minibatches: int = 32
-    epochs: int = 8  #: passes over an iteration's data (Brax: num_updates_per_batch)
-    learning_rate: float = 3e-4
-    entropy_cost: float = 1e-3
-    clip_eps: float = 0.3
-    vf_coef: float = 0.5
-    reward_scale: float = 1.0  #: the learner receives reward_scale * r_t (metrics report r_t)
-    max_grad_norm: float | None = None  #: clip the gradient's global norm (None: no clipping, Brax's)
-    normalize_obs: bool = True
-    normalize_advantage: bool = True
-    policy_layers: int = 4
-    policy_width: int = 32
-    value_layers: int = 5
-    value_width: int = 256
+    discount_horizon_s: float = option(BRAX_HORIZON_S, "discount horizon [s]: gamma = exp(-control_dt / it) (0.95 "
+                                                       "at 0.02 s)", traced="gamma", range=_TIME)
+    gae_horizon_s: float = option(BRAX_HORIZON_S, "GAE horizon [s]: lambda = exp(-control_dt / it) (0.95 at 0.02 s)",
+                                  traced="lam", range=_TIME)
+    unroll_s: float = option(0.4, "unroll length [s]: T = round(unroll_s / control_dt) steps (20 at 0.02 s)",
+                             range=_TIME)
+    batch_size: int = option(512, "unrolls per minibatch (a multiple of --num-envs)", range=AT_LEAST_ONE)
+    num_minibatches: int = option(32, "minibatches per epoch", range=AT_LEAST_ONE)
+    epochs: int = option(8, "passes over an iteration's data (Brax: num_updates_per_batch)", range=AT_LEAST_ONE)
+    learning_rate: float = option(3e-4, "Adam's step size", traced=True, range=_LEARNING_RATE)
+    entropy_cost: float = option(1e-3, "weight of the entropy bonus", traced=True, range=NON_NEGATIVE)
+    clip_eps: float = option(0.3, "PPO's clip epsilon of the ratio", traced=True, range=POSITIVE)
+    vf_coef: float = option(0.5, "weight of the value loss", traced=True, range=POSITIVE)
+    reward_scale: float = option(1.0, "the learner receives reward_scale * r (delta / 0.02 s keeps the return's "
+                                      "scale); metrics report r", traced=True, range=POSITIVE)
+    max_grad_norm: float | None = option(None, "clip the gradient's global norm (default: no clipping, Brax's)",
+                                         range=POSITIVE)
+    normalize_obs: bool = option(True, "running mean/std observation normalisation (Brax's)")
+    normalize_advantage: bool = option(True, "normalise advantages per minibatch (Brax's)")
+    policy_layers: int = option(4, "hidden layers of the policy", range=AT_LEAST_ONE)
+    policy_width: int = option(32, "units per policy layer", range=AT_LEAST_ONE)
+    value_layers: int = option(5, "hidden layers of the value net", range=AT_LEAST_ONE)
+    value_width: int = option(256, "units per value layer", range=AT_LEAST_ONE)
     # environment, batching, budget (common to every learner)
-    env: str = "paper-cheetah"  #: the environment (nmrl.tasks.ENVS; docs/tasks.md)
-    control_dt: float = 0.02
-    stop_prob: float = 1 / 250
-    trial_s: float | None = None  #: mean trial length [s] (stop_prob = control_dt / trial_s); None: stop_prob
-    physics: str = "mjx"  #: "mjx" or "c" (MuJoCo C on the CPU; nmrl/physics/mujoco_c.py)
-    physics_timestep: float | None = None  #: MuJoCo's timestep [s]; None: the model's (0.005 s)
-    num_envs: int = 64
-    #: control steps per environment in one chunk: a multiple of one iteration's (None: one iteration)
-    chunk_steps: int | None = None
-    steps: int | None = None  #: budget in control steps per environment
-    trials: int | None = None  #: budget in trials summed over the environments
-    seed: int = 0
-    max_param_norm: float = 1e5  #: a parameter norm above this (or NaN) marks the run diverged
+    env: str = option("paper-cheetah", f"the environment: {', '.join(tasks.ENVS)} (docs/tasks.md)")
+    control_dt: float = env_option("control_dt", 0.02)
+    stop_prob: float = env_option("stop_prob", 1 / 250)
+    trial_s: float | None = env_option("trial_s", None)
+    physics: str = env_option("physics", "mjx")
+    physics_timestep: float | None = env_option("physics_timestep", None)
+    num_envs: int = option(64, "environments in lock-step (must divide --batch-size)", range=AT_LEAST_ONE)
+    chunk_steps: int | None = option(None, "control steps per environment per chunk, a multiple of one iteration's "
+                                           "(default: one)", range=AT_LEAST_ONE)
+    steps: int | None = run_option("steps", None, "budget in control steps per environment (default: one iteration)")
+    trials: int | None = run_option("trials", None)
+    seed: int = run_option("seed", 0)
+    max_param_norm: float = run_option("max_param_norm", 1e5)
 
     # ----------------------------------------------------------------------- derived
     def spec(self) -> explore.ExplorationSpec:
@@ -155,52 +166,27 @@ class PPOConfig:
                          physics=self.physics, trial_s=self.trial_s, timestep=self.physics_timestep)
 
     def validate(self) -> None:
-        if self.exploration not in explore.KINDS:
-            raise _bad("exploration", self.exploration, f"choose one of {', '.join(explore.KINDS)}")
-        if not (_is_num(self.control_dt) and self.control_dt > 0):
-            raise _bad("control_dt", self.control_dt, "must be a finite time > 0 s")
+        """Every field by its declaration (type, finiteness, range, choices; nmrl/options.py), then
+        what relates fields: the exploration at the control step, the period-wise learning's process,
+        times of at least one control step, minibatches of whole environments, chunks of whole
+        iterations, one budget, the environment."""
+        options.check(self, limits=False)
         self.spec().validate(self.control_dt)
-        if self.squash not in SQUASHES:
-            raise _bad("squash", self.squash, f"choose one of {', '.join(SQUASHES)}")
-        if self.period_wise is not False and not (self.period_wise is True and self.exploration == "nm-periods"):
+        if self.period_wise and self.exploration != "nm-periods":
             raise _bad("period_wise", self.period_wise, "true only with --exploration nm-periods (a process whose "
                                                         "noise restarts at period starts), else false")
-        for name in ("learn_std", "normalize_obs", "normalize_advantage"):
-            if not isinstance(getattr(self, name), bool):
-                raise _bad(name, getattr(self, name), "must be true or false")
         dt = self.control_dt
         for name in ("discount_horizon_s", "gae_horizon_s", "unroll_s"):
-            v = getattr(self, name)
-            if not (_is_num(v) and v >= dt * (1 - 1e-9)):
-                raise _bad(name, v, f"must be a finite time >= the control step {dt:g} s")
-        for name in ("learning_rate", "min_std", "vf_coef", "reward_scale", "clip_eps", "max_param_norm"):
-            v = getattr(self, name)
-            if not (_is_num(v) and v > 0):
-                raise _bad(name, v, "must be a finite number > 0")
-        if not (_is_num(self.entropy_cost) and self.entropy_cost >= 0):
-            raise _bad("entropy_cost", self.entropy_cost, "must be a finite number >= 0")
-        if self.max_grad_norm is not None and not (_is_num(self.max_grad_norm) and self.max_grad_norm > 0):
-            raise _bad("max_grad_norm", self.max_grad_norm, "must be a finite number > 0, or None (no clipping)")
-        for name in ("batch_size", "num_minibatches", "epochs", "policy_layers", "policy_width", "value_layers",
-                     "value_width", "num_envs"):
-            v = getattr(self, name)
-            if not (_is_int(v) and v >= 1):
-                raise _bad(name, v, "must be an integer >= 1")
+            if getattr(self, name) < dt * (1 - 1e-9):
+                raise _bad(name, getattr(self, name), f"must be a finite time >= the control step {dt:g} s")
         if self.batch_size % self.num_envs:
             raise _bad("num_envs", self.num_envs, f"must divide batch_size={self.batch_size} (every minibatch "
                                                   f"holds batch_size / num_envs unrolls of each environment)")
-        if self.chunk_steps is not None and not (_is_int(self.chunk_steps) and self.chunk_steps >= 1
-                                                 and self.chunk_steps % self.iteration_steps == 0):
+        if self.chunk_steps is not None and self.chunk_steps % self.iteration_steps:
             raise _bad("chunk_steps", self.chunk_steps, f"must be a multiple of one iteration's "
                                                         f"{self.iteration_steps} control steps per environment")
-        for name in ("steps", "trials"):
-            v = getattr(self, name)
-            if v is not None and not (_is_int(v) and v >= 1):
-                raise _bad(name, v, "the budget must be an integer >= 1")
         if self.steps is not None and self.trials is not None:
             raise ValueError("give the budget as steps or as trials, not both")
-        if not (_is_int(self.seed) and 0 <= self.seed < 2**31):
-            raise _bad("seed", self.seed, "must be an integer in [0, 2^31 - 1]")
         self.env_config().validate()
         tasks.check_env(self.env, self.env_config())
 
@@ -217,31 +203,11 @@ class PPOConfig:
         return out
 
 
-#: the config fields that are traced (a sweep's points may differ in them and the seed only)
-HYPER_FIELDS = ("learning_rate", "entropy_cost", "clip_eps", "vf_coef", "discount_horizon_s", "gae_horizon_s",
-                "reward_scale", "sigma", "period_s", "corr_time_s", "beta", "f_min_hz", "f_max_hz")
-
-
-class Hyper(NamedTuple):
-    """Traced hyperparameters, per control step (from the config's seconds) and the noise process."""
-
-    learning_rate: jax.Array
-    entropy_cost: jax.Array
-    clip_eps: jax.Array
-    vf_coef: jax.Array
-    gamma: jax.Array  #: exp(-control_dt / discount_horizon_s)
-    lam: jax.Array  #: exp(-control_dt / gae_horizon_s)
-    reward_scale: jax.Array
-    process: explore.Process  #: phi, w, sigma, period of the exploration at control_dt
-
-    @staticmethod
-    def from_config(cfg: PPOConfig) -> "Hyper":
-        f = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
-        dt = cfg.control_dt
-        return Hyper(learning_rate=f(cfg.learning_rate), entropy_cost=f(cfg.entropy_cost), clip_eps=f(cfg.clip_eps),
-                     vf_coef=f(cfg.vf_coef), gamma=f(math.exp(-dt / cfg.discount_horizon_s)),
-                     lam=f(math.exp(-dt / cfg.gae_horizon_s)), reward_scale=f(cfg.reward_scale),
-                     process=cfg.spec().process(dt))
+#: the exploration parameters of the config, as nmrl.explore.ExplorationSpec names them
+SPEC_FIELDS = explore.PARAMETERS
+#: the traced values, per control step (from the config's seconds) and the noise process
+Hyper = options.hyper_type(PPOConfig, {"gamma": _per_step("discount_horizon_s"), "lam": _per_step("gae_horizon_s"),
+                                       "process": lambda c: c.spec().process(c.control_dt)})
 
 
 @struct.dataclass
@@ -561,46 +527,14 @@ LEARNER = register(Learner(
     name=NAME,
     config=PPOConfig,
     hyper=Hyper.from_config,
-    hyper_fields=HYPER_FIELDS,
+    hyper_fields=options.traced(PPOConfig),
     make=make_ppo,
     env_fields=("env", "noise"),
     compact_fields=("policy", "value", "opt", "obs_stats"),
     policy_fields=("policy", "obs_stats"),
     policy=policy,
     doc="PPO (Brax's settings at 0.02 s) with the exact likelihood of any exploration process",
-    help={
-        "exploration": f"exploration process: {', '.join(explore.KINDS)} (docs/exploration.md)",
-        "sigma": "marginal std of the noise xi, multiplying the learned std_theta (1: Brax's learned std alone)",
-        "period_s": "nm-periods: period length [s] (default 0.2)",
-        "corr_time_s": "nm-periods, ou: correlation time [s] (default 0.0896: alpha 0.8 at 0.02 s)",
-        "beta": "colored: spectral exponent of 1/f^beta (default 1)",
-        "f_min_hz": "colored: low end of the band [Hz]", "f_max_hz": "colored: high end of the band [Hz]",
-        "order": "colored: number of latent OU components",
-        "learn_std": "learn a state-dependent std_theta(s) = softplus + min_std (Brax); false: std_theta = 1",
-        "min_std": "floor of the learned std (Brax: 0.001)",
-        "squash": "env action = 20 tanh(x) (Brax) or 20 clip(x, -1, 1)",
-        "discount_horizon_s": "discount horizon [s]: gamma = exp(-control_dt / it) (0.95 at 0.02 s)",
-        "gae_horizon_s": "GAE horizon [s]: lambda = exp(-control_dt / it) (0.95 at 0.02 s)",
-        "unroll_s": "unroll length [s] (20 steps at 0.02 s)",
-        "batch_size": "unrolls per minibatch (a multiple of --num-envs)",
-        "num_minibatches": "minibatches per epoch", "epochs": "passes over an iteration's data",
-        "learning_rate": "Adam's step size", "entropy_cost": "weight of the entropy bonus",
-        "clip_eps": "PPO's clip epsilon of the ratio", "vf_coef": "weight of the value loss",
-        "reward_scale": "the learner receives reward_scale * r (delta / 0.02 s keeps the return's scale)",
-        "max_grad_norm": "clip the gradient's global norm (default: no clipping, Brax's)",
-        "normalize_obs": "running mean/std observation normalisation (Brax's)",
-        "normalize_advantage": "normalise advantages per minibatch (Brax's)",
-        "policy_layers": "hidden layers of the policy", "policy_width": "units per policy layer",
-        "value_layers": "hidden layers of the value net", "value_width": "units per value layer",
-        "control_dt": "control step [s]", "stop_prob": "probability of stopping a trial after each step",
-        "period_wise": "learn on nm-periods as wholes: one ratio per period (eq. (7)), advantage and critic at "
-                       "period starts (default: per-step conditional ratios)",
-        "physics": PHYSICS_HELP, "trial_s": TRIAL_S_HELP, "physics_timestep": "MuJoCo's timestep [s] (default: the model's 0.005 s); the control step must be a multiple",
-        "env": f"the environment: {', '.join(tasks.ENVS)} (docs/tasks.md)",
-        "num_envs": "environments in lock-step (must divide --batch-size)",
-        "chunk_steps": "control steps per environment per chunk, a multiple of one iteration's (default: one)",
-        "steps": "budget in control steps per environment (default: one iteration)",
-        "trials": "budget in trials, summed over the environments",
-        "seed": "PRNG seed", "max_param_norm": "a parameter norm above this (or NaN) marks the run diverged"},
+    help=options.helps(PPOConfig),
     describe=lambda c: {"exploration": c.exploration, "sigma": float(c.sigma)},
+    explorations=explore.KINDS,
 ))

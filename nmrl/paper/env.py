@@ -46,6 +46,7 @@ import numpy as np
 from flax import struct
 from nmrl.paper import _mjx as mjx  # quiet import (see nmrl/__init__.py)
 
+from nmrl.options import Range, option
 from nmrl.paper import c_plant
 from nmrl.paper import geometry as g
 from nmrl.physics import mujoco_c
@@ -110,6 +111,25 @@ class EnvConfig:
 DEFAULT_STOP_PROB = EnvConfig.stop_prob
 TRIAL_S_HELP = ("mean trial length [s]: the stop probability per step becomes control_dt / trial_s, "
                 "the same trial length at every control step (default: --stop-prob per step)")
+#: the declarations (nmrl/options.py) of the environment fields every learner's config has: a control
+#: step of at most 1 s (the robot's joints move in tenths of seconds; nmrl/runs/preflight.py checks the
+#: multiple of the physics timestep), a stop probability, a mean trial length, the engine, its timestep
+_ENV_OPTIONS: dict[str, dict[str, Any]] = {
+    "control_dt": dict(help="control step [s]", range=Range(0.0, 1.0, open_lo=True,
+                                                           why="seconds per control step, at most 1 s", cap=True)),
+    "stop_prob": dict(help="probability of stopping a trial after each step",
+                      range=Range(0.0, 1.0, why="a probability per control step")),
+    "trial_s": dict(help=TRIAL_S_HELP, range=Range(0.0, 1e6, open_lo=True, why="a mean trial length in seconds", cap=True)),
+    "physics": dict(help=PHYSICS_HELP, choices=PHYSICS),
+    "physics_timestep": dict(help="MuJoCo's timestep [s] (default: the model's 0.005 s); the control step must be "
+                                  "a multiple",
+                             range=Range(0.0, 0.1, open_lo=True, why="MuJoCo's timestep in seconds", cap=True)),
+}
+
+
+def env_option(name: str, default: Any) -> Any:
+    """The declared field ``name`` of :data:`_ENV_OPTIONS` with a learner's ``default``."""
+    return option(default, **_ENV_OPTIONS[name])
 
 
 def check_trial_s(trial_s, stop_prob, control_dt) -> None:

@@ -77,8 +77,10 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
+from nmrl import options, tasks
+from nmrl.options import AT_LEAST_ONE, POSITIVE, STEP_SIZE, Range, option, run_option
 from nmrl.paper import networks, noise
-from nmrl.paper.env import EnvConfig, HalfCheetah, State
+from nmrl.paper.env import EnvConfig, HalfCheetah, State, env_option
 from nmrl.pytrees import check_shards, global_norm, tree_where
 
 Params = Any
@@ -227,44 +229,46 @@ def opt_rule(chain: tuple[OptStep, ...]) -> Callable[[jax.Array], optax.Gradient
 
 @dataclasses.dataclass(frozen=True)
 class TrainConfig:
-    """Everything that defines a training run. Defaults are the paper's (Sec. V-C, Table II)."""
+    """Everything that defines a training run. Defaults are the paper's (Sec. V-C, Table II). Every
+    field is declared once (nmrl/options.py); ``traced`` ones are :class:`Hyper`'s leaves."""
 
     # Table II / Sec. V-C
-    l: int = 10  #: nm-period length
-    delta: int = 4  #: sampling interval Delta of the likelihood ratio
-    alpha: float = 0.8  #: AR coefficient of xi (4)
-    sigma: float = 1.0  #: standard deviation of xi (Sigma = sigma^2 I)
-    gamma: float = 0.995  #: discount per control step
-    lam: float = 0.5  #: lambda of the TD(lambda) traces
-    beta_theta: float | None = None  #: actor step size; None = the preset's
-    beta_v: float | None = None  #: critic step size; None = the preset's
-    #: actor update rule, an optimizer chain such as "clip:10,sgd" (:data:`OPT_VOCAB`); None = the preset's
-    actor_opt: str | None = None
-    critic_opt: str | None = None  #: critic update rule (as ``actor_opt``); None = the preset's
-    preset: str = "paper"
-    hidden_actor: int = 100  #: M^A
-    hidden_critic: int = 200  #: M^C
+    l: int = option(10, "nm-period length l [control steps]", traced=True, range=AT_LEAST_ONE)
+    delta: int = option(4, "sampling interval Delta of the likelihood ratio (7) [control steps]", traced=True,
+                        range=AT_LEAST_ONE)
+    alpha: float = option(0.8, "AR coefficient alpha of the noise xi, eq. (4)", traced=True,
+                          range=Range(0.0, 1.0, open_lo=True))
+    sigma: float = option(1.0, "standard deviation of xi (Sigma = sigma^2 I)", traced=True, range=noise.SIGMA_RANGE)
+    gamma: float = option(0.995, "discount per control step", traced=True, range=Range(0.0, 1.0))
+    lam: float = option(0.5, "lambda of the TD(lambda) traces", traced=True, range=Range(0.0, 1.0))
+    beta_theta: float | None = option(None, "actor step size (default: the preset's)", traced=True, range=STEP_SIZE)
+    beta_v: float | None = option(None, "critic step size (default: the preset's)", traced=True, range=STEP_SIZE)
+    actor_opt: str | None = option(None, f"actor update rule: {OPT_HELP} (default: the preset's)")
+    critic_opt: str | None = option(None, "critic update rule, as --actor-opt (default: the preset's)")
+    preset: str = option("paper", f"step-size and update-rule preset: {', '.join(sorted(PRESETS))}",
+                         choices=tuple(sorted(PRESETS)))
+    hidden_actor: int = option(100, "hidden units M^A of the actor", range=AT_LEAST_ONE)
+    hidden_critic: int = option(200, "hidden units M^C of the critic", range=AT_LEAST_ONE)
     # environment
-    control_dt: float = 0.02
-    stop_prob: float = 1 / 250
-    trial_s: float | None = None  #: mean trial length [s] (stop_prob = control_dt / trial_s); None: stop_prob
-    physics: str = "mjx"  #: "mjx" or "c" (MuJoCo C on the CPU; nmrl/physics/mujoco_c.py)
-    physics_timestep: float | None = None  #: MuJoCo's timestep [s]; None: the model's (0.005 s)
-    #: the environment by name: the paper's robot or a Gymnasium task (nmrl/tasks/, built by the learner ``ac``)
-    env: str = "paper-cheetah"
+    control_dt: float = env_option("control_dt", 0.02)
+    stop_prob: float = env_option("stop_prob", 1 / 250)
+    trial_s: float | None = env_option("trial_s", None)
+    physics: str = env_option("physics", "mjx")
+    physics_timestep: float | None = env_option("physics_timestep", None)
+    env: str = option("paper-cheetah", f"the environment: {', '.join(tasks.ENVS)} (docs/tasks.md)")
     # batching and budget
-    num_envs: int = 256  #: N environments in lock-step
-    chunk_steps: int = 250  #: control steps per environment in one jitted chunk
-    steps: int | None = None  #: budget in control steps per environment
-    trials: int | None = None  #: budget in trials, summed over environments (the paper's measure)
-    seed: int = 0
-    max_param_norm: float = 1e5  #: a parameter norm above this (or NaN) marks the run diverged
-    #: the learner receives reward_scale * r_t (the finer-delta study uses delta / 0.02 s so that the
-    #: discounted return, an integral over time, keeps its scale; nmrl/experiments/timescale.py). Metrics report r_t.
-    reward_scale: float = 1.0
-    #: diagnostic: every chunk also returns sums of the per-period actor gradient estimates
-    #: g_k = d_k grad ln pi (nmrl/experiments/gradvar.py); off in training (it costs a little)
-    grad_stats: bool = False
+    num_envs: int = option(256, "N environments in lock-step", range=AT_LEAST_ONE)
+    chunk_steps: int = option(250, "control steps per environment in one jitted chunk", range=AT_LEAST_ONE)
+    steps: int | None = run_option("steps", None, f"budget in control steps per environment (default: {DEFAULT_STEPS})")
+    trials: int | None = run_option("trials", None, "budget in trials, summed over environments (the paper's measure)")
+    seed: int = run_option("seed", 0)
+    max_param_norm: float = run_option("max_param_norm", 1e5)
+    #: the finer-delta study gives delta / 0.02 s, so that the discounted return, an integral over time,
+    #: keeps its scale (nmrl/experiments/timescale.py)
+    reward_scale: float = option(1.0, "the learner receives reward_scale * r_t; metrics report r_t", range=POSITIVE)
+    #: per-period actor gradient estimates g_k = d_k grad ln pi for nmrl/experiments/gradvar.py (costs a little)
+    grad_stats: bool = option(False, "diagnostic: every chunk also returns sums of the per-period actor gradient "
+                                     "estimates", cli=False)
 
     def resolved(self) -> "TrainConfig":
         """Validate, fill step sizes from the preset and the default budget (:data:`DEFAULT_STEPS`)."""
@@ -282,40 +286,16 @@ class TrainConfig:
         return out
 
     def validate(self) -> None:
-        def bad(name: str, allowed: str) -> ValueError:
-            return ValueError(f"{name}={getattr(self, name)!r} is invalid: {allowed}")
-
-        if self.preset not in PRESETS:
-            raise ValueError(f"preset={self.preset!r} is unknown: choose one of {sorted(PRESETS)}")
+        """Eq. (4)'s alpha and the period lengths (nmrl.paper.noise), every field by its declaration
+        (type, finiteness, range, choices; nmrl/options.py), the update rules, one budget, the
+        environment."""
         noise.validate(alpha=self.alpha, l=self.l, delta=self.delta)
-        for name in ("gamma", "lam"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and 0.0 <= v <= 1.0):
-                raise bad(name, "must be a number in [0, 1]")
-        if not (isinstance(self.sigma, (int, float)) and self.sigma > 0):
-            raise bad("sigma", "must be > 0")
-        for name in ("beta_theta", "beta_v"):
-            v = getattr(self, name)
-            if v is not None and not (isinstance(v, (int, float)) and v >= 0 and math.isfinite(v)):
-                raise bad(name, "must be a finite number >= 0")
+        options.check(self, limits=False)
         for name in ("actor_opt", "critic_opt"):
             if getattr(self, name) is not None:
                 parse_opt(getattr(self, name), name)
-        for name in ("hidden_actor", "hidden_critic", "num_envs", "chunk_steps"):
-            v = getattr(self, name)
-            if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
-                raise bad(name, "must be an integer >= 1")
-        for name in ("steps", "trials"):
-            v = getattr(self, name)
-            if v is not None and not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
-                raise bad(name, "the budget must be an integer >= 1")
         if self.steps is not None and self.trials is not None:
             raise ValueError("give the budget as steps or as trials, not both")
-        if not self.max_param_norm > 0:
-            raise bad("max_param_norm", "must be > 0")
-        if not (isinstance(self.reward_scale, (int, float)) and self.reward_scale > 0
-                and math.isfinite(self.reward_scale)):
-            raise bad("reward_scale", "must be a finite number > 0")
         self.env_config().validate()
 
     def env_config(self) -> EnvConfig:
@@ -323,34 +303,10 @@ class TrainConfig:
                          physics=self.physics, trial_s=self.trial_s, timestep=self.physics_timestep)
 
 
-class Hyper(NamedTuple):
-    """Traced hyperparameters (one program serves every value; the sweep vmaps over them).
-
-    The one list of which :class:`TrainConfig` fields are traced: each field here takes the value of
-    the config field of the same name (``int`` fields as int32, ``float`` fields as float32).
-    """
-
-    l: jax.Array
-    delta: jax.Array
-    alpha: jax.Array
-    sigma: jax.Array
-    gamma: jax.Array
-    lam: jax.Array
-    beta_theta: jax.Array
-    beta_v: jax.Array
-
-    @staticmethod
-    def from_config(cfg: TrainConfig) -> "Hyper":
-        return Hyper(**{k: jnp.asarray(getattr(cfg, k), _HYPER_DTYPE[_config_type(k)]) for k in Hyper._fields})
-
-
-_HYPER_DTYPE = {int: jnp.int32, float: jnp.float32}
-
-
-def _config_type(name: str) -> type:
-    """``int`` or ``float``: the type of TrainConfig's field ``name`` (``float | None`` -> float)."""
-    t = TrainConfig.__dataclass_fields__[name].type
-    return int if t == "int" else float
+#: the traced hyperparameters: one leaf per traced field of :class:`TrainConfig` (l, Delta, alpha,
+#: sigma, gamma, lambda, beta^theta, beta^v), int32 or float32 by the field's type; one program serves
+#: every value (the sweep vmaps over them)
+Hyper = options.hyper_type(TrainConfig)
 
 
 @struct.dataclass

@@ -22,12 +22,11 @@ from typing import Callable
 import jax
 
 from nmrl import learners
+from nmrl.options import SEED_MAX
 from nmrl.runs import bounds, distributed as dist, io_errors, lock, memory, store
 from nmrl.runs.errors import OutOfMemory, RunError
 from nmrl.runs.store import RUN_FILES
 
-#: JAX PRNG seeds are 32-bit: larger (or negative) seeds wrap around to another seed's key.
-SEED_MAX = 2**32 - 1
 #: A learner's config (nmrl/learners/contract.py).
 Config = object
 

@@ -1,0 +1,240 @@
+"""One declaration per config field, and what is generated from it (rejax's one-line traced field).
+
+A learner's config is a frozen dataclass whose fields are declared with :func:`option`::
+
+    clip_eps: float = option(0.3, "PPO's clip epsilon of the ratio", traced=True, range=POSITIVE)
+
+The declaration holds the field's default, its help (``--help``), whether it is traced (a leaf of
+the learner's ``Hyper`` pytree: a sweep's points may differ in it, one compiled program serves every
+value), the values it allows (a :class:`Range` or ``choices``), its command-line spelling where it is
+not the field name with dashes, and whether it is an option at all. From the declarations come:
+
+* :func:`helps`: the help of every option (``Learner.help``; nmrl/cli.py builds one option per field);
+* :func:`traced`: the traced fields (``Learner.hyper_fields``, what ``nmrl sweep --vary`` takes);
+* :func:`hyper_type`: the ``Hyper`` NamedTuple, its leaves the traced fields in declaration order,
+  cast to float32 or int32 by the field's type; a field whose traced value needs code (PPO's
+  ``gamma = exp(-control_dt / discount_horizon_s)``) names its leaf (``traced="gamma"``) and the
+  learner gives that leaf's function once;
+* :func:`check`: the type, finiteness and range or choices of every field (one line
+  ``NAME=VALUE is invalid: ...`` naming what is allowed), what a config's ``validate`` runs; with
+  ``limits``, what nmrl/runs/bounds.py runs before anything of a run is written, also float32/int32
+  representability and the caps of sense (a step size at most 1, :attr:`Range.cap`).
+
+A learner computes in float32 and counts in int32, so a value Python holds exactly may not survive
+the cast (``--sigma 1e300`` becomes inf): before a run, a ``float`` must be finite in float32 and,
+when not 0, not below float32's smallest normal number; an ``int`` must fit in int32, except a field whose range
+says otherwise (the seed: JAX's PRNG keys take 32-bit unsigned seeds, :data:`SEED_MAX`).
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import math
+import typing
+from typing import Any, Callable, Mapping
+
+import numpy as np
+
+F32_MAX = float(np.finfo(np.float32).max)
+F32_TINY = float(np.finfo(np.float32).tiny)
+INT32_MAX = 2**31 - 1
+#: JAX's PRNG seeds are 32-bit unsigned (``jax.random.PRNGKey(2**32 - 1)`` is a key of its own;
+#: larger or negative seeds wrap around to another seed's key)
+SEED_MAX = 2**32 - 1
+#: the metadata key of a declaration in a dataclass field
+KEY = "nmrl.option"
+
+
+@dataclasses.dataclass(frozen=True)
+class Range:
+    """``lo <= x <= hi`` (``lo`` excluded when ``open_lo``), with the reason in words."""
+
+    lo: float
+    hi: float = math.inf
+    open_lo: bool = False
+    why: str = ""
+    #: ``hi`` is a cap of sense (a step size at most 1, a noise sigma at most 10), checked before a run
+    #: (nmrl/runs/bounds.py) but not by a config's ``validate``: code may go beyond it (a test that
+    #: makes a run diverge on purpose); False: nothing beyond ``hi`` means anything (a probability)
+    cap: bool = False
+
+    def contains(self, x: float, cap: bool = True) -> bool:
+        """``x`` in the range (``cap`` False: a cap's upper end not checked)."""
+        return (x > self.lo if self.open_lo else x >= self.lo) and (x <= self.hi or self.cap and not cap)
+
+    def text(self, kind: type = float) -> str:
+        """``must be ...`` in words: an interval, or a bound when the range has no upper end."""
+        if self.hi == math.inf:
+            what = "an integer" if kind is int else "a finite number"
+            text = f"{what} {'>' if self.open_lo else '>='} {self.lo:g}"
+        elif kind is int:
+            text = f"an integer in [{int(self.lo)}, {int(self.hi)}]"
+        else:
+            text = f"in {'(' if self.open_lo else '['}{self.lo:g}, {self.hi:g}]"
+        return f"{text} ({self.why})" if self.why else text
+
+
+#: ranges many fields share
+POSITIVE = Range(0.0, open_lo=True)
+NON_NEGATIVE = Range(0.0)
+AT_LEAST_ONE = Range(1)
+STEP_SIZE = Range(0.0, 1.0, why="a step size", cap=True)
+
+
+@dataclasses.dataclass(frozen=True)
+class Option:
+    """A field's declaration (see the module docstring)."""
+
+    help: str = ""
+    #: False: static (compiled into the program); True: a ``Hyper`` leaf of the same name; a name:
+    #: the derived ``Hyper`` leaf the field feeds (its function given to :func:`hyper_type`)
+    traced: bool | str = False
+    range: Range | None = None
+    choices: tuple | None = None
+    #: the command-line spelling without ``--`` (None: the field name with dashes)
+    flag: str | None = None
+    #: False: not a command-line option (a diagnostic set by code)
+    cli: bool = True
+    #: the option group the command line puts it in (None: the learner's own options)
+    group: str | None = None
+
+
+def option(default: Any = dataclasses.MISSING, help: str = "", **meta: Any) -> Any:
+    """A dataclass field with its declaration (:class:`Option`'s fields as keywords)."""
+    return dataclasses.field(default=default, metadata={KEY: Option(help=help, **meta)})
+
+
+#: the declarations of the run fields every learner's config has (nmrl/learners/contract.py)
+_RUN_OPTIONS: dict[str, dict[str, Any]] = {
+    "seed": dict(help="PRNG seed", range=Range(0, SEED_MAX, why="JAX's PRNG seeds are 32-bit; others wrap around "
+                                                                "to another seed")),
+    "steps": dict(help="budget in control steps per environment", range=AT_LEAST_ONE),
+    "trials": dict(help="budget in trials, summed over the environments", range=AT_LEAST_ONE),
+    "max_param_norm": dict(help="a parameter norm above this (or NaN) marks the run diverged", range=POSITIVE),
+}
+
+
+def run_option(name: str, default: Any, help: str | None = None) -> Any:
+    """The declared run field ``name`` of :data:`_RUN_OPTIONS` with a learner's ``default`` (and help)."""
+    meta = dict(_RUN_OPTIONS[name])
+    meta["help"] = help or meta["help"]
+    return option(default, **meta)
+
+
+def declaration(cls: type, name: str) -> Option:
+    """The declaration of the field ``name`` of the dataclass ``cls`` (an empty one if it has none)."""
+    return cls.__dataclass_fields__[name].metadata.get(KEY, Option())
+
+
+def declarations(cls: type) -> dict[str, Option]:
+    """Field name -> declaration, in field order."""
+    return {f.name: declaration(cls, f.name) for f in dataclasses.fields(cls)}
+
+
+def flag(cls: type, name: str) -> str:
+    """The command-line option of a field, without ``--``."""
+    return declaration(cls, name).flag or name.replace("_", "-")
+
+
+def helps(cls: type) -> dict[str, str]:
+    """The help of every declared field that has one."""
+    return {n: d.help for n, d in declarations(cls).items() if d.help}
+
+
+def traced(cls: type) -> tuple[str, ...]:
+    """The traced fields, in field order."""
+    return tuple(n for n, d in declarations(cls).items() if d.traced)
+
+
+def kind(cls: type, name: str) -> type | None:
+    """``float``, ``int``, ``bool`` or ``str`` for a field typed so (or ``X | None``), else None."""
+    try:
+        t = typing.get_type_hints(cls)[name]
+    except Exception:  # noqa: BLE001 - an unresolvable annotation: no kind
+        return None
+    args = [a for a in typing.get_args(t) if a is not type(None)] or [t]
+    for k in (bool, float, int, str):
+        if k in args:
+            return k
+    return None
+
+
+def _bad(name: str, value: Any, allowed: str) -> ValueError:
+    return ValueError(f"{name}={value!r} is invalid: {allowed}")
+
+
+def check_value(name: str, value: Any, kind_: type | None, decl: Option = Option(), limits: bool = True) -> None:
+    """ValueError (one line) unless ``value`` is of its kind, finite, and allowed by the declaration's
+    choices or range; with ``limits`` also representable for its use (float32 for ``float``, int32 for
+    ``int`` unless the range says otherwise) and within a range's cap (:attr:`Range.cap`). None passes
+    (a field that is None means "the default")."""
+    if value is None:
+        return
+    if decl.choices is not None and value not in decl.choices:
+        raise _bad(name, value, f"choose one of {', '.join(map(str, decl.choices))}")
+    if kind_ is bool and not isinstance(value, bool):
+        raise _bad(name, value, "must be true or false")
+    if kind_ not in (int, float) or isinstance(value, bool) and decl.range is None:
+        return
+    r = decl.range
+    if kind_ is int:
+        if not isinstance(value, int) or isinstance(value, bool):
+            raise _bad(name, value, f"must be {r.text(int)}" if r else "must be an integer")
+        if limits and (r is None or r.hi == math.inf) and abs(value) > INT32_MAX:
+            raise _bad(name, value, f"must fit in 32 bits (|{name}| <= {INT32_MAX}), as the counters and traced "
+                                    f"integers do")
+    elif isinstance(value, (int, float)) and not isinstance(value, bool):
+        x = float(value)
+        if not math.isfinite(x) and not limits:
+            raise _bad(name, value, "must be a finite number")
+        with np.errstate(over="ignore", under="ignore"):
+            x32 = float(np.float32(x))  # rounded to nearest, as the learner's cast does
+        if limits and not math.isfinite(x32):
+            raise _bad(name, value, f"must be a finite number in float32 (|{name}| <= {F32_MAX:.4g}); the learner "
+                                    f"computes in float32")
+        if limits and x != 0 and abs(x32) < F32_TINY:
+            raise _bad(name, value, f"below float32's smallest normal number {F32_TINY:.4g} (it would become 0 "
+                                    f"or lose its precision); give 0 or a larger value")
+    else:
+        raise _bad(name, value, f"must be {r.text(float)}" if r else "must be a number")
+    if r is not None and not r.contains(float(value), cap=limits):
+        raise _bad(name, value, f"must be {r.text(kind_)}")
+
+
+def check(config: Any, skip: frozenset[str] = frozenset(), limits: bool = True) -> None:
+    """:func:`check_value` for every field of the dataclass ``config`` (but ``skip``), in field
+    order: ValueError for the first that is not allowed. A config's ``validate`` checks without
+    ``limits`` (what is meaningless anywhere); nmrl/runs/bounds.py with them, before a run."""
+    cls = type(config)
+    for name, decl in declarations(cls).items():
+        if name not in skip:
+            check_value(name, getattr(config, name), kind(cls, name), decl, limits)
+
+
+def hyper_type(cls: type, derived: Mapping[str, Callable[[Any], Any]] = {},  # noqa: B006 - read only
+               name: str = "Hyper", module: str | None = None) -> type:
+    """The NamedTuple of ``cls``'s traced values with ``from_config(config)``: one leaf per traced
+    field (``traced=True``: the field's value as float32 or int32) or per derived leaf (a field
+    declared ``traced="leaf"``: ``derived["leaf"](config)``), in the order of the fields."""
+    leaves: list[str] = []
+    for field, decl in declarations(cls).items():
+        leaf = field if decl.traced is True else decl.traced
+        if leaf and leaf not in leaves:
+            leaves.append(leaf)
+    missing = sorted(set(leaves) - set(traced(cls)) - set(derived))
+    if missing:
+        raise TypeError(f"{cls.__name__}: no function for the derived traced value(s) {missing}")
+
+    def from_config(config: Any) -> Any:
+        import jax.numpy as jnp  # not at import: the command line sets JAX's devices first
+
+        dtype = {int: jnp.int32, float: jnp.float32}
+        return hyper(**{leaf: derived[leaf](config) if leaf in derived
+                        else jnp.asarray(getattr(config, leaf), dtype[kind(cls, leaf)]) for leaf in leaves})
+
+    hyper = type(name, (collections.namedtuple(name, leaves),), {
+        "__slots__": (), "__module__": module or cls.__module__, "from_config": staticmethod(from_config),
+        "__doc__": f"The traced values of a {cls.__name__} ({', '.join(leaves)}): one compiled program serves "
+                   f"every value (nmrl/options.py)."})
+    return hyper
