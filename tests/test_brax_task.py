@@ -116,3 +116,29 @@ def test_published_baseline_configs_load_and_are_stored_as_they_are(path):
     assert "env" not in stored
     assert {k: v for k, v in stored.items() if k in saved} == saved
     assert set(stored) - set(saved) <= {"physics"}  # written by later versions, at the value of these runs
+
+
+@pytest.mark.slow
+def test_a_brax_run_on_a_task_records_the_task_and_its_episode_returns_and_resumes(tmp_path):
+    """A short Brax PPO run on Hopper (MuJoCo C): the config names the task, its 0.008 s step and its
+    1,000-step limit; each row has the deterministic policy's 10-episode return, whose mean equals
+    the mean of the episodes' returns it lists; a resume continues the same run."""
+    pytest.importorskip("brax")
+    from nmrl.experiments import baseline_ppo as bp
+
+    cfg = bp.task_config("hopper-v5", num_envs=4, batch_size=4, num_minibatches=2, unroll_length=5,
+                         num_updates_per_batch=1, num_timesteps=80, policy_hidden=(8,), value_hidden=(8,),
+                         physics="c")
+    out = tmp_path / "run"
+    rows = bp.run(cfg, out, progress=False, max_iterations=1)
+    saved = json.loads((out / "config.json").read_text())
+    assert saved["env"] == "hopper-v5" and saved["control_dt"] == 0.008 and saved["episode_cap"] == 1000
+    assert [r["step"] for r in rows] == [0, 40]
+    for r in rows:
+        assert np.isfinite(r["eval_return"]) and 1 <= r["eval_length_mean"] <= 1000 and "eval_avg_reward" not in r
+    ev = bp.evaluate_params(cfg, bp.initial_params(cfg))
+    assert ev["return"]["mean"] == pytest.approx(np.mean(ev["return"]["each"]))
+    assert ev["terminated"] == sum(1 for n in ev["length"] if n < 1000)
+    more = bp.run(bp.load_config(out), out, resume=True, progress=False)
+    assert [r["step"] for r in more] == [80]
+    assert json.loads((out / "config.json").read_text()) == saved
