@@ -46,11 +46,7 @@ def _episodes_fn(program: Any, n: int):
             ns, xi = jax.vmap(lambda st, ee: pol.noise_step(noise_args, st, ee))(ns, e)
             a = jax.vmap(lambda o, x: pol.act(params, o, noise_scale * x))(s.obs, xi)
             s = jax.vmap(env.step)(s, a)
-            out = {"reward": jnp.where(alive, s.reward, 0.0), "alive": alive,
-                   "x_velocity": jnp.where(alive, s.metrics["x_velocity"], 0.0),
-                   "terminated": alive & (s.info["terminated"] > 0),
-                   "nonfinite": alive & (s.metrics["nonfinite"] > 0)}
-            return (s, ns, alive & ~(s.done > 0)), out
+            return (s, ns, alive & ~(s.done > 0)), _record(s, alive)
 
         _, traj = jax.lax.scan(step, (s0, ns0, jnp.ones((n,), bool)), eps)
         return traj
@@ -66,6 +62,10 @@ def episodes(config: Any, params: dict, *, n: int = EPISODES, seed: int = 0, exp
     noise_args = learners.of(config).policy(config, env).noise_args
     fn = _episodes_fn(learners.program_key(config), int(n))
     traj = jax.device_get(fn(params, jax.random.PRNGKey(seed), jnp.float32(1.0 if exploring else 0.0), noise_args))
+    return _summary(traj, int(n))
+
+
+def _summary(traj: dict, n: int) -> dict:
     ret = np.asarray(traj["reward"], np.float64).sum(axis=0)
     length = np.asarray(traj["alive"]).sum(axis=0)
     alive = np.asarray(traj["alive"])
@@ -74,3 +74,40 @@ def episodes(config: Any, params: dict, *, n: int = EPISODES, seed: int = 0, exp
                                            "each": [float(r) for r in ret]},
             "length": [int(x) for x in length], "terminated": int(np.asarray(traj["terminated"]).any(axis=0).sum()),
             "forward_speed": speed, "nonfinite": int(np.asarray(traj["nonfinite"]).sum())}
+
+
+def _record(s: Any, alive: jax.Array) -> dict:
+    """One step's per-episode values, zero after the episode's end."""
+    return {"reward": jnp.where(alive, s.reward, 0.0), "alive": alive,
+            "x_velocity": jnp.where(alive, s.metrics["x_velocity"], 0.0),
+            "terminated": alive & (s.info["terminated"] > 0), "nonfinite": alive & (s.metrics["nonfinite"] > 0)}
+
+
+@functools.lru_cache(maxsize=8)
+def _act_episodes_fn(act: Any, name: str, control_dt: float, physics: str, n: int):
+    """A jitted ``(params, key) -> per-step arrays (T, n)`` of ``n`` episodes of ``act(params, obs)``
+    (another trainer's deterministic policy), from the reset states :func:`episodes` draws from ``key``."""
+    env = _env(name, control_dt, physics)
+
+    def run(params, key):
+        k_reset, _ = jax.random.split(key)
+        s0 = jax.vmap(env.reset)(jax.random.split(k_reset, n))
+
+        def step(carry, _):
+            s, alive = carry
+            s = jax.vmap(env.step)(s, jax.vmap(lambda o: act(params, o))(s.obs))
+            return (s, alive & ~(s.done > 0)), _record(s, alive)
+
+        _, traj = jax.lax.scan(step, (s0, jnp.ones((n,), bool)), None, length=env.max_steps)
+        return traj
+
+    return jax.jit(run)
+
+
+def act_episodes(act: Any, params: Any, name: str, control_dt: float, physics: str = "mjx", *,
+                 n: int = EPISODES, seed: int = 0) -> dict:
+    """:func:`episodes` for a policy given as ``act(params, obs) -> action`` (e.g. Brax PPO's mode,
+    nmrl/experiments/baseline_ppo.py) on the task ``name``: the same reset states for the same ``seed``,
+    the same summary."""
+    fn = _act_episodes_fn(act, name, float(control_dt), physics, int(n))
+    return _summary(jax.device_get(fn(params, jax.random.PRNGKey(seed))), int(n))

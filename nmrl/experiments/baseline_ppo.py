@@ -1,4 +1,5 @@
-"""The peer on the same robot: Brax's PPO on the paper's Half-Cheetah, at the paper's sample budget.
+"""The peer on the same robot: Brax's PPO on the paper's Half-Cheetah, at the paper's sample budget;
+and Brax's PPO on Gymnasium's v5 tasks (``env``: nmrl/adapters/brax_task.py).
 
 ``run(PPOConfig(seed=s), out)`` trains ``brax.training.agents.ppo.train`` on
 :class:`nmrl.adapters.brax_env.BraxHalfCheetah` (the paper's robot, state, reward (8)-(14) and stop
@@ -23,6 +24,14 @@ directory of the run store's layout (nmrl/runs/store.py)::
 
 **Hyperparameters.** The starting point is Brax's own PPO setting for its Half-Cheetah (the Brax
 training notebook, ``BRAX_HALFCHEETAH``); :data:`CHANGES` lists every change with its reason.
+
+**The tasks** (``env`` = ``halfcheetah-v5``, ``hopper-v5``, ``walker2d-v5``; :func:`task_config`): the
+task's own control step (``control_dt``), its time limit as Brax's episode length (``episode_cap`` =
+the task's ``max_steps``: a truncation; the task's ``terminated`` a termination), and, per
+iteration, the deterministic policy's returns of 10 episodes (``eval_return``: mean,
+nmrl.analysis.task_eval.act_episodes, the reset states of ``nmrl eval``) in place of the 10 s
+rollout. ``env`` is stored in ``config.json`` only when it is not the paper's robot, so a run made
+before the field existed keeps its config file and resumes.
 
 **Resume** (``resume=True``): Brax's ``ppo.train`` runs as one call that cannot be checkpointed
 mid-way; it can start from given parameters (``restore_params``). An interrupted run therefore
@@ -50,13 +59,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nmrl.analysis import evaluate
-from nmrl.adapters import brax_env
+from nmrl import tasks
+from nmrl.analysis import evaluate, task_eval
+from nmrl.adapters import brax_env, brax_task
 from nmrl.paper.env import PHYSICS_HELP, EnvConfig
 from nmrl.runs import checkpoint, driver, store
 
 __all__ = ["PPOConfig", "BRAX_HALFCHEETAH", "CHANGES", "run", "load_config", "policy_action",
-           "evaluate_checkpoint"]
+           "evaluate_checkpoint", "task_config"]
 
 #: Brax's PPO setting for its Half-Cheetah (brax/notebooks/training.ipynb, ``train_fn`` for
 #: ``halfcheetah``; networks: ``ppo_networks.make_ppo_networks``' defaults).
@@ -106,6 +116,11 @@ class PPOConfig:
     stop_prob: float = 1 / 250
     eval_seconds: float = 10.0
     physics: str = "mjx"  #: the environment's physics engine (nmrl/paper/env.py PHYSICS)
+    env: str = tasks.PAPER  #: the environment (nmrl.tasks.ENVS): the paper's robot or a v5 task
+
+    @property
+    def is_task(self) -> bool:
+        return self.env != tasks.PAPER
 
     @property
     def steps_per_iteration(self) -> int:
@@ -143,7 +158,28 @@ class PPOConfig:
             v = getattr(self, name)
             if not v or any(not isinstance(h, int) or h < 1 for h in v):
                 raise ValueError(f"{name}={v!r} is invalid: layer sizes must be integers >= 1")
-        EnvConfig(control_dt=self.control_dt, stop_prob=self.stop_prob, physics=self.physics).validate()
+        env_config = EnvConfig(control_dt=self.control_dt, stop_prob=self.stop_prob, physics=self.physics)
+        env_config.validate()
+        tasks.check_env(self.env, env_config)
+        if self.is_task and self.episode_cap != _time_limit(self.env, self.control_dt):
+            raise ValueError(f"episode_cap={self.episode_cap!r} is invalid: with env={self.env!r} it is the task's "
+                             f"time limit, {_time_limit(self.env, self.control_dt)} control steps")
+
+
+def _time_limit(env: str, control_dt: float) -> int:
+    """A task's time limit in control steps of ``control_dt`` (1,000 of its own steps; nmrl/tasks/env.py)."""
+    spec = tasks.TASKS[env]
+    return int(round(spec.max_episode_steps * spec.frame_skip * spec.timestep / control_dt))
+
+
+def task_config(env: str, **fields: Any) -> PPOConfig:
+    """The config of Brax PPO on ``env`` with ``fields`` changed: on a task, its own control step (frame
+    skip x timestep) and its time limit as the episode length unless ``fields`` give them."""
+    if env == tasks.PAPER or env not in tasks.TASKS:
+        return PPOConfig(env=env, **fields)
+    spec = tasks.TASKS[env]
+    dt = fields.pop("control_dt", spec.frame_skip * spec.timestep)
+    return PPOConfig(env=env, control_dt=dt, episode_cap=fields.pop("episode_cap", _time_limit(env, dt)), **fields)
 
 
 RESUMABLE = ("num_timesteps",)
@@ -173,10 +209,11 @@ def _ppo():
 
 
 @functools.lru_cache(maxsize=4)
-def _networks(policy_hidden: tuple[int, ...], value_hidden: tuple[int, ...], normalize: bool):
+def _networks(policy_hidden: tuple[int, ...], value_hidden: tuple[int, ...], normalize: bool,
+              dims: tuple[int, int] = (brax_env.OBS_DIM, brax_env.ACT_DIM)):
     _, ppo_networks, running_statistics = _ppo()
     pre = running_statistics.normalize if normalize else (lambda x, y: x)
-    return ppo_networks.make_ppo_networks(brax_env.OBS_DIM, brax_env.ACT_DIM, preprocess_observations_fn=pre,
+    return ppo_networks.make_ppo_networks(*dims, preprocess_observations_fn=pre,
                                           policy_hidden_layer_sizes=policy_hidden,
                                           value_hidden_layer_sizes=value_hidden)
 
@@ -190,16 +227,24 @@ def _network_factory(cfg: PPOConfig) -> Callable:
     return factory
 
 
-@functools.lru_cache(maxsize=4)
-def _actor(policy_hidden: tuple[int, ...], value_hidden: tuple[int, ...], normalize: bool) -> Callable:
+@functools.lru_cache(maxsize=8)
+def _actor(policy_hidden: tuple[int, ...], value_hidden: tuple[int, ...], normalize: bool,
+           env: str = tasks.PAPER, control_dt: float = 0.02) -> Callable:
     """A module-level-stable ``act(params, obs) -> a``: the mode of Brax's tanh-Gaussian policy (its
-    deterministic action u), scaled to the paper's action a = ACTION_SCALE u."""
-    nets = _networks(policy_hidden, value_hidden, normalize)
+    deterministic action u), mapped to the environment's action: the paper's a = ACTION_SCALE u, a
+    task's ``offset + scale u`` (brax_task.BraxTask.action)."""
+    if env == tasks.PAPER:
+        nets = _networks(policy_hidden, value_hidden, normalize)
+        to_action = lambda u: brax_env.ACTION_SCALE * jnp.clip(u, -1.0, 1.0)  # noqa: E731
+    else:
+        task = tasks.Task(env, tasks.TaskConfig(control_dt=control_dt))
+        nets = _networks(policy_hidden, value_hidden, normalize, (task.obs_dim, task.act_dim))
+        lo, scale = jnp.asarray(task.action_offset, jnp.float32), jnp.asarray(task.action_scale, jnp.float32)
+        to_action = lambda u: lo + scale * jnp.clip(u, -1.0, 1.0)  # noqa: E731
 
     def act(params, obs):
         logits = nets.policy_network.apply(params[0], params[1], obs)
-        u = nets.parametric_action_distribution.mode(logits)
-        return brax_env.ACTION_SCALE * jnp.clip(u, -1.0, 1.0)
+        return to_action(nets.parametric_action_distribution.mode(logits))
 
     return act
 
@@ -207,7 +252,8 @@ def _actor(policy_hidden: tuple[int, ...], value_hidden: tuple[int, ...], normal
 def policy_action(cfg: PPOConfig) -> Callable:
     """``act(params, obs)`` of the deterministic PPO policy of ``cfg``'s networks (params =
     (normalizer, policy, value), as Brax returns and :func:`run` saves them)."""
-    return _actor(tuple(cfg.policy_hidden), tuple(cfg.value_hidden), bool(cfg.normalize_observations))
+    return _actor(tuple(cfg.policy_hidden), tuple(cfg.value_hidden), bool(cfg.normalize_observations),
+                  cfg.env, float(cfg.control_dt))
 
 
 def _tally_every(cfg: PPOConfig) -> int:
@@ -232,7 +278,9 @@ def _train_kwargs(cfg: PPOConfig, tally: Callable | None = None) -> dict:
     )
 
 
-def _env(cfg: PPOConfig) -> brax_env.BraxHalfCheetah:
+def _env(cfg: PPOConfig) -> brax_env.BraxHalfCheetah | brax_task.BraxTask:
+    if cfg.is_task:
+        return brax_task.BraxTask(cfg.env, cfg.control_dt, cfg.physics)
     return brax_env.BraxHalfCheetah(EnvConfig(control_dt=cfg.control_dt, stop_prob=cfg.stop_prob,
                                               physics=cfg.physics))
 
@@ -247,7 +295,9 @@ def initial_params(cfg: PPOConfig) -> Any:
 def evaluate_params(cfg: PPOConfig, params: Any, *, seconds: float | None = None, seed: int = 0) -> dict:
     """The deterministic policy's rollout of ``seconds`` (default cfg.eval_seconds), summarized as in
     ``nmrl eval`` (avg_reward per step, forward_speed, terms, ground shares); ``traj`` kept under
-    ``"_traj"`` for pictures."""
+    ``"_traj"`` for pictures. On a task: the returns of 10 episodes (task_eval.act_episodes), no ``_traj``."""
+    if cfg.is_task:
+        return task_eval.act_episodes(policy_action(cfg), params, cfg.env, cfg.control_dt, cfg.physics, seed=seed)
     traj = evaluate.rollout_policy(policy_action(cfg), params, control_dt=cfg.control_dt,
                                    seconds=cfg.eval_seconds if seconds is None else seconds, seed=seed,
                                    physics=cfg.physics)
@@ -273,12 +323,12 @@ def evaluate_checkpoint(run_dir: str | os.PathLike, step: int | None = None, *, 
     restore = checkpoint.restore_tree_compact if checkpoint.uses_compact(run_dir) else checkpoint.restore_tree
     meta, params = restore(run_dir, initial_params(cfg), step)
     ev = evaluate_params(cfg, params, seconds=seconds)
-    traj = ev.pop("_traj")
+    traj = ev.pop("_traj", None)
     out_dir = pathlib.Path(out_dir) if out_dir is not None else run_dir / evaluate.EVAL_DIR
     out_dir.mkdir(parents=True, exist_ok=True)
     result = {"run_dir": str(run_dir), "step": int(meta["step"]), "seconds": float(seconds),
               "control_dt": cfg.control_dt, "deterministic": ev}
-    if render:
+    if render and traj is not None:
         title = f"{run_dir.name} (Brax PPO), {int(meta['step']):,} control steps, deterministic policy"
         strobe = evaluate.plot_strobe(traj["pos"], cfg.control_dt, out_dir / "strobe.png", title=title)
         gif = evaluate.write_gif(traj["pos"], cfg.control_dt, out_dir / "gait.gif")
@@ -328,12 +378,12 @@ class _Recorder:
         jax.effects_barrier()  # every report of this iteration's steps has reached tally()
         r, v, stops, n = self._take()
         ev = evaluate_params(self.cfg, params)
-        ev.pop("_traj")
+        ev.pop("_traj", None)
         row = {"step": step, "iteration": step // self.cfg.steps_per_iteration, "wall_s": wall,
                "steps_per_s": (self.cfg.steps_per_iteration / wall) if step and wall > 0 else None,
                "train_reward_per_step": r / n if n else None, "train_forward_speed": v / n if n else None,
                "train_steps_tallied": int(n), "trials_ended": int(stops),
-               "eval_avg_reward": ev["avg_reward"], "eval_forward_speed": ev["forward_speed"],
+               **_eval_fields(ev), "eval_forward_speed": ev["forward_speed"],
                "eval_nonfinite": ev["nonfinite"], "unix_time": time.time()}
         if compile_s is not None:
             row["setup_s"] = compile_s
@@ -345,9 +395,18 @@ class _Recorder:
         self.t_last = time.perf_counter()
         if self.progress:
             tr = row["train_reward_per_step"]
+            ev_text = (f"return {row['eval_return']:+.1f}" if "eval_return" in row else f"{row['eval_avg_reward']:+.3f}")
             print(f"ppo seed {self.cfg.seed}: {step:>11,} steps  train {tr if tr is None else f'{tr:+.3f}'}  "
-                  f"eval {row['eval_avg_reward']:+.3f} ({row['eval_forward_speed']:+.2f} m/s)  "
+                  f"eval {ev_text} ({row['eval_forward_speed']:+.2f} m/s)  "
                   f"{row['steps_per_s'] or 0:,.0f} steps/s", file=sys.stderr, flush=True)
+
+
+def _eval_fields(ev: dict) -> dict:
+    """A metrics row's evaluation: the paper robot's average reward per step, a task's episode returns."""
+    if "return" not in ev:
+        return {"eval_avg_reward": ev["avg_reward"]}
+    return {"eval_return": ev["return"]["mean"], "eval_return_sd": ev["return"]["sd"],
+            "eval_length_mean": float(np.mean(ev["length"])), "eval_terminated": ev["terminated"]}
 
 
 def finished_step(out: str | os.PathLike, cfg: PPOConfig) -> int | None:
@@ -360,7 +419,10 @@ def finished_step(out: str | os.PathLike, cfg: PPOConfig) -> int | None:
 
 
 def _asdict(cfg: PPOConfig) -> dict:
+    """The config as stored (config.json, checkpoints): every field, ``env`` only when it is a task."""
     d = dataclasses.asdict(cfg)
+    if not cfg.is_task:
+        del d["env"]
     d["policy_hidden"], d["value_hidden"] = list(cfg.policy_hidden), list(cfg.value_hidden)
     return d
 
@@ -450,11 +512,18 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=None, help=f"default {d.seed}")
     p.add_argument("--num-timesteps", type=int, default=None,
                    help=f"control steps over all environments (default {d.num_timesteps:.2g})")
-    for name in ("num_envs", "batch_size", "num_minibatches", "unroll_length"):
+    for name in ("num_envs", "batch_size", "num_minibatches", "unroll_length", "num_updates_per_batch"):
         p.add_argument("--" + name.replace("_", "-"), type=int, default=None, help=f"default {getattr(d, name)}")
+    for name in ("discounting", "learning_rate", "entropy_cost"):
+        p.add_argument("--" + name.replace("_", "-"), type=float, default=None, help=f"default {getattr(d, name)}")
+    for name in ("policy_hidden", "value_hidden"):
+        p.add_argument("--" + name.replace("_", "-"), type=int, nargs="+", default=None,
+                       help=f"layer sizes (default {' '.join(map(str, getattr(d, name)))})")
     p.add_argument("--max-iterations", type=int, default=None,
                    help="stop after this many PPO iterations of this call (continue with --resume)")
     p.add_argument("--physics", default=None, help=f"{PHYSICS_HELP} (default {d.physics})")
+    p.add_argument("--env", default=None, help=f"one of {', '.join(tasks.ENVS)} (default {d.env}; a task runs at "
+                   "its own control step with its time limit: docs/tasks.md)")
     p.add_argument("--devices", default="auto", help="CPU devices Brax splits the environments over")
     p.add_argument("--quiet", action="store_true")
     e = sub.add_parser("eval", help="evaluate a PPO baseline checkpoint like nmrl eval (JSON, strobe, GIF)")
@@ -474,8 +543,18 @@ def main(argv: list[str] | None = None) -> int:
         if a.max_iterations is not None and a.max_iterations < 1:
             raise ValueError(f"--max-iterations={a.max_iterations} is invalid: must be >= 1")
         given = {k: getattr(a, k) for k in ("seed", "num_timesteps", "num_envs", "batch_size", "num_minibatches",
-                                             "unroll_length", "physics") if getattr(a, k) is not None}
-        base = load_config(a.out) if a.resume else PPOConfig()
+                                             "unroll_length", "num_updates_per_batch", "discounting", "learning_rate",
+                                             "entropy_cost", "policy_hidden", "value_hidden", "physics")
+                 if getattr(a, k) is not None}
+        for k in ("policy_hidden", "value_hidden"):
+            if k in given:
+                given[k] = tuple(given[k])
+        if a.env is not None and not a.resume:
+            base = task_config(a.env)  # the task's own control step and time limit
+        else:
+            base = load_config(a.out) if a.resume else PPOConfig()
+            if a.env is not None:
+                given["env"] = a.env
         cfg = dataclasses.replace(base, **given)  # a resume refuses any change but num_timesteps (run)
         run(cfg, a.out, resume=a.resume, progress=not a.quiet, max_iterations=a.max_iterations)
     except (ValueError, ImportError, driver.RunError, checkpoint.CheckpointError) as err:
