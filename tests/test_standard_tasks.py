@@ -1,4 +1,4 @@
-"""The HalfCheetah-v5 publication (scripts/publish_standard_tasks.py, nmrl/analysis/standard_tasks.py):
+"""The HalfCheetah-v5 publication (scripts/publish/publish_standard_tasks.py, nmrl/analysis/standard_tasks.py):
 returns per episode from both learners' rows, the Welch interval against scipy, byte-identical
 regeneration from the published data."""
 
@@ -20,7 +20,7 @@ NUM_ENVS = 64
 
 
 def _publisher():
-    spec = importlib.util.spec_from_file_location("publish_standard_tasks", ROOT / "scripts" / "publish_standard_tasks.py")
+    spec = importlib.util.spec_from_file_location("publish_standard_tasks", ROOT / "scripts" / "publish" / "publish_standard_tasks.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod

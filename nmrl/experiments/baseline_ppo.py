@@ -442,9 +442,9 @@ def run(cfg: PPOConfig, out: str | os.PathLike, *, resume: bool = False, progres
     sessions; the run continues with ``resume``). Raises driver.RunError for a bad ``out`` or a
     resume with another config, driver.Stopped after SIGINT/SIGTERM (everything saved).
     """
-    brax_env.require_brax()
     out = pathlib.Path(out)
-    cfg.validate(len(jax.local_devices()))
+    cfg.validate(len(jax.local_devices()))  # bad values are named first, with or without Brax
+    brax_env.require_brax()
     template = None
     step0, n_resume = 0, 0
     if resume:

@@ -1,8 +1,8 @@
 """Publish PPO on HalfCheetah-v5 (native against Brax, the same settings) under results/standard_tasks/.
 
-    .venv/bin/python scripts/publish_standard_tasks.py [--src runs/standard_tasks] [--dest results/standard_tasks]
+    .venv/bin/python scripts/publish/publish_standard_tasks.py [--src runs/standard_tasks] [--dest results/standard_tasks]
 
-Reads, when ``--src`` exists, the runs of scripts/task_validation.sh (SRC/native: the native sweep;
+Reads, when ``--src`` exists, the runs of scripts/run/task_validation.sh (SRC/native: the native sweep;
 SRC/brax/ppo_s{seed}: the Brax runs) and copies into DEST what a fresh clone needs to continue them
 and what the figures are drawn from: ``native/{sweep.json, points/s{seed}/{config.json,
 metrics.jsonl, compact.npz, eval.json}}`` (eval.json: ``nmrl eval SRC/native/points/s{seed}``, when
@@ -31,7 +31,7 @@ import numpy as np
 from nmrl.analysis import ppo_validation as pv, standard_tasks as st
 from nmrl.runs import store
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
+ROOT = pathlib.Path(__file__).resolve().parents[2]
 
 
 def copy_runs(src: pathlib.Path, dest: pathlib.Path) -> None:

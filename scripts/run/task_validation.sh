@@ -12,9 +12,9 @@
 # checkpoint in $OUT; a run with none there is first seeded from its published continuation state in
 # $PUBLISHED (config, metrics and compact.npz: parameters, and for the native PPO its Adam state
 # and observation statistics; every environment starts a new episode).
-# Publish the progress with: .venv/bin/python scripts/publish_standard_tasks.py
+# Publish the progress with: .venv/bin/python scripts/publish/publish_standard_tasks.py
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 # Every process runs at nice $NICE (default 10) in the caller's session: the session's own CPU share
 # (scripts/lower_priority.sh) is left as it is, so a setsid launch takes a session's share.
 NICE=${NICE:-10}
@@ -25,7 +25,7 @@ ITERATIONS=${ITERATIONS:-39}
 SEEDS=(0 1 2)
 # gamma = exp(-0.05 / horizon): 0.99 and 0.95 at the task's 0.05 s step
 HORIZONS=(--discount-horizon-s 4.9749581236711045 --gae-horizon-s 0.9747862873111837)
-. scripts/seed_run.sh
+. scripts/run/seed_run.sh
 seed_run "$OUT/native" "$PUBLISHED/native"
 mkdir -p "$OUT/brax"
 pids=()
