@@ -50,10 +50,7 @@ def copy_runs(src: pathlib.Path, dest: pathlib.Path) -> None:
 
 
 def draw(native: st.Curves, brax: st.Curves, path: pathlib.Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
+    from nmrl.analysis.plots import plt, save
 
     fig, ax = plt.subplots(figsize=(8, 4.8), dpi=110)
     for name, curves, color in (("Brax PPO", brax, "C3"), ("native PPO", native, "C0")):
@@ -72,10 +69,7 @@ def draw(native: st.Curves, brax: st.Curves, path: pathlib.Path) -> None:
     ax.grid(alpha=0.3)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp.png")
-    fig.savefig(tmp, metadata={"Software": None})
-    plt.close(fig)
-    tmp.replace(path)
+    save(fig, path, metadata={"Software": None})
 
 
 def _csv(rows: list[dict], fields: list[str]) -> str:
