@@ -221,3 +221,37 @@ def test_ppo_config_errors_name_the_value():
         bp.PPOConfig(num_envs=1, batch_size=1, num_minibatches=1).validate(n_devices=2)
     cfg = bp.PPOConfig()
     assert cfg.steps_per_iteration == 512 * 32 * 20 and cfg.iterations == 77  # 77 x 327,680 >= 2.5e7
+
+
+@needs_brax
+@pytest.mark.slow
+def test_sigterm_stops_the_baseline_after_its_iterations_save(tmp_path):
+    """``nmrl baseline ppo`` under the command's signal guard: a SIGTERM during training stops the run
+    after the iteration in flight is saved (exit 143, "continue with --resume"), every metrics row
+    has its checkpoint, and --resume continues from the newest one."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from nmrl.runs import checkpoint, store
+
+    out = tmp_path / "ppo"
+    argv = [sys.executable, "-m", "nmrl.cli", "baseline", "ppo", "--out", str(out), "--num-envs", "4",
+            "--batch-size", "4", "--num-minibatches", "2", "--unroll-length", "5", "--num-timesteps", "400000",
+            "--policy-hidden", "4", "--value-hidden", "4", "--quiet"]
+    p = subprocess.Popen(argv, stderr=subprocess.PIPE, text=True, env=dict(os.environ))
+    t_end = time.time() + 600
+    while time.time() < t_end and len(store.read_metrics(out) if (out / store.METRICS_FILE).exists() else []) < 2:
+        assert p.poll() is None, p.communicate()[1]
+        time.sleep(0.2)
+    p.send_signal(signal.SIGTERM)
+    _, err = p.communicate(timeout=300)
+    assert p.returncode == 143, err
+    assert "continue with --resume" in err
+    rows = store.read_metrics(out)
+    assert checkpoint.all_steps(out)[-1] == rows[-1]["step"] < 400000
+    r = subprocess.run([*argv[:7], "--resume", "--max-iterations", "1", "--quiet"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert store.read_metrics(out)[-1]["step"] > rows[-1]["step"]

@@ -345,7 +345,7 @@ class _Recorder:
     brax_env.Tally) and, after every iteration (Brax's ``policy_params_fn``), evaluates, checkpoints
     and appends the metrics row; raises :class:`driver.Stopped` after the save when a signal came."""
 
-    def __init__(self, cfg: PPOConfig, out: pathlib.Path, step0: int, stop: dict, progress: bool):
+    def __init__(self, cfg: PPOConfig, out: pathlib.Path, step0: int, stop: Any, progress: bool):
         self.cfg, self.out, self.step0, self.stop, self.progress = cfg, out, step0, stop, progress
         self.rows: list[dict] = []
         self.t0 = self.t_last = time.perf_counter()
@@ -369,8 +369,8 @@ class _Recorder:
             self.t_last = time.perf_counter()
             return
         self._record(self.step0 + int(current_step), params)
-        if self.stop["signal"] is not None:
-            raise driver.Stopped(self.stop["signal"], self.step0 + int(current_step), self.rows)
+        if self.stop.signal is not None:  # the signal guard's first signal: stop after this save
+            raise driver.Stopped(self.stop.signal, self.step0 + int(current_step), self.rows)
 
     def _record(self, step: int, params: Any, compile_s: float | None = None) -> None:
         now = time.perf_counter()
@@ -388,9 +388,11 @@ class _Recorder:
         if compile_s is not None:
             row["setup_s"] = compile_s
         meta = {"kind": "brax-ppo", "config": _asdict(self.cfg)}
+        self.stop.at("saving")
         checkpoint.save_tree(self.out, step, params, meta)
         checkpoint.save_tree_compact(self.out, step, params, meta)
         store.append_metrics(self.out, row)
+        self.stop.at("training")
         self.rows.append(row)
         self.t_last = time.perf_counter()
         if self.progress:
@@ -484,15 +486,13 @@ def run(cfg: PPOConfig, out: str | os.PathLike, *, resume: bool = False, progres
     if left <= 0:
         return []
     ppo_train, _, _ = _ppo()
-    stop, restore_signals = driver.stop_on_signals()
-    rec = _Recorder(cfg, out, step0, stop, progress)
     seed = cfg.seed if n_resume == 0 else int(jax.random.randint(
         jax.random.fold_in(jax.random.PRNGKey(cfg.seed), n_resume), (), 0, 2**31 - 1))
-    try:
+    with driver.guarded() as guard:  # the command's signal guard, as every run of nmrl has
+        guard.at("training")
+        rec = _Recorder(cfg, out, step0, guard, progress)
         ppo_train.train(_env(cfg), num_timesteps=left * spi, num_evals=left + 1, seed=seed,
                         restore_params=params, policy_params_fn=rec.on_params, **_train_kwargs(cfg, rec.tally))
-    finally:
-        restore_signals()
     return rec.rows
 
 

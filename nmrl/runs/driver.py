@@ -45,7 +45,7 @@ from nmrl.runs import points as pts
 from nmrl.runs.errors import Diverged, OutOfMemory, RunError, Stopped  # noqa: F401
 from nmrl.runs.layout import OneRun, Point, Points, begin_fresh, begin_resumed, num_shards
 from nmrl.runs.loop import (Progress, budget_done, budget_text, compile_chunk, compile_or_stop, drive,  # noqa: F401
-                            guarded, metrics_row, progress_table, stop_on_signals)
+                            guarded, metrics_row, progress_table)
 from nmrl.runs.preflight import (SEED_MAX, allocate, check_config, create_dir, fresh_out, hold,  # noqa: F401
                                  physics_timestep, preflight, preflight_points)
 from nmrl.runs.resume import BUDGET_FIELDS, existing_step, given_changes, load_resume  # noqa: F401

@@ -16,14 +16,13 @@ SIGINT/SIGTERM at any moment go through one :class:`nmrl.runs.signals.Guard` (:f
 command's, else one of the caller's own): during the compile the run stops when the compile
 returns, before anything of it is written (:func:`compile_or_stop`); during the chunk loop after
 the chunk in flight, every active point saved (:class:`Stopped`); a second signal stops at once
-(the last checkpoints are intact because checkpoints are written atomically).
-:func:`stop_on_signals` is the plain form for a loop of another kind (the Brax PPO baseline).
+(the last checkpoints are intact because checkpoints are written atomically). A loop of another
+kind (the Brax PPO baseline) takes the same guard and stops after its iteration's save.
 """
 
 from __future__ import annotations
 
 import contextlib
-import signal
 import sys
 import time
 from typing import Callable, Iterator, Sequence
@@ -39,28 +38,6 @@ from nmrl.runs.store import append_metrics, is_diverged
 
 #: A learner's config (nmrl/learners/contract.py).
 Config = object
-
-
-def stop_on_signals() -> tuple[dict, Callable[[], None]]:
-    """Install SIGINT/SIGTERM handlers for a chunk loop: a first signal sets ``stop["signal"]`` (the
-    loop stops after the chunk in flight is saved), a second stops at once (KeyboardInterrupt).
-    Returns ``(stop, restore)``; call ``restore()`` when the loop ends."""
-    stop: dict = {"signal": None}
-
-    def on_signal(signum, _frame):
-        if stop["signal"] is not None:
-            raise KeyboardInterrupt
-        stop["signal"] = signum
-        print(f"\nsignal {signum}: stopping after the chunk in flight is saved (again to stop now)",
-              file=sys.stderr, flush=True)
-
-    old = {sg: signal.signal(sg, on_signal) for sg in (signal.SIGINT, signal.SIGTERM)}
-
-    def restore() -> None:
-        for sg, h in old.items():
-            signal.signal(sg, h)
-
-    return stop, restore
 
 
 def _compile_needed(guard: signals.Guard) -> bool:
