@@ -85,7 +85,7 @@ def figure(panels: Mapping[str, Mapping[str, Sequence[tuple[np.ndarray, np.ndarr
     for ax, (name, cells) in zip(axes.ravel(), panels.items()):
         for label, curves in cells.items():
             t, mean, lo, hi = band(curves)
-            (line,) = ax.plot(t, mean, lw=1.6, label=f"{label} ({len(curves)})")
+            (line,) = ax.plot(t, mean, lw=1.6, marker="o", ms=3, label=f"{label} ({len(curves)})")
             if len(curves) >= BAND_MIN_SEEDS:
                 ax.fill_between(t, lo, hi, color=line.get_color(), alpha=0.2, lw=0)
             else:  # a t interval over 2 seeds is 13 SDs wide: each seed is drawn instead
