@@ -16,6 +16,7 @@
 # Fig. 3 sweep pinned to the other core (CPUS=0 scripts/run/fig3_paper.sh).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
+. scripts/run/seed_run.sh
 # shellcheck source=scripts/lower_priority.sh
 source scripts/lower_priority.sh
 lower_priority  # a background launch (setsid) yields the CPUs to interactive work
@@ -28,13 +29,7 @@ if [ -n "${CPUS:-}" ]; then PIN=(taskset -c "$CPUS"); fi
 for s in $SEEDS; do
   d="$OUT/ppo_s$s"
   p="$PUBLISHED/ppo_s$s"
-  if [ ! -f "$d/config.json" ] && [ -f "$p/config.json" ]; then
-    echo "seeding $d from the published $p (its compact continuation state, if unfinished)" >&2
-    mkdir -p "$d"
-    for f in config.json metrics.jsonl resumes.jsonl compact.npz; do
-      if [ -f "$p/$f" ]; then cp "$p/$f" "$d/"; fi
-    done
-  fi
+  seed_baseline_run "$d" "$p"
   if [ -f "$d/config.json" ]; then
     nice -n "${NICE:-19}" ${PIN[@]+"${PIN[@]}"} .venv/bin/nmrl baseline ppo --resume --out "$d"
   else

@@ -42,13 +42,7 @@ pids+=($!)
 for s in "${SEEDS[@]}"; do
   d="$OUT/brax/ppo_s$s"
   p="$PUBLISHED/brax/ppo_s$s"
-  if [ ! -f "$d/config.json" ] && [ -f "$p/config.json" ]; then
-    echo "seeding $d from the published $p" >&2
-    mkdir -p "$d"
-    for f in config.json metrics.jsonl resumes.jsonl compact.npz; do
-      if [ -f "$p/$f" ]; then cp "$p/$f" "$d/"; fi
-    done
-  fi
+  seed_baseline_run "$d" "$p"
   if [ -f "$d/config.json" ]; then
     nice -n "$NICE" "$PY" -m nmrl.cli baseline ppo --resume --out "$d" --num-timesteps $((ITERATIONS * 131072)) \
       --devices 1 > "$OUT/brax_s$s.log" 2>&1 &
