@@ -24,21 +24,9 @@ from __future__ import annotations
 from typing import Any
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
-from nmrl import explore
-from nmrl.learners import ppo_networks as nn_
 from nmrl.learners.ppo import PPOConfig, PPOState, make_ppo
-
-
-def log_probs(cfg: PPOConfig, nets: Any, policy: Any, stats: Any, proc: explore.Process, obs: jax.Array,
-              x: jax.Array, fresh: jax.Array, mean0: jax.Array, cov0: jax.Array) -> jax.Array:
-    """log π_θ(x_t | the noise since the last reset) of one environment's sequence (T, ...) whose
-    filter starts from ``(mean0, cov0)``: the process's conditional of ξ rebuilt under ``policy``
-    and the change of variables (docs/ppo.md)."""
-    mu, std = nn_.mean_std(nets, policy, nn_.normalize(stats, obs, cfg.normalize_obs), cfg.min_std)
-    return explore.log_prob(proc, mean0, cov0, (x - mu) / std, fresh) - jnp.sum(jnp.log(std), axis=-1)
 
 
 def parts(cfg: PPOConfig, st: PPOState, key: jax.Array, env: Any = None) -> dict[str, np.ndarray]:
@@ -56,14 +44,11 @@ def parts(cfg: PPOConfig, st: PPOState, key: jax.Array, env: Any = None) -> dict
     params, _, stats, _ = tr.learn(st, data, k_sgd)
     proc, pol = st.hyper.process, params["policy"]
     N, U, T = data.reward.shape
-
-    def per_unroll(obs, x, fresh, m0, c0):
-        return log_probs(cfg, tr.nets, pol, stats, proc, obs, x, fresh, m0, c0)
-
-    a = jax.vmap(jax.vmap(per_unroll))(data.obs, data.x, data.fresh, data.mean0, data.cov0).reshape(N, U * T)
+    a = tr.seq_logp(pol, stats, data, proc).reshape(N, U * T)  # each unroll from its stored belief
     joined = lambda v: v.reshape((N, U * T) + v.shape[3:])  # noqa: E731
-    b = jax.vmap(lambda o, x, f, m0, c0: log_probs(cfg, tr.nets, pol, stats, proc, o, x, f, m0, c0))(
-        joined(data.obs), joined(data.x), joined(data.fresh), data.mean0[:, 0], data.cov0[:, 0])
+    whole = data._replace(obs=joined(data.obs), x=joined(data.x), fresh=joined(data.fresh),
+                          mean0=data.mean0[:, 0], cov0=data.cov0[:, 0])  # each environment's unrolls in time order
+    b = tr.seq_logp(pol, stats, whole, proc)
     inside = np.cumsum(np.asarray(joined(data.fresh)), axis=1) > 0  # the noise restarts only with a trial
     inside[:, :T] = False  # the first unroll: (a) and (b) are the same there
     return {"a": np.asarray(a, np.float64), "b": np.asarray(b, np.float64),

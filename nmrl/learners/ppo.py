@@ -320,7 +320,7 @@ def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None
         flat = lambda a: a.reshape((-1,) + a.shape[len(lead):])  # noqa: E731
         lp = jax.vmap(explore.log_prob, in_axes=(None, 0, 0, 0, 0))(
             proc, flat(b.mean0), flat(b.cov0), flat(xi), flat(b.fresh))
-        return lp.reshape(lead + (T,)) - jnp.sum(jnp.log(std), axis=-1)
+        return lp.reshape(xi.shape[:-1]) - jnp.sum(jnp.log(std), axis=-1)  # (..., sequence length)
 
     def seq_logp(policy, stats, b: Batch, proc: explore.Process) -> jax.Array:
         """log pi_theta(x_t | x since the last reset) of every step of ``b`` (leading axes (..., T)):
