@@ -18,9 +18,9 @@ import pathlib
 from typing import Mapping, Sequence
 
 import numpy as np
-from scipy import stats
 
 from nmrl.analysis import plots, prereg_stats
+from nmrl.analysis.stats import mean_ci95
 
 #: runs a cell needs before its IQM and bootstrap interval are reported
 IQM_MIN_RUNS = 4
@@ -41,9 +41,8 @@ def summary(values: Sequence[float]) -> dict:
         return out
     out["mean"] = float(x.mean())
     if x.size >= 2:
-        sd = float(x.std(ddof=1))
-        half = float(stats.t.ppf(0.975, x.size - 1)) * sd / np.sqrt(x.size)
-        out.update(sd=sd, ci_lo=out["mean"] - half, ci_hi=out["mean"] + half)
+        _, half = mean_ci95(x)
+        out.update(sd=float(x.std(ddof=1)), ci_lo=out["mean"] - half, ci_hi=out["mean"] + half)
     if x.size >= IQM_MIN_RUNS:
         point, lo, hi = prereg_stats.stratified_bootstrap_ci([x], reps=BOOTSTRAP_REPS, seed=0)
         out.update(iqm=point, iqm_lo=lo, iqm_hi=hi)
@@ -62,10 +61,7 @@ def band(curves: Sequence[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, n
         if not np.allclose(np.asarray(ti[:n], float), t):
             raise ValueError("the seeds' curves are not on the same time points")
     y = np.stack([np.asarray(yi[:n], float) for _, yi in curves])
-    mean = y.mean(axis=0)
-    if y.shape[0] < 2:
-        return t, mean, mean.copy(), mean.copy()
-    half = stats.t.ppf(0.975, y.shape[0] - 1) * y.std(axis=0, ddof=1) / np.sqrt(y.shape[0])
+    mean, half = np.array([mean_ci95(col) for col in y.T]).T  # half 0 with one seed
     return t, mean, mean - half, mean + half
 
 

@@ -19,7 +19,6 @@ made from these rows by the rules the pre-registration states.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import pathlib
 import sys
@@ -27,6 +26,7 @@ import sys
 import numpy as np
 
 from nmrl.experiments import kit
+from nmrl.runs import store
 from nmrl.explore.spec import PAPER_CORR_TIME_S
 
 ITERATION_S = 102.4  #: simulated seconds per environment in one PPO iteration (256 unrolls of 0.4 s)
@@ -372,7 +372,7 @@ CELL_COLUMNS = ("cell", "value", "n", "mean", "sd", "ci_lo", "ci_hi", "iqm", "iq
 def _curve(point: pathlib.Path) -> tuple[np.ndarray, np.ndarray]:
     """A point's learning curve: simulated seconds per environment, exploring reward per second."""
     cfg = json.loads((point / "config.json").read_text())
-    m = [json.loads(line) for line in (point / "metrics.jsonl").read_text().splitlines() if line.strip()]
+    m = store.read_metrics(point)
     return (np.array([r["step"] * cfg["control_dt"] for r in m]),
             np.array([r["avg_reward"] / kit.DELTA_0 for r in m]))
 
@@ -402,7 +402,7 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
         elif r["cell"].startswith("grid/"):
             _, dt, arm = r["cell"].split("/")
             grid.setdefault(f"control step {float(dt[2:]) * 1000:g} ms", {}).setdefault(arm, []).append(_curve(point))
-    kit._write_csv(dest / CELLS_CSV, CELL_COLUMNS,
+    store.write_csv(dest / CELLS_CSV, CELL_COLUMNS,
                    [{"cell": c, "value": v, **cell_curves.summary(x)} for (c, v), x in groups.items()])
     if screen:
         cell_curves.figure(screen, dest / SCREEN_FIGURE, "exploring reward per second", "the screen (seeds 100, 101)")
@@ -421,14 +421,13 @@ def _snr_report(dest: pathlib.Path) -> None:
     against the control step, one line per iteration, with the t intervals."""
     from nmrl.analysis import cell_curves, plots
 
-    with open(dest / SNR_CSV, newline="") as fh:
-        got = list(csv.DictReader(fh))
+    got = store.read_csv(dest / SNR_CSV)
     groups: dict[tuple[str, int, float], list[float]] = {}
     for r in got:
         groups.setdefault((r["arm"], int(r["iteration"]), float(r["control_dt"])), []).append(float(r["snr_per_s"]))
     table = [{"arm": a, "iteration": it, "control_dt": dt, **cell_curves.summary(x)}
              for (a, it, dt), x in sorted(groups.items())]
-    kit._write_csv(dest / SNR_SUMMARY_CSV, ("arm", "iteration", "control_dt", *CELL_COLUMNS[2:]), table)
+    store.write_csv(dest / SNR_SUMMARY_CSV, ("arm", "iteration", "control_dt", *CELL_COLUMNS[2:]), table)
     arms = sorted({a for a, _, _ in groups})
     fig, axes = plots.plt.subplots(1, len(arms), figsize=(4.6 * len(arms), 3.6), sharey=True, squeeze=False,
                                    layout="constrained")

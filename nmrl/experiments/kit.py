@@ -27,7 +27,6 @@ cells as data and any rule that makes later cells from earlier rows.
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import json
 import os
@@ -215,20 +214,10 @@ def rows(study: Study, out: pathlib.Path, cells: Sequence[Cell] | None = None) -
     return res
 
 
-def _write_csv(path: pathlib.Path, columns: Sequence[str], table: Sequence[dict]) -> None:
-    """``table`` as a CSV file with ``columns``, written whole or not at all."""
-    tmp = path.parent / f".{path.name}.{os.getpid()}.tmp"
-    with open(tmp, "w", newline="") as fh:
-        w = csv.DictWriter(fh, columns)
-        w.writeheader()
-        w.writerows(table)
-    os.replace(tmp, path)
-
-
 def write_rows(study: Study, out: pathlib.Path) -> list[dict]:
     r = rows(study, out)
     out.mkdir(parents=True, exist_ok=True)
-    _write_csv(out / ROWS, COLUMNS, r)
+    store.write_csv(out / ROWS, COLUMNS, r)
     return r
 
 
@@ -279,6 +268,6 @@ def publish(study: Study, out: str | os.PathLike, dest: str | os.PathLike) -> No
             shutil.copy2(out / m.file, dest / m.file)
     if study.analysis is not None:
         table = study.analysis(r)
-        _write_csv(dest / ANALYSIS, list(dict.fromkeys(k for row in table for k in row)), table)
+        store.write_csv(dest / ANALYSIS, list(dict.fromkeys(k for row in table for k in row)), table)
     if study.report is not None:
         study.report(r, dest)

@@ -20,7 +20,6 @@ Rows (``snr.csv``): seed, iteration, control step, arm, and ppo_gradsnr's statis
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import json
 import pathlib
@@ -73,7 +72,7 @@ def measure(points: dict[int, dict[int, pathlib.Path]], arms: dict[str, dict[flo
     ({arm: {dt: exploration fields}}), the SNR of each seed's policy. Groups already in the file
     are kept (the measurement continues where it stopped); each group is appended whole (``env``:
     as for make_ppo, one built from the config when None)."""
-    done = _read(path)
+    done = store.read_csv(path) if path.is_file() else []
     have = {(int(r["iteration"]), float(r["control_dt"]), r["arm"]) for r in done}
     for it, by_seed in sorted(points.items()):
         base = PPOConfig(**{k: v for k, v in json.loads((next(iter(by_seed.values())) / "config.json").read_text()).items()
@@ -90,10 +89,3 @@ def measure(points: dict[int, dict[int, pathlib.Path]], arms: dict[str, dict[flo
                           **{k: r[k] for k in COLUMNS[4:]}} for s, r in zip(seeds, res)]
                 store.write_csv(path, COLUMNS, done)
     return done
-
-
-def _read(path: pathlib.Path) -> list[dict]:
-    if not path.is_file():
-        return []
-    with open(path, newline="") as fh:
-        return list(csv.DictReader(fh))
