@@ -160,7 +160,8 @@ def kind(cls: type, name: str) -> type | None:
     return None
 
 
-def _bad(name: str, value: Any, allowed: str) -> ValueError:
+def invalid(name: str, value: Any, allowed: str) -> ValueError:
+    """The one-line refusal of a value: ``NAME=VALUE is invalid: what is allowed``."""
     return ValueError(f"{name}={value!r} is invalid: {allowed}")
 
 
@@ -172,34 +173,34 @@ def check_value(name: str, value: Any, kind_: type | None, decl: Option = Option
     if value is None:
         return
     if decl.choices is not None and value not in decl.choices:
-        raise _bad(name, value, f"choose one of {', '.join(map(str, decl.choices))}")
+        raise invalid(name, value, f"choose one of {', '.join(map(str, decl.choices))}")
     if kind_ is bool and not isinstance(value, bool):
-        raise _bad(name, value, "must be true or false")
+        raise invalid(name, value, "must be true or false")
     if kind_ not in (int, float) or isinstance(value, bool) and decl.range is None:
         return
     r = decl.range
     if kind_ is int:
         if not isinstance(value, int) or isinstance(value, bool):
-            raise _bad(name, value, f"must be {r.text(int)}" if r else "must be an integer")
+            raise invalid(name, value, f"must be {r.text(int)}" if r else "must be an integer")
         if limits and (r is None or r.hi == math.inf) and abs(value) > INT32_MAX:
-            raise _bad(name, value, f"must fit in 32 bits (|{name}| <= {INT32_MAX}), as the counters and traced "
+            raise invalid(name, value, f"must fit in 32 bits (|{name}| <= {INT32_MAX}), as the counters and traced "
                                     f"integers do")
     elif isinstance(value, (int, float)) and not isinstance(value, bool):
         x = float(value)
         if not math.isfinite(x) and not limits:
-            raise _bad(name, value, "must be a finite number")
+            raise invalid(name, value, "must be a finite number")
         with np.errstate(over="ignore", under="ignore"):
             x32 = float(np.float32(x))  # rounded to nearest, as the learner's cast does
         if limits and not math.isfinite(x32):
-            raise _bad(name, value, f"must be a finite number in float32 (|{name}| <= {F32_MAX:.4g}); the learner "
+            raise invalid(name, value, f"must be a finite number in float32 (|{name}| <= {F32_MAX:.4g}); the learner "
                                     f"computes in float32")
         if limits and x != 0 and abs(x32) < F32_TINY:
-            raise _bad(name, value, f"below float32's smallest normal number {F32_TINY:.4g} (it would become 0 "
+            raise invalid(name, value, f"below float32's smallest normal number {F32_TINY:.4g} (it would become 0 "
                                     f"or lose its precision); give 0 or a larger value")
     else:
-        raise _bad(name, value, f"must be {r.text(float)}" if r else "must be a number")
+        raise invalid(name, value, f"must be {r.text(float)}" if r else "must be a number")
     if r is not None and not r.contains(float(value), cap=limits):
-        raise _bad(name, value, f"must be {r.text(kind_)}")
+        raise invalid(name, value, f"must be {r.text(kind_)}")
 
 
 def check(config: Any, skip: frozenset[str] = frozenset(), limits: bool = True) -> None:

@@ -68,10 +68,6 @@ _LEARNING_RATE = Range(0.0, 1.0, open_lo=True, why="a step size", cap=True)
 DEFAULT_ITERATIONS = 1
 
 
-def _bad(name: str, value: Any, allowed: str) -> ValueError:
-    return ValueError(f"{name}={value!r} is invalid: {allowed}")
-
-
 def _per_step(horizon: str) -> Callable[["PPOConfig"], jax.Array]:
     """``exp(-control_dt / horizon_s)`` in float32: a horizon in seconds as a factor per control step."""
     return lambda c: jnp.asarray(math.exp(-c.control_dt / getattr(c, horizon)), jnp.float32)
@@ -173,17 +169,17 @@ class PPOConfig:
         options.check(self, limits=False)
         self.spec().validate(self.control_dt)
         if self.period_wise and self.exploration != "nm-periods":
-            raise _bad("period_wise", self.period_wise, "true only with --exploration nm-periods (a process whose "
+            raise options.invalid("period_wise", self.period_wise, "true only with --exploration nm-periods (a process whose "
                                                         "noise restarts at period starts), else false")
         dt = self.control_dt
         for name in ("discount_horizon_s", "gae_horizon_s", "unroll_s"):
             if getattr(self, name) < dt * (1 - 1e-9):
-                raise _bad(name, getattr(self, name), f"must be a finite time >= the control step {dt:g} s")
+                raise options.invalid(name, getattr(self, name), f"must be a finite time >= the control step {dt:g} s")
         if self.batch_size % self.num_envs:
-            raise _bad("num_envs", self.num_envs, f"must divide batch_size={self.batch_size} (every minibatch "
+            raise options.invalid("num_envs", self.num_envs, f"must divide batch_size={self.batch_size} (every minibatch "
                                                   f"holds batch_size / num_envs unrolls of each environment)")
         if self.chunk_steps is not None and self.chunk_steps % self.iteration_steps:
-            raise _bad("chunk_steps", self.chunk_steps, f"must be a multiple of one iteration's "
+            raise options.invalid("chunk_steps", self.chunk_steps, f"must be a multiple of one iteration's "
                                                         f"{self.iteration_steps} control steps per environment")
         if self.steps is not None and self.trials is not None:
             raise ValueError("give the budget as steps or as trials, not both")

@@ -142,57 +142,53 @@ class OptStep(NamedTuple):
     params: tuple[tuple[str, float], ...]
 
 
-def _opt_error(field: str, spec: Any, why: str) -> ValueError:
-    return ValueError(f"{field}={spec!r} is invalid: {why}")
-
-
 def parse_opt(spec: Any, field: str = "opt") -> tuple[OptStep, ...]:
     """The chain an optimizer spec names (see :data:`OPT_VOCAB`); ValueError naming the bad part and
     listing what is allowed."""
     allowed = ", ".join(f"{n}" + "".join(f"[:{k}]" if d is not None else f":{k}" for k, d in ps.items())
                         for n, ps in OPT_VOCAB.items())
     if not isinstance(spec, str) or not spec.strip():
-        raise _opt_error(field, spec, f"must be a chain of {allowed} separated by commas, e.g. 'clip:10,sgd'")
+        raise options.invalid(field, spec, f"must be a chain of {allowed} separated by commas, e.g. 'clip:10,sgd'")
     chain = []
     for part in spec.split(","):
         name, *args = [a.strip() for a in part.strip().split(":")]
         if name not in OPT_VOCAB:
-            raise _opt_error(field, spec, f"unknown optimizer {name!r}; allowed: {allowed} (e.g. 'clip:10,sgd')")
+            raise options.invalid(field, spec, f"unknown optimizer {name!r}; allowed: {allowed} (e.g. 'clip:10,sgd')")
         defaults = OPT_VOCAB[name]
         keys = list(defaults)
         given: dict[str, float] = {}
         if len(args) > len(keys):
-            raise _opt_error(field, spec, f"{name} takes {len(keys)} parameter(s) ({', '.join(keys) or 'none'}), "
+            raise options.invalid(field, spec, f"{name} takes {len(keys)} parameter(s) ({', '.join(keys) or 'none'}), "
                                           f"got {len(args)}")
         for i, a in enumerate(args):
             k, eq, v = a.partition("=")
             k, v = (k.strip(), v.strip()) if eq else (keys[i], a)
             if k not in defaults:
-                raise _opt_error(field, spec, f"{name} has no parameter {k!r}; its parameters: "
+                raise options.invalid(field, spec, f"{name} has no parameter {k!r}; its parameters: "
                                               f"{', '.join(keys) or 'none'}")
             if k in given:
-                raise _opt_error(field, spec, f"{name}'s parameter {k} is given twice")
+                raise options.invalid(field, spec, f"{name}'s parameter {k} is given twice")
             try:
                 x = float(v)
             except ValueError:
-                raise _opt_error(field, spec, f"{name}'s {k}={v!r} is not a number") from None
+                raise options.invalid(field, spec, f"{name}'s {k}={v!r} is not a number") from None
             if not math.isfinite(x):
-                raise _opt_error(field, spec, f"{name}'s {k}={v!r} must be finite")
+                raise options.invalid(field, spec, f"{name}'s {k}={v!r} must be finite")
             given[k] = x
         params = []
         for k, d in defaults.items():
             x = given.get(k, d)
             if x is None:
-                raise _opt_error(field, spec, f"{name} needs {k} (e.g. '{name}:10')")
+                raise options.invalid(field, spec, f"{name} needs {k} (e.g. '{name}:10')")
             ok = {"max_norm": x > 0, "eps": x > 0, "b1": 0 <= x < 1, "b2": 0 <= x < 1}[k]
             if not ok:
                 rng = {"max_norm": "> 0", "eps": "> 0", "b1": "in [0, 1)", "b2": "in [0, 1)"}[k]
-                raise _opt_error(field, spec, f"{name}'s {k}={x!r} must be {rng}")
+                raise options.invalid(field, spec, f"{name}'s {k}={x!r} must be {rng}")
             params.append((k, x))
         chain.append(OptStep(name, tuple(params)))
     steps = [s.name for s in chain if s.name in OPT_STEPS]
     if len(steps) != 1:
-        raise _opt_error(field, spec, f"needs exactly one step element ({' or '.join(OPT_STEPS)}, which takes the "
+        raise options.invalid(field, spec, f"needs exactly one step element ({' or '.join(OPT_STEPS)}, which takes the "
                                       f"step size beta), got {len(steps)}")
     return tuple(chain)
 
