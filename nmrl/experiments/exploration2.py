@@ -26,6 +26,7 @@ import sys
 import numpy as np
 
 from nmrl.experiments import kit
+from nmrl.paper.control_step import DELTA_0
 from nmrl.runs import store
 from nmrl.explore.spec import PAPER_CORR_TIME_S
 
@@ -49,7 +50,7 @@ def base(dt: float, iterations: int) -> tuple[str, ...]:
     """The options every cell at control step ``dt`` shares (module docstring)."""
     steps = round(iterations * ITERATION_S / dt)
     return ("--learner", "ppo", "--num-envs", "64", "--value-layers", "2", "--value-width", "64",
-            "--batch-size", "512", "--num-minibatches", "32", "--epochs", "8", "--reward-scale", f"{dt / 0.02:g}",
+            "--batch-size", "512", "--num-minibatches", "32", "--epochs", "8", "--reward-scale", f"{dt / DELTA_0:g}",
             "--control-dt", f"{dt:g}", "--trial-s", "5", "--physics", "c", "--physics-timestep", "0.0025",
             "--steps", str(steps))
 
@@ -374,7 +375,7 @@ def _curve(point: pathlib.Path) -> tuple[np.ndarray, np.ndarray]:
     cfg = json.loads((point / "config.json").read_text())
     m = store.read_metrics(point)
     return (np.array([r["step"] * cfg["control_dt"] for r in m]),
-            np.array([r["avg_reward"] / kit.DELTA_0 for r in m]))
+            np.array([r["avg_reward"] / DELTA_0 for r in m]))
 
 
 def report(rows: list[dict], dest: pathlib.Path) -> None:

@@ -36,12 +36,12 @@ import subprocess
 import sys
 from typing import Callable, Sequence
 
+from nmrl.paper.control_step import DELTA_0
 from nmrl.runs import store
 
 ROWS = "rows.csv"
 ANALYSIS = "analysis.csv"
 ENDPOINT = "endpoint.json"
-DELTA_0 = 0.02  #: reward per second = mean r_t / DELTA_0 (nmrl/experiments/timescale.py)
 COLUMNS = ("cell", "point", "seed", "field", "value", "control_dt", "steps", "budget", "diverged",
            "avg_reward_per_s", "auc_reward_per_s", "det_reward_per_s", "det_forward_speed")
 _PUBLISHED_POINT_FILES = ("config.json", "metrics.jsonl", "compact.npz", ENDPOINT)
