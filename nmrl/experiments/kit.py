@@ -21,8 +21,9 @@ budget and scores it:
 :func:`publish` copies what continues and re-scores a study (no full checkpoints) into a folder
 small enough to commit, with ``analysis.csv``, the study's own analysis of the rows (its
 pre-registered contrasts), its report's figures and tables, and the files of its measurements (steps
-after the cells that are not sweeps, :class:`Measurement`). A study's own module (e.g. nmrl/experiments/exploration2.py) holds its
-cells as data and any rule that makes later cells from earlier rows.
+after the cells that are not sweeps, :class:`Measurement`). A study's own modules (e.g.
+nmrl/experiments/exploration2.py and its cells, rules and analysis beside it) hold its cells as
+data and any rule that makes later cells from earlier rows.
 """
 
 from __future__ import annotations
