@@ -1,7 +1,7 @@
 """The gradient's SNR at matched policies: the period-wise gradient estimate against a dense-Gaussian
 computation (nmrl/experiments/ppo_gradsnr.py), the matched states against the compact files
 (nmrl/experiments/matched_snr.py), and the study's measurement step and its summary
-(nmrl/experiments/exploration2.py)."""
+(nmrl/experiments/exploration2.py, its report in exploration2_analysis.py)."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from jax.flatten_util import ravel_pytree
 
-from nmrl.experiments import exploration2, matched_snr, ppo_gradsnr
+from nmrl.experiments import exploration2, exploration2_analysis, exploration2_cells, matched_snr, ppo_gradsnr
 from nmrl.learners import ppo
 from nmrl.learners import ppo_losses as L
 from nmrl.learners import ppo_networks as nn_
@@ -152,23 +152,23 @@ def test_the_studys_snr_waits_for_its_cells_then_measures_white_and_nmp_at_every
     assert by_it[0][2] == tmp_path / "snr/dt0.02/white_it1/points/s2"
     assert arms["white"][0.0025]["sigma"] == 0.16 and arms["nmp"][0.02]["period_s"] == 0.06
     assert arms["nmp"][0.005]["period_s"] == 0.02 and arms["nmp"][0.005]["period_wise"] is True
-    assert path == tmp_path / exploration2.SNR_CSV
+    assert path == tmp_path / exploration2_cells.SNR_CSV
 
 
 def test_the_snr_summary_is_the_mean_and_t_interval_over_the_seeds(tmp_path):
     from scipy import stats
 
     vals = {0: [1.0, 2.0, 4.5], 16: [0.5, 0.25, 0.0]}
-    with open(tmp_path / exploration2.SNR_CSV, "w", newline="") as fh:
+    with open(tmp_path / exploration2_cells.SNR_CSV, "w", newline="") as fh:
         w = csv.DictWriter(fh, matched_snr.COLUMNS)
         w.writeheader()
         for it, xs in vals.items():
             for s, x in enumerate(xs):
                 w.writerow({"seed": s, "iteration": it, "control_dt": 0.0025, "arm": "white", "snr_per_s": x})
-    exploration2._snr_report(tmp_path)
-    got = {r["iteration"]: r for r in csv.DictReader(open(tmp_path / exploration2.SNR_SUMMARY_CSV))}
+    exploration2_analysis._snr_report(tmp_path)
+    got = {r["iteration"]: r for r in csv.DictReader(open(tmp_path / exploration2_analysis.SNR_SUMMARY_CSV))}
     x = np.array(vals[0])
     lo, hi = stats.t.interval(0.95, 2, loc=x.mean(), scale=stats.sem(x))
     assert float(got["0"]["mean"]) == pytest.approx(2.5) and float(got["0"]["ci_lo"]) == pytest.approx(lo)
     assert float(got["16"]["ci_hi"]) == pytest.approx(stats.t.interval(0.95, 2, loc=0.25, scale=stats.sem(vals[16]))[1])
-    assert (tmp_path / exploration2.SNR_FIGURE).stat().st_size > 0
+    assert (tmp_path / exploration2_analysis.SNR_FIGURE).stat().st_size > 0

@@ -16,8 +16,8 @@
 # devices step in one program and one busy core holds them all back.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
-# shellcheck source=scripts/lower_priority.sh
-source scripts/lower_priority.sh
+# shellcheck source=scripts/run/lower_priority.sh
+source scripts/run/lower_priority.sh
 lower_priority  # a background launch (setsid) yields the CPUs to interactive work
 PRESET=${PRESET:-paper}
 OUT=${OUT:-runs/fig3_$PRESET}
