@@ -1,7 +1,8 @@
 """The second exploration x control-step study (docs/exploration-study-2.md) on the kit: its cells
 (nmrl/experiments/exploration2_cells.py), the rules that add the later ones
 (nmrl/experiments/exploration2_rules.py), the gradient's SNR at matched policies (:func:`snr`),
-the analysis and report (nmrl/experiments/exploration2_analysis.py), and its command.
+the gaits of the best and worst arm at 2.5 ms (nmrl/experiments/exploration2_gaits.py), the
+analysis and report (nmrl/experiments/exploration2_analysis.py), and its command.
 
     python -m nmrl.experiments.exploration2 run --out runs/exploration2 [--published results/exploration2/runs]
     python -m nmrl.experiments.exploration2 publish --out runs/exploration2 --dest results/exploration2/runs
@@ -18,6 +19,7 @@ from nmrl.experiments import kit
 from nmrl.experiments.exploration2_analysis import analysis, report
 from nmrl.experiments.exploration2_cells import (SIGMA_SCREEN, SNR_CSV, SNR_POLICY_ITERATIONS, SNR_SEEDS, grid_name,
                                                  snr_name)
+from nmrl.experiments.exploration2_gaits import GAITS, gaits
 from nmrl.experiments.exploration2_rules import complete_cells, later_cells
 
 
@@ -53,7 +55,7 @@ def snr(out: pathlib.Path, rows: list[dict]) -> None:
 STUDY = kit.Study(name="exploration2", cells=SIGMA_SCREEN, endpoint=kit.Endpoint(seconds=10.0, rollouts=8,
                                                                                  start_noise=0.05, seed=0),
                   later=later_cells, analysis=analysis, report=report,
-                  measurements=(kit.Measurement(SNR_CSV, snr),))
+                  measurements=(kit.Measurement(SNR_CSV, snr), kit.Measurement(GAITS, gaits)))
 
 
 def main(argv: list[str] | None = None) -> int:

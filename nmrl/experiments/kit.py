@@ -84,8 +84,8 @@ class Endpoint:
 
 @dataclasses.dataclass(frozen=True)
 class Measurement:
-    """A step of a study after its cells that is not a sweep: ``run(out, rows)`` writes ``file`` in the
-    study's directory from the rows and the cells' points, continuing what an earlier call left
+    """A step of a study after its cells that is not a sweep: ``run(out, rows)`` writes ``file`` (a
+    file or a folder) in the study's directory from the rows and the cells' points, continuing what an earlier call left
     there, and does nothing while a cell it needs is unfinished; :func:`publish` copies ``file``."""
 
     file: str
@@ -267,6 +267,8 @@ def publish(study: Study, out: str | os.PathLike, dest: str | os.PathLike) -> No
     for m in study.measurements:
         if (out / m.file).is_file():
             shutil.copy2(out / m.file, dest / m.file)
+        elif (out / m.file).is_dir():
+            shutil.copytree(out / m.file, dest / m.file, dirs_exist_ok=True)
     if study.analysis is not None:
         table = study.analysis(r)
         store.write_csv(dest / ANALYSIS, list(dict.fromkeys(k for row in table for k in row)), table)
