@@ -350,7 +350,7 @@ def test_a_task_runs_eval_scores_episodes_as_a_gymnasium_loop_does(tmp_path):
 
     from nmrl import cli
     from nmrl.analysis import eval_env, task_eval
-    from nmrl.learners import ppo, ppo_config
+    from nmrl.learners import ppo
     from nmrl.runs import checkpoint
 
     out = tmp_path / "r"
