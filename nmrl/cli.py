@@ -2,7 +2,7 @@
 
 ``--learner NAME`` picks the learner (nmrl/learners/; default ``ac``, the paper's actor-critic;
 a resume takes the run's own). Every field of the learner's config is an option of ``train`` and
-``sweep`` (the actor-critic's :class:`nmrl.paper.learner.TrainConfig`: ``--beta-theta 2e-6``,
+``sweep`` (the actor-critic's :class:`nmrl.learners.ac_config.TrainConfig`: ``--beta-theta 2e-6``,
 ``--num-envs 256``, ``--actor-opt clip:10,sgd``, ...; ``nmrl train --learner NAME --help`` lists
 them), and ``--exploration {white,nm-periods,ou,colored}`` with the process's parameters in seconds
 or Hz sets the learner's exploration noise (the actor-critic: ``white`` is l = 1, ``nm-periods``
@@ -44,8 +44,8 @@ from nmrl.runs import launch as _launch
 from nmrl.runs import parser as _parser
 from nmrl.runs import signals as _signals
 
-# nmrl.paper.learner (and with it JAX) is imported only after nmrl.runs.devices.configure has set the host
-# device count (main()). The budget of a run given none is TrainConfig's (nmrl.paper.learner.DEFAULT_STEPS).
+# nmrl.learners.ac_config (and with it JAX) is imported only after nmrl.runs.devices.configure has set the host
+# device count (main()). The budget of a run given none is TrainConfig's (nmrl.learners.ac_config.DEFAULT_STEPS).
 _SWEEP_SEED = "seed"  # ``nmrl sweep`` gives --seeds (a count) and the learner's sweep_field as a list
 #: Longest ``nmrl eval --seconds`` (the GIF keeps every frame in memory: 25 per simulated second).
 MAX_EVAL_SECONDS = 600.0

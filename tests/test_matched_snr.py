@@ -16,7 +16,7 @@ import pytest
 from jax.flatten_util import ravel_pytree
 
 from nmrl.experiments import exploration2, exploration2_analysis, exploration2_cells, matched_snr, ppo_gradsnr
-from nmrl.learners import ppo
+from nmrl.learners import ppo, ppo_config
 from nmrl.learners import ppo_losses as L
 from nmrl.learners import ppo_networks as nn_
 from nmrl.runs import compact
@@ -31,7 +31,7 @@ PERIODIC = dict(TINY, num_envs=2, batch_size=4, unroll_s=0.12, exploration="nm-p
 def test_the_period_wise_gradient_estimate_is_the_periods_dense_density_times_their_advantage():
     """g_e = grad (1/UT) sum_p A_p log pi(period p), the period's density from the dense covariance
     (5) of its noise (no filter) and the change of variables, against make_batch's sums."""
-    cfg = ppo.PPOConfig(**PERIODIC).resolved()
+    cfg = ppo_config.PPOConfig(**PERIODIC).resolved()
     env = TinyEnv(stop_prob=0.0)  # no trial resets: every unroll starts a period (6 = 2 periods)
     tr = ppo.make_ppo(cfg, env)
     st = tr.init(jax.random.PRNGKey(3))
@@ -83,7 +83,7 @@ def _point(tmp_path, cfg, st, name="p"):
 
 def test_a_matched_state_holds_the_points_networks_at_another_control_step(tmp_path):
     env = TinyEnv(stop_prob=0.1)
-    cfg = ppo.PPOConfig(**dict(TINY, exploration="white", seed=5)).resolved()
+    cfg = ppo_config.PPOConfig(**dict(TINY, exploration="white", seed=5)).resolved()
     st = ppo.make_ppo(cfg, env).init(jax.random.PRNGKey(99))  # networks unlike seed 5's
     st = st.replace(obs_stats=st.obs_stats._replace(mean=st.obs_stats.mean + 0.3))
     d = _point(tmp_path, cfg, st)
@@ -104,7 +104,7 @@ def test_a_matched_state_holds_the_points_networks_at_another_control_step(tmp_p
 
 def test_the_measurement_writes_every_group_once_and_continues(tmp_path, monkeypatch):
     env = TinyEnv(stop_prob=0.1)
-    cfg = ppo.PPOConfig(**dict(TINY, exploration="white", seed=0)).resolved()
+    cfg = ppo_config.PPOConfig(**dict(TINY, exploration="white", seed=0)).resolved()
     pts = {s: _point(tmp_path, dataclasses.replace(cfg, seed=s), ppo.make_ppo(cfg, env).init(jax.random.PRNGKey(s)),
                      f"s{s}") for s in (0, 1)}
     arms = {"white": {0.02: {"exploration": "white", "sigma": 1.0}, 0.01: {"exploration": "white", "sigma": 1.0}}}

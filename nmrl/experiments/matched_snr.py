@@ -28,7 +28,8 @@ from typing import Any, Sequence
 import jax
 
 from nmrl.experiments import ppo_gradsnr
-from nmrl.learners.ppo import PPOConfig, PPOState, make_ppo
+from nmrl.learners.ppo import PPOState, make_ppo
+from nmrl.learners.ppo_config import PPOConfig
 from nmrl.paper.control_step import DELTA_0
 from nmrl.runs import compact, store
 

@@ -38,7 +38,7 @@ import math
 from nmrl import learners
 from nmrl.paper.control_step import DELTA_0
 from nmrl.paper.env import PHYSICS
-from nmrl.paper.learner import TrainConfig
+from nmrl.learners.ac_config import TrainConfig
 from nmrl.runs import bounds
 
 

@@ -23,7 +23,8 @@ import jax
 import numpy as np
 
 from nmrl.learners import ppo_networks
-from nmrl.learners.ppo import PPOConfig, make_ppo
+from nmrl.learners.ppo import make_ppo
+from nmrl.learners.ppo_config import PPOConfig
 from nmrl.runs import checkpoint
 
 
