@@ -423,3 +423,24 @@ def test_divergence_undoes_the_update_and_freezes_the_point():
                     jax.tree.leaves((st2.policy, st2.value, st2.opt, st2.obs_stats))):
         np.testing.assert_array_equal(np.asarray(b), np.asarray(a))
     assert not np.array_equal(np.asarray(st2.env.obs), np.asarray(st0.env.obs))
+
+
+@pytest.mark.parametrize("max_grad_norm", [None, 1e9, 1e-12])
+def test_max_grad_norm_clips_the_gradient_before_adam(max_grad_norm):
+    """One Adam step (one epoch of one minibatch) from the initial parameters: Adam's first step is
+    -lr g / (|g| + 1e-8) per element, so an unclipped gradient (no clip, or a bound far above its
+    norm) moves every parameter with |g| >> 1e-8 by lr, while one clipped to global norm c moves
+    each by at most lr c / 1e-8 (optax.clip_by_global_norm before scale_by_adam, as Brax's PPO)."""
+    cfg = ppo_config.PPOConfig(**{**TINY, "epochs": 1, "num_minibatches": 1, "unroll_s": 0.2},
+                               max_grad_norm=max_grad_norm)  # one unroll per environment: one Adam step
+    tr = ppo.make_ppo(cfg, TinyEnv())
+    st0 = tr.init(jax.random.PRNGKey(0))
+    st1, _ = jax.jit(tr.chunk)(st0)
+    assert cfg.resolved().unrolls_per_env == 2 and cfg.resolved().chunk_steps == cfg.resolved().unroll_length * 2
+    moved = np.concatenate([np.abs(np.asarray(b) - np.asarray(a)).ravel()
+                            for a, b in zip(jax.tree.leaves(st0.policy), jax.tree.leaves(st1.policy))])
+    lr = cfg.learning_rate
+    if max_grad_norm == 1e-12:
+        assert moved.max() <= lr * max_grad_norm / 1e-8 * 1.01
+    else:
+        assert np.quantile(moved, 0.5) == pytest.approx(lr, rel=1e-3)  # most elements: a full step lr

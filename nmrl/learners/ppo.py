@@ -134,7 +134,7 @@ def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None
     nets = nn_.make_networks(cfg.policy_layers, cfg.policy_width, cfg.value_layers, cfg.value_width, ACT,
                              cfg.learn_std)
     adam = optax.scale_by_adam()
-    tx = adam if cfg.max_grad_norm is None else optax.chain(optax.clip_byglobal_norm(cfg.max_grad_norm), adam)
+    tx = adam if cfg.max_grad_norm is None else optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), adam)
 
     def psum(x):
         return jax.lax.psum(x, axis_name) if num_shards > 1 else x
