@@ -146,7 +146,8 @@ def test_ppo_baseline_trains_checkpoints_resumes_and_evaluates(tmp_path, capsys)
     tiny = ["--num-envs", "4", "--batch-size", "4", "--num-minibatches", "2", "--unroll-length", "5", "--quiet"]
     # the tiny networks are not a CLI option: run the first call through the API, then the CLI resumes it
     cfg = bc.BaselineConfig(num_timesteps=4 * 2 * 5 * 3, num_envs=4, batch_size=4, num_minibatches=2,
-                            unroll_length=5, num_updates_per_batch=1, policy_hidden=(4,), value_hidden=(4,), eval_seconds=0.2)
+                            unroll_length=5, num_updates_per_batch=1, policy_hidden=(4,), value_hidden=(4,),
+                            eval_seconds=0.2)
     rows = bp.run(cfg, out, progress=False, max_iterations=2)
     assert [r["step"] for r in rows] == [0, 40, 80]
     assert checkpoint.all_steps(out)[-1] == 80

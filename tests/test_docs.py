@@ -11,8 +11,8 @@
   their ``main`` builds (caught before it parses); a command named in a sentence (inline code, e.g.
   ``nmrl train --resume``) names only options that exist;
 * the README's "What is where" names exactly the files of ``nmrl/*/`` (``__init__.py`` aside),
-  ``nmrl/pytrees.py`` and ``nmrl/options.py``; the README starts with the two set-up commands, and the second is what ``.ci/run``
-  runs.
+  ``nmrl/pytrees.py`` and ``nmrl/options.py``; the README starts with the two set-up commands, and
+  the second is what ``.ci/run`` runs.
 """
 
 from __future__ import annotations

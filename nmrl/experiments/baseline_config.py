@@ -177,4 +177,5 @@ def check_resume(cfg: BaselineConfig, saved: BaselineConfig, out: pathlib.Path) 
     a, b = dataclasses.asdict(saved), dataclasses.asdict(cfg)
     diff = [f"{k}: run {a[k]!r} vs given {b[k]!r}" for k in a if k not in RESUMABLE and a[k] != b[k]]
     if diff:
-        raise errors.RunError(f"{out}: --resume keeps the run's config; only {RESUMABLE} may change: " + "; ".join(diff))
+        raise errors.RunError(f"{out}: --resume keeps the run's config; only {RESUMABLE} may change: "
+                              + "; ".join(diff))

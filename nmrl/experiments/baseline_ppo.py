@@ -203,7 +203,8 @@ def run(cfg: BaselineConfig, out: str | os.PathLike, *, resume: bool = False, pr
         guard.at("training")
         rec = _Recorder(cfg, out, step0, guard, progress)
         ppo_train.train(baseline_brax.environment(cfg), num_timesteps=left * spi, num_evals=left + 1, seed=seed,
-                        restore_params=params, policy_params_fn=rec.on_params, **baseline_brax.train_kwargs(cfg, rec.tally))
+                        restore_params=params, policy_params_fn=rec.on_params,
+                        **baseline_brax.train_kwargs(cfg, rec.tally))
     return rec.rows
 
 
@@ -249,7 +250,8 @@ def main(argv: list[str] | None = None) -> int:
         if a.cmd == "eval":
             if not (math.isfinite(a.seconds) and 0 < a.seconds <= 600):
                 raise ValueError(f"--seconds={a.seconds!r} is invalid: must be in (0, 600]")
-            res = baseline_brax.evaluate_checkpoint(a.run, a.step, seconds=a.seconds, render=not a.no_render, out_dir=a.out)
+            res = baseline_brax.evaluate_checkpoint(a.run, a.step, seconds=a.seconds, render=not a.no_render,
+                                                    out_dir=a.out)
             print(json.dumps(res, indent=2))
             return 0
         if a.max_iterations is not None and a.max_iterations < 1:

@@ -71,15 +71,14 @@ from nmrl import learners
 from nmrl.paper.env import MODEL_PATH
 from nmrl.runs import io_errors, store
 from nmrl.runs.store import CHECKPOINTS, COMPACT_FILE
-from nmrl.runs.checkpoint_files import *  # noqa: F401,F403  (the public names of each part, see __all__)
-from nmrl.runs.checkpoint_files import (FORMAT, SCHEMA_VERSION, CheckpointError, Config, CorruptCheckpoint, Params,
-                                        State, Trainer, _SEP, _abstract, _digest, _err, _flatten, _fsync_tree,
-                                        _git_commit, _layout, _learner_of_meta, _nest, _as_state_trees, _sha256_file,
-                                        _to_device, _versions)
-from nmrl.runs.checkpoint_steps import *  # noqa: F401,F403
+from nmrl.runs.checkpoint_files import (FORMAT, SCHEMA_VERSION, Config, Params, State, Trainer, _SEP, _abstract,
+                                        _digest, _err, _flatten, _fsync_tree, _git_commit, _layout, _learner_of_meta,
+                                        _nest, _as_state_trees, _sha256_file, _to_device, _versions)
+from nmrl.runs.checkpoint_steps import *  # noqa: F401,F403  (the public names of each part, see __all__)
 from nmrl.runs.checkpoint_steps import _manager, _ocp, _quiet_absl, _restore_items, checkpoint_dir, load_metadata
 from nmrl.runs.compact import *  # noqa: F401,F403
 from nmrl.runs.compact import restore_compact_params, uses_compact
+from nmrl.runs.errors import CheckpointError, CorruptCheckpoint, ForeignCheckpoint
 from nmrl.runs.identity import *  # noqa: F401,F403
 from nmrl.runs.identity import _check_config, _check_model, _config_from_meta, identity_digest
 from nmrl.runs.trees import *  # noqa: F401,F403

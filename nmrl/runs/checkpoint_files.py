@@ -29,9 +29,9 @@ import numpy as np
 import nmrl
 from nmrl import learners
 from nmrl.runs import store
-from nmrl.runs.errors import CheckpointError, CorruptCheckpoint, ForeignCheckpoint
+from nmrl.runs.errors import CheckpointError, CorruptCheckpoint
 
-__all__ = ['CheckpointError', 'CorruptCheckpoint', 'ForeignCheckpoint', 'SCHEMA_VERSION']
+__all__ = ['SCHEMA_VERSION']
 
 #: Version of the on-disk layout of a checkpoint; bump when it changes incompatibly.
 SCHEMA_VERSION = 1
