@@ -14,7 +14,7 @@ Time per control step is reported relative to ``white`` measured in the same rou
 run in interleaved rounds (white, nm-periods, ou, colored, white, ...) so that a background load
 affects all alike, and the median over rounds is reported.
 
-It also confirms that the paper's tridiagonal likelihood path (nmrl.paper.noise) stays >= 100x
+It also confirms that the paper's tridiagonal likelihood path (nmrl.paper.likelihood) stays >= 100x
 faster than the dense solve at l = 1000, with bench_likelihood's contenders and timer.
 
     python -m benchmarks --only explore [--quick]

@@ -1,6 +1,6 @@
 """Training throughput vs environment-only throughput at the same batch size (the learner's overhead).
 
-* ``train``: ``trainer.chunk`` (nmrl/paper/learner.py) -- ``chunk_steps`` control steps of every
+* ``train``: ``trainer.chunk`` (nmrl/learners/ac_train.py) -- ``chunk_steps`` control steps of every
   environment with the full Table II learning step (actor 31-100-6, critic 31-200-1, the paper's
   sizes; nm-period l = 10, Delta = 4), AOT-compiled with its state donated.
 * ``env``: a ``lax.scan`` of ``jax.vmap(env.step)`` over the same number of control steps with random
@@ -105,7 +105,8 @@ def env_rollout(env, n_steps: int):
 
 
 def measure(batch: int, chunk_steps: int, rounds: int) -> dict:
-    from nmrl.paper.learner import TrainConfig, make_train
+    from nmrl.learners.ac_config import TrainConfig
+    from nmrl.learners.ac_train import make_train
     from nmrl.runs.driver import compile_chunk
 
     cfg = TrainConfig(num_envs=batch, chunk_steps=chunk_steps, l=10, seed=0)

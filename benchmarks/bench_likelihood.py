@@ -3,13 +3,13 @@
 For l in {1, 2, 5, 10, 30, 100, 300, 1000} and n = 6 (the Half-Cheetah action size) it times,
 all jitted, compile (first call) apart from steady state (median of repeats):
 
-* ``tridiagonal``: (Lambda^-1 (x) Sigma^-1) u via ``nmrl.paper.noise.lambda_inv_matvec`` -- O(l n);
+* ``tridiagonal``: (Lambda^-1 (x) Sigma^-1) u via ``nmrl.paper.likelihood.lambda_inv_matvec`` -- O(l n);
 * ``dense_solve``: Lambda = [alpha^|i-j|] built densely, ``jnp.linalg.solve(Lambda, u)``
   times Sigma^-1 -- O(l^3 + l^2 n);
 * ``dense_kron_solve`` (l <= 300): the paper's naive route, solving C y = A - m with
   C = Lambda (x) Sigma dense, -- O((l n)^3);
 * ``lr_tridiagonal`` / ``lr_dense``: the full likelihood ratio for the paper's actor
-  (31 -> 100 arctan -> 6), ``nmrl.paper.noise.likelihood_ratio`` vs the same vjp with the dense solve.
+  (31 -> 100 arctan -> 6), ``nmrl.paper.likelihood.likelihood_ratio`` vs the same vjp with the dense solve.
 
     python benchmarks/bench_likelihood.py            # full run, writes results/benchmarks/likelihood_ratio.{json,png}
     python benchmarks/bench_likelihood.py --quick    # a few seconds, prints only (unless --out)
@@ -38,7 +38,7 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-from nmrl.paper.noise import lambda_inv_matvec, likelihood_ratio  # noqa: E402
+from nmrl.paper.likelihood import lambda_inv_matvec, likelihood_ratio  # noqa: E402
 
 OUT = Path(__file__).resolve().parents[1] / "results" / "benchmarks"  # measurements apart from the code
 FULL_L = (1, 2, 5, 10, 30, 100, 300, 1000)

@@ -72,9 +72,11 @@ def _worker(quick: bool, smoke: bool) -> dict:
     import jax.numpy as jnp
 
     from benchmarks.bench_learning import interleave, timing
-    from nmrl.learners.ppo import PPOConfig, make_ppo
+    from nmrl.learners.ppo import make_ppo
+    from nmrl.learners.ppo_config import PPOConfig
     from nmrl.paper.env import EnvConfig, HalfCheetah
-    from nmrl.paper.learner import Hyper, TrainConfig, make_train
+    from nmrl.learners.ac_config import Hyper, TrainConfig
+    from nmrl.learners.ac_train import make_train
     from nmrl.physics.mujoco_c import threads_per_device
     from nmrl.runs import points
     from nmrl.runs.devices import cpu_cores

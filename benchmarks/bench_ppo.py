@@ -215,7 +215,7 @@ def brax_round(cfg, timeout: float) -> dict:
 
 def run(quick: bool = False, smoke: bool = False) -> dict:
     from nmrl.adapters import brax_env
-    from nmrl.learners.ppo import PPOConfig
+    from nmrl.learners.ppo_config import PPOConfig
 
     size = SIZES["smoke" if smoke else "quick" if quick else "full"]
     cfg = PPOConfig(**size["cfg"]).resolved()
@@ -277,7 +277,8 @@ def sizing(dts=(0.02, 0.005), reps: int = 2, vmap_check: bool = True) -> dict:
     control step, for white and colored exploration, plus 2 points vmapped vs one after another."""
     import jax
 
-    from nmrl.learners.ppo import PPOConfig, make_ppo
+    from nmrl.learners.ppo import make_ppo
+    from nmrl.learners.ppo_config import PPOConfig
 
     res: dict = {"load_avg_at_start": _load(), "settings": []}
     key = jax.random.PRNGKey(0)
@@ -320,7 +321,8 @@ def vmap_two_points(reps: int) -> dict:
     the same iteration of one point called twice (20 ms, white, value 2x64, 4 epochs)."""
     import jax
 
-    from nmrl.learners.ppo import PPOConfig, make_ppo
+    from nmrl.learners.ppo import make_ppo
+    from nmrl.learners.ppo_config import PPOConfig
 
     cfg = PPOConfig(**SIZING_BASE, **VARIANTS["p4x32_v2x64_e4"]).resolved()
     tr = make_ppo(cfg)

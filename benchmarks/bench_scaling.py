@@ -48,7 +48,8 @@ def _worker(modes: list[str], rounds: int, num_envs: int = NUM_ENVS, chunk_steps
 
     from benchmarks.bench_learning import interleave, timing
     from nmrl.runs import sharding
-    from nmrl.paper.learner import Hyper, TrainConfig, make_train
+    from nmrl.learners.ac_config import Hyper, TrainConfig
+    from nmrl.learners.ac_train import make_train
     from nmrl.runs.driver import compile_chunk
 
     devs = jax.local_devices()

@@ -38,7 +38,8 @@ def _worker(quick: bool, smoke: bool = False) -> dict:
     import jax.numpy as jnp
 
     from benchmarks.bench_learning import interleave, timing
-    from nmrl.paper.learner import Hyper, TrainConfig, make_train
+    from nmrl.learners.ac_config import Hyper, TrainConfig
+    from nmrl.learners.ac_train import make_train
     from nmrl.runs import points
 
     n_dev = len(jax.local_devices())

@@ -2,18 +2,18 @@ r"""Non-Markov-period exploration in your own MJX code: a worked example on anot
 
 A planar two-link arm (its MJCF is below; any MJX model works the same way) learns to bring its
 fingertip to a target by a plain policy gradient over nm-periods, using only the public functions
-of `nmrl.paper.noise` (Sec. IV of the paper):
+of `nmrl.paper.noise` and `nmrl.paper.likelihood` (Sec. IV of the paper):
 
 * acting, eq. (6): a_t = a~(s_t; theta) + sigma xi_t, where xi is the piecewise independent
   autoregressive noise (4), one `noise.ar_step` per control step inside the rollout's `lax.scan`
   (vmapped over the environments; `reset` starts a new period at every episode start);
 * learning, eq. (7): the rollout is cut into its nm-periods, and each period's
-  grad_theta ln pi(A | S; theta) comes from `noise.likelihood_ratio` (the tridiagonal Lambda^-1
+  grad_theta ln pi(A | S; theta) comes from `likelihood.likelihood_ratio` (the tridiagonal Lambda^-1
   in O(l n), with Delta-sampling), weighted by the period's return-to-go minus a baseline (the
   mean over the environments at the same period): REINFORCE with nm-periods as the "actions".
 
 The paper's learner (Table II: actor-critic, TD(lambda) over periods, the online form
-`noise.online_lr_add`) is in `nmrl/paper/learner.py`; this example is the smallest honest use of
+`likelihood.online_lr_add`) is in `nmrl/learners/ac_train.py`; this example is the smallest honest use of
 the exploration scheme on its own. It runs in about a minute on one CPU core, most of it compiling
 MJX's step (measured: 68-79 s in all, ~45 s of compiles, then ~0.08 s per iteration of 32 x 60
 control steps, on a core shared with a niced run):
@@ -38,7 +38,7 @@ import mujoco
 import optax
 
 from nmrl.paper import _mjx as mjx
-from nmrl.paper import noise
+from nmrl.paper import likelihood, noise
 from nmrl.paper.networks import Perceptron
 
 # A planar arm in the horizontal plane (no gravity along its joints): two 0.1 m links, two hinge
@@ -180,7 +180,7 @@ def make_example(cfg: ExampleConfig) -> Example:
         adv = G - G.mean(axis=1, keepdims=True)  # baseline: the same period's mean over environments
         S = traj.obs.reshape(K, l, N, OBS_DIM).transpose(0, 2, 1, 3)  # (K, N, l, OBS_DIM)
         A = traj.act.reshape(K, l, N, ACT_DIM).transpose(0, 2, 1, 3)
-        lr_one = lambda s, a: noise.likelihood_ratio(apply, params, s, a, cfg.alpha, cfg.sigma, cfg.delta)
+        lr_one = lambda s, a: likelihood.likelihood_ratio(apply, params, s, a, cfg.alpha, cfg.sigma, cfg.delta)
         g = jax.vmap(jax.vmap(lr_one))(S, A)  # (K, N, ...) grad ln pi of every period
         return jax.tree.map(lambda x: jnp.einsum("kn,kn...->...", adv, x) / (K * N), g)
 

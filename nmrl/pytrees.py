@@ -1,5 +1,5 @@
-"""Small pytree helpers every learner uses, written once (layer 0: the paper's actor-critic and
-the learners in nmrl/learners/ both import them).
+"""Small pytree helpers every learner uses, written once (the actor-critic's training program and
+PPO in nmrl/learners/ both import them).
 
 * :func:`tree_where`: ``c ? a : b`` leaf by leaf, how a learner keeps the old parameters when an
   update is rejected (non-finite or too large) without leaving the jitted program;

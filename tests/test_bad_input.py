@@ -28,7 +28,8 @@ import pytest
 from nmrl import cli
 from nmrl.runs import checkpoint, driver as run, loop
 from nmrl.analysis import evaluate
-from nmrl.paper.learner import TrainConfig, make_train
+from nmrl.learners.ac_config import TrainConfig
+from nmrl.learners.ac_train import make_train
 
 TINY = ["--num-envs", "8", "--chunk-steps", "25", "--hidden-actor", "8", "--hidden-critic", "8", "--quiet"]
 EVAL = ["--seconds", "1", "--no-render"]

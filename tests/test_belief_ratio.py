@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from nmrl.experiments import belief_ratio
-from nmrl.learners import ppo
+from nmrl.learners import ppo, ppo_config
 from nmrl.learners import ppo_networks as nn_
 from tests.test_explore import dense_conditional_logpdf, dense_cov
 from tests.test_ppo import TINY
@@ -16,7 +16,8 @@ from tests.tiny_env import TinyEnv
 
 
 def test_both_densities_are_the_dense_conditionals_of_their_histories():
-    cfg = ppo.PPOConfig(**dict(TINY, exploration="ou", sigma=0.9, corr_time_s=0.1, learning_rate=3e-2)).resolved()
+    cfg = ppo_config.PPOConfig(**dict(TINY, exploration="ou", sigma=0.9, corr_time_s=0.1,
+                                      learning_rate=3e-2)).resolved()
     env = TinyEnv(stop_prob=0.08)
     tr = ppo.make_ppo(cfg, env)
     st = tr.init(jax.random.PRNGKey(2))
@@ -53,6 +54,6 @@ def test_both_densities_are_the_dense_conditionals_of_their_histories():
 
 
 def test_compare_refuses_a_process_with_periods():
-    cfg = ppo.PPOConfig(**dict(TINY, exploration="nm-periods"))
+    cfg = ppo_config.PPOConfig(**dict(TINY, exploration="nm-periods"))
     with pytest.raises(ValueError, match="ou, colored"):
         belief_ratio.parts(cfg, None, jax.random.PRNGKey(0), TinyEnv())

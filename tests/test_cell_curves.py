@@ -1,5 +1,5 @@
 """A study's per-cell statistics and learning-curve bands (nmrl/analysis/cell_curves.py) and the
-second exploration study's report (nmrl/experiments/exploration2.report), against scipy and
+second exploration study's report (nmrl/experiments/exploration2_analysis.report), against scipy and
 numbers computed here from hand-written run files."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import pytest
 from scipy import stats
 
 from nmrl.analysis import cell_curves
-from nmrl.experiments import exploration2
+from nmrl.experiments import exploration2_analysis
 
 
 def test_a_cells_summary_is_the_t_interval_and_rliables_iqm():
@@ -66,12 +66,12 @@ def test_the_report_tabulates_every_cell_at_its_budget_and_draws_the_curves(tmp_
                [{"step": 40960, "avg_reward": 0.1 * seed}])
         rows.append({"cell": "grid/dt0.0025/white", "point": f"s{seed}", "field": "", "value": "",
                      "steps": 40960 if seed < 3 else 100, "budget": 40960, "det_reward_per_s": det})
-    exploration2.report(rows, tmp_path)
-    table = {r["cell"]: r for r in csv.DictReader(open(tmp_path / exploration2.CELLS_CSV))}
+    exploration2_analysis.report(rows, tmp_path)
+    table = {r["cell"]: r for r in csv.DictReader(open(tmp_path / exploration2_analysis.CELLS_CSV))}
     screen, grid = table["screen/sigma/dt0.02/white"], table["grid/dt0.0025/white"]
     assert screen["value"] == "0.4" and screen["n"] == "2" and float(screen["mean"]) == pytest.approx(-45.0)
     assert grid["n"] == "3" and float(grid["mean"]) == pytest.approx(20.0) and grid["iqm"] == ""
-    assert (tmp_path / exploration2.SCREEN_FIGURE).stat().st_size > 0
-    assert (tmp_path / exploration2.GRID_FIGURE).stat().st_size > 0
-    t, y = exploration2._curve(tmp_path / "screen/sigma/dt0.02/white/points/sigma0.4_s100")
+    assert (tmp_path / exploration2_analysis.SCREEN_FIGURE).stat().st_size > 0
+    assert (tmp_path / exploration2_analysis.GRID_FIGURE).stat().st_size > 0
+    t, y = exploration2_analysis._curve(tmp_path / "screen/sigma/dt0.02/white/points/sigma0.4_s100")
     assert np.allclose(t, [102.4, 204.8]) and np.allclose(y, [-50.0, -25.0])  # per second: r / 0.02 s

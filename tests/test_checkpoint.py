@@ -22,7 +22,8 @@ import pytest
 
 from nmrl.runs import checkpoint
 from nmrl.runs.checkpoint import CheckpointError
-from nmrl.paper.learner import TrainConfig, make_train
+from nmrl.learners.ac_config import TrainConfig
+from nmrl.learners.ac_train import make_train
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 # orbax leaves an asyncio callback behind when a restore fails ("Event loop is closed"); harmless.
@@ -407,7 +408,8 @@ _SCRIPT = _HOOK + r"""
 import json, signal, sys
 import jax
 from nmrl.runs import checkpoint
-from nmrl.paper.learner import TrainConfig, make_train
+from nmrl.learners.ac_config import TrainConfig
+from nmrl.learners.ac_train import make_train
 cfg = TrainConfig(**json.loads(sys.argv[2]))
 install_signal_inside_save(int(sys.argv[3]), 10, [])
 tr = make_train(cfg)

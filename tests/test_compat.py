@@ -23,7 +23,7 @@ import numpy as np
 
 from nmrl import cli
 from nmrl.experiments import sweep
-from nmrl.paper.learner import make_train
+from nmrl.learners.ac_train import make_train
 from nmrl.runs import checkpoint, store
 
 DATA = pathlib.Path(__file__).resolve().parent / "data"

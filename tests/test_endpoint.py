@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from nmrl.analysis import endpoint, evaluate
-from nmrl.learners.ppo import PPOConfig, make_ppo
+from nmrl.learners.ppo import make_ppo
+from nmrl.learners.ppo_config import PPOConfig
 from nmrl.paper.env import EnvConfig, HalfCheetah
 
 

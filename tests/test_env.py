@@ -16,16 +16,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from nmrl.paper.env import (
-    MODEL_PATH,
-    EnvConfig,
-    HalfCheetah,
-    forward_kinematics,
-    kinematics,
-    observation,
-    soft_step,
-    state_rewards,
-)
+from nmrl.paper.env import MODEL_PATH, EnvConfig, HalfCheetah
+from nmrl.paper.robot import forward_kinematics, kinematics, observation, soft_step, state_rewards
 
 PI = math.pi
 C = math.cos

@@ -17,7 +17,8 @@ from nmrl.runs import checkpoint
 from nmrl.analysis import evaluate
 from nmrl.runs.checkpoint import CheckpointError
 from nmrl.paper.env import MODEL_PATH, REWARD_TERMS
-from nmrl.paper.learner import TrainConfig, make_train
+from nmrl.learners.ac_config import TrainConfig
+from nmrl.learners.ac_train import make_train
 
 CFG = TrainConfig(num_envs=4, chunk_steps=5, hidden_actor=8, hidden_critic=8, steps=10, seed=1)
 SECONDS = 1.0

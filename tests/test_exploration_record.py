@@ -354,7 +354,7 @@ def test_the_answers_in_words_carry_welch_intervals_of_the_committed_rows():
 
 
 def test_the_publisher_refuses_a_folder_without_a_study_in_one_line(tmp_path):
-    p = subprocess.run([sys.executable, "-m", "nmrl.analysis.publish_exploration", "--record", str(tmp_path / "x"),
+    p = subprocess.run([sys.executable, "scripts/publish/publish_exploration.py", "--record", str(tmp_path / "x"),
                         "--dest", str(tmp_path / "out")], cwd=REPO, capture_output=True, text=True, timeout=120)
     lines = p.stderr.strip().splitlines()
     assert p.returncode == 2 and len(lines) == 1 and "--record=" in lines[0] and "study.json" in lines[0], p.stderr

@@ -1,5 +1,5 @@
-"""The study kit (nmrl/experiments/kit.py) and the second exploration study's cells as data
-(nmrl/experiments/exploration2.py)."""
+"""The study kit (nmrl/experiments/kit.py) and the second exploration study's cells as data, its rules
+and its analysis (nmrl/experiments/exploration2_cells.py, exploration2_rules.py, exploration2_analysis.py)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import json
 import pytest
 
 from nmrl.cli import arguments, commands, config_options
-from nmrl.experiments import exploration2, kit
+from nmrl.experiments import exploration2_analysis, exploration2_cells, exploration2_rules, kit
 
 TINY = ("--learner", "ppo", "--num-envs", "4", "--batch-size", "4", "--num-minibatches", "1", "--epochs", "1",
         "--value-layers", "1", "--value-width", "8", "--policy-layers", "1", "--policy-width", "8",
@@ -31,7 +31,7 @@ def _spec(argv):
     return spec
 
 
-@pytest.mark.parametrize("cell", exploration2.SIGMA_SCREEN, ids=lambda c: c.name)
+@pytest.mark.parametrize("cell", exploration2_cells.SIGMA_SCREEN, ids=lambda c: c.name)
 def test_every_screen_cell_is_a_valid_sweep_with_the_preregistered_design(cell):
     spec = _spec(cell.sweep)
     cfg = spec.base.resolved()
@@ -96,56 +96,56 @@ def _screen_rows(cell, scores, budget=True, diverged=()):
 
 
 def test_the_screen_rule_brackets_sigma_then_screens_the_time_constant():
-    ou = next(c for c in exploration2.SIGMA_SCREEN if c.name == "screen/sigma/dt0.0025/ou")
+    ou = next(c for c in exploration2_cells.SIGMA_SCREEN if c.name == "screen/sigma/dt0.0025/ou")
     # unfinished: nothing follows
-    assert not [c for c in exploration2.later_cells(_screen_rows(ou, {0.4: 10.0}, budget=False))
+    assert not [c for c in exploration2_rules.later_cells(_screen_rows(ou, {0.4: 10.0}, budget=False))
                 if "ou" in c.name]
     # the best sigma at the upper edge: one more value, x 2.5
     rows = _screen_rows(ou, {0.064: 1.0, 0.16: 2.0, 0.4: 3.0, 1.0: 9.0})
-    (ext,) = [c for c in exploration2.later_cells(rows) if "ou" in c.name]
+    (ext,) = [c for c in exploration2_rules.later_cells(rows) if "ou" in c.name]
     assert ext.name == ou.name + "+2.5" and _spec(ext.sweep).ls == (2.5,)
     # a diverged value is never chosen; the inner best at 0.16 is bracketed: the time constants follow
     rows = _screen_rows(ou, {0.064: 1.0, 0.16: 5.0, 0.4: 3.0, 1.0: 9.0}, diverged=(1.0,))
-    (tc,) = [c for c in exploration2.later_cells(rows) if "ou" in c.name]
+    (tc,) = [c for c in exploration2_rules.later_cells(rows) if "ou" in c.name]
     spec = _spec(tc.sweep)
     assert tc.name == "screen/tc/dt0.0025/ou" and spec.field == "corr_time_s" and spec.ls == (0.01, 0.09)
     assert spec.base.sigma == 0.16 and spec.base.exploration == "ou" and [s for _, s in spec.points()][:2] == [100, 101]
     # the time constant's best at the lower edge (0.01 s beats the sigma cell's 0.03 s): 0.01 / 3 next
     rows += _screen_rows(tc, {0.01: 8.0, 0.09: 1.0})
-    names = [c.name for c in exploration2.later_cells(rows) if "ou" in c.name]
+    names = [c.name for c in exploration2_rules.later_cells(rows) if "ou" in c.name]
     assert names == ["screen/tc/dt0.0025/ou", "screen/tc/dt0.0025/ou+0.00333333"]
     # the middle value (from the sigma screen) best: bracketed, nothing more
     rows = rows[:-4] + _screen_rows(tc, {0.01: 2.0, 0.09: 1.0})
-    assert [c.name for c in exploration2.later_cells(rows) if "ou" in c.name] == ["screen/tc/dt0.0025/ou"]
+    assert [c.name for c in exploration2_rules.later_cells(rows) if "ou" in c.name] == ["screen/tc/dt0.0025/ou"]
 
 
 def test_white_has_no_time_constant_and_extensions_stop_after_two():
-    w = exploration2.SIGMA_SCREEN[0]
+    w = exploration2_cells.SIGMA_SCREEN[0]
     rows = _screen_rows(w, {0.064: 9.0, 0.16: 2.0, 0.4: 1.0, 1.0: 0.0})
-    (e1,) = exploration2.later_cells(rows)
+    (e1,) = exploration2_rules.later_cells(rows)
     assert e1.name == w.name + "+0.0256"
     rows += _screen_rows(e1, {0.0256: 10.0})
-    (e2,) = [c for c in exploration2.later_cells(rows) if c.name != e1.name]
+    (e2,) = [c for c in exploration2_rules.later_cells(rows) if c.name != e1.name]
     assert e2.name == w.name + "+0.01024"
     rows += _screen_rows(e2, {0.01024: 11.0})
-    assert exploration2.later_cells(rows) == []  # still at the edge after two: used, reported as not bracketed
-    assert exploration2.choose(rows) == (0.01024, True, [0.01024, 0.0256, 0.064, 0.16, 0.4, 1.0])
+    assert exploration2_rules.later_cells(rows) == []  # still at the edge after two: used, reported as not bracketed
+    assert exploration2_rules.choose(rows) == (0.01024, True, [0.01024, 0.0256, 0.064, 0.16, 0.4, 1.0])
 
 
 def _chosen_rows():
     """Finished screens of the primary family, each bracketed: sigma 0.4 best, then its time
     constant's middle value (the sigma screen's own) best."""
     rows = []
-    for cell in exploration2.SIGMA_SCREEN:
+    for cell in exploration2_cells.SIGMA_SCREEN:
         rows += _screen_rows(cell, {0.064: 1.0, 0.16: 2.0, 0.4: 5.0, 1.0: 3.0})
-    for tc in [c for c in exploration2.later_cells(rows) if c.name.startswith("screen/tc/")]:
+    for tc in [c for c in exploration2_rules.later_cells(rows) if c.name.startswith("screen/tc/")]:
         rows += _screen_rows(tc, dict(zip(_spec(tc.sweep).ls, (1.0, 2.0))))
     return rows
 
 
 def test_the_grid_follows_the_screen_with_the_preregistered_design():
     rows = _chosen_rows()
-    cells = {c.name: c for c in exploration2.later_cells(rows)}
+    cells = {c.name: c for c in exploration2_rules.later_cells(rows)}
     primary = ["grid/dt0.02/white", "grid/dt0.02/nmp", "grid/dt0.0025/white", "grid/dt0.0025/ws",
                "grid/dt0.0025/ou", "grid/dt0.0025/colored", "grid/dt0.0025/nms", "grid/dt0.0025/nmp"]
     assert [n for n in cells if n.startswith("grid/")][:8] == primary
@@ -171,7 +171,7 @@ def test_the_grid_follows_the_screen_with_the_preregistered_design():
         assert [s for _, s in _spec(cells[name].sweep).points()] == [0, 1, 2, 3], name
     assert {"screen/sigma/dt0.02/ou", "screen/sigma/dt0.02/colored", "screen/sigma/dt0.02/nms"} <= set(cells)
     # nothing of the grid before every primary setting is chosen
-    assert not [c for c in exploration2.later_cells(rows[:-4]) if not c.name.startswith("screen/")]
+    assert not [c for c in exploration2_rules.later_cells(rows[:-4]) if not c.name.startswith("screen/")]
 
 
 def test_the_analysis_is_the_preregistered_family_on_the_grid_at_full_budget():
@@ -189,7 +189,7 @@ def test_the_analysis_is_the_preregistered_family_on_the_grid_at_full_budget():
     rows = [dict(r, diverged=False) for r in rows]
     rows.append({"cell": "screen/sigma/dt0.02/white", "steps": 100, "budget": 100, "diverged": False,
                  "det_reward_per_s": 1e6})
-    res = {r["contrast"]: r for r in exploration2.analysis(rows) if r["family"] == "primary"}
+    res = {r["contrast"]: r for r in exploration2_analysis.analysis(rows) if r["family"] == "primary"}
     assert list(res) == [f"P{i}" for i in range(1, 8)]
     p1 = sps.ttest_ind(vals["grid/dt0.0025/white"], vals["grid/dt0.02/white"], equal_var=False)
     assert res["P1"]["p"] == pytest.approx(p1.pvalue) and res["P1"]["decision"] == "behind"
@@ -202,11 +202,11 @@ def test_the_analysis_is_the_preregistered_family_on_the_grid_at_full_budget():
     # a run still going leaves its cell out: the whole family waits (decided together, on full cells)
     going = rows + [{"cell": "grid/dt0.0025/ou", "steps": 50, "budget": 100, "diverged": False,
                      "det_reward_per_s": 1e6}]
-    assert {r["decision"] for r in exploration2.analysis(going) if r["family"] == "primary"} == {"pending"}
+    assert {r["decision"] for r in exploration2_analysis.analysis(going) if r["family"] == "primary"} == {"pending"}
     # a diverged run has ended: scored by its last good policy, it counts
     ended = rows + [{"cell": "grid/dt0.0025/ou", "steps": 50, "budget": 100, "diverged": "True",
                      "det_reward_per_s": -70.0}]
-    p3 = next(r for r in exploration2.analysis(ended) if r["contrast"] == "P3")
+    p3 = next(r for r in exploration2_analysis.analysis(ended) if r["contrast"] == "P3")
     assert p3["n"] == "9 8" and p3["decision"] != "pending"
 
 
@@ -225,7 +225,7 @@ def test_the_secondary_family_and_the_checks_are_apart_from_the_primary():
         cells[c] = rng.normal(0.0, 10.0, 4)
     rows = [{"cell": c, "steps": 1, "budget": 1, "diverged": False, "det_reward_per_s": v}
             for c, vs in cells.items() for v in vs]
-    res = exploration2.analysis(rows)
+    res = exploration2_analysis.analysis(rows)
     assert [r["contrast"] for r in res if r["family"] == "secondary"] == [f"S{i}" for i in range(1, 8)]
     s3 = next(r for r in res if r["contrast"] == "S3")
     t = sps.ttest_ind(cells["grid/dt0.005/nmp"], cells["grid/dt0.005/white"], equal_var=False)
@@ -242,12 +242,12 @@ def test_the_secondary_family_and_the_checks_are_apart_from_the_primary():
 
 def test_the_asymptote_runs_white_against_the_best_correlated_arm_at_4x_the_budget():
     rows = _chosen_rows()
-    assert not [c for c in exploration2.later_cells(rows) if c.name.startswith("asymptote/")]
+    assert not [c for c in exploration2_rules.later_cells(rows) if c.name.startswith("asymptote/")]
     scores = {"white": 0.0, "ou": 10.0, "colored": 30.0, "nms": 20.0, "nmp": 25.0}
     for arm, m in scores.items():
         rows += [{"cell": f"grid/dt0.0025/{arm}", "steps": 1, "budget": 1, "diverged": False,
                   "det_reward_per_s": m + k} for k in range(8)]
-    cells = {c.name: c for c in exploration2.later_cells(rows)}
+    cells = {c.name: c for c in exploration2_rules.later_cells(rows)}
     assert [n for n in cells if n.startswith("asymptote/")] == ["asymptote/dt0.005/white", "asymptote/dt0.005/colored"]
     for name in ("asymptote/dt0.005/white", "asymptote/dt0.005/colored"):
         spec = _spec(cells[name].sweep)
@@ -263,5 +263,5 @@ def test_the_nm_periods_arms_take_the_papers_correlation_time_to_five_digits():
     import math
 
     for arm in ("nms", "nmp"):
-        options = exploration2.ARMS[arm]
+        options = exploration2_cells.ARMS[arm]
         assert options[options.index("--corr-time-s") + 1] == "0.08963" == f"{-0.02 / math.log(0.8):.5f}"

@@ -25,7 +25,8 @@ import pytest
 from nmrl import cli
 from nmrl.runs import checkpoint, devices, driver as run
 from nmrl.experiments import sweep
-from nmrl.paper.learner import TrainConfig, make_train
+from nmrl.learners.ac_config import TrainConfig
+from nmrl.learners.ac_train import make_train
 
 BASE = TrainConfig(num_envs=8, chunk_steps=25, steps=50, hidden_actor=8, hidden_critic=8,
                    beta_theta=1e-3, beta_v=1e-3)

@@ -1,4 +1,4 @@
-"""Behaviour of nmrl.paper.learner (Table II of the paper) against independent references.
+"""Behaviour of nmrl.learners.ac_train (Table II of the paper) against independent references.
 
 The references below are plain Python loops over control steps, written from the paper (Sec. III,
 IV, V-C, Table II), NOT from learner.py:
@@ -41,7 +41,8 @@ import pytest  # noqa: E402
 from jax.flatten_util import ravel_pytree  # noqa: E402
 
 from nmrl.paper import networks  # noqa: E402
-from nmrl.paper.learner import Hyper, TrainConfig, make_train  # noqa: E402
+from nmrl.learners.ac_config import Hyper, TrainConfig  # noqa: E402
+from nmrl.learners.ac_train import make_train  # noqa: E402
 
 try:  # pytest puts tests/ on sys.path (rootdir-relative "prepend" import mode)
     from tiny_env import TinyEnv  # noqa: E402
@@ -525,7 +526,7 @@ def test_step_sizes_are_traced_from_hyper():
 # --------------------------------------------------------------------------- 4. outcome on HalfCheetah
 
 #: Outcome-test configuration. The paper's step sizes (2e-6 / 1e-5, one environment) need ~1e5
-#: trials; here 64 environments sum their updates (Sec. "Batching" of nmrl/paper/learner.py) and the
+#: trials; here 64 environments sum their updates (Sec. "Batching" of nmrl/learners/ac_train.py) and the
 #: actor step is 5x the paper's, the critic's 50x (so that the critic's baseline settles fast),
 #: everything else is the paper's (l = 10, Delta = 4, alpha = 0.8, sigma = 1, gamma = 0.995,
 #: lambda = 0.5, M^A = 100, M^C = 200). Measured on the 2-core CPU (seeds 0 and 1): the average

@@ -1,4 +1,4 @@
-"""scripts/lower_priority.sh: a script that leads its own session (a background launch with setsid)
+"""scripts/run/lower_priority.sh: a script that leads its own session (a background launch with setsid)
 lowers its session's autogroup nice value, read back from the kernel; any other caller's session
 is left as it was."""
 
@@ -18,7 +18,7 @@ pytestmark = pytest.mark.skipif(not AUTOGROUP.exists() or not os.access(AUTOGROU
                                 or shutil.which("setsid") is None,
                                 reason="needs Linux autogroup scheduling (/proc/self/autogroup) and setsid")
 
-SCRIPT = 'source scripts/lower_priority.sh; lower_priority; cat /proc/self/autogroup'
+SCRIPT = 'source scripts/run/lower_priority.sh; lower_priority; cat /proc/self/autogroup'
 
 
 def _nice(text: str) -> int:

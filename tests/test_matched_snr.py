@@ -1,7 +1,7 @@
 """The gradient's SNR at matched policies: the period-wise gradient estimate against a dense-Gaussian
 computation (nmrl/experiments/ppo_gradsnr.py), the matched states against the compact files
 (nmrl/experiments/matched_snr.py), and the study's measurement step and its summary
-(nmrl/experiments/exploration2.py)."""
+(nmrl/experiments/exploration2.py, its report in exploration2_analysis.py)."""
 
 from __future__ import annotations
 
@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from jax.flatten_util import ravel_pytree
 
-from nmrl.experiments import exploration2, matched_snr, ppo_gradsnr
-from nmrl.learners import ppo
+from nmrl.experiments import exploration2, exploration2_analysis, exploration2_cells, matched_snr, ppo_gradsnr
+from nmrl.learners import ppo, ppo_config
 from nmrl.learners import ppo_losses as L
 from nmrl.learners import ppo_networks as nn_
 from nmrl.runs import compact
@@ -31,7 +31,7 @@ PERIODIC = dict(TINY, num_envs=2, batch_size=4, unroll_s=0.12, exploration="nm-p
 def test_the_period_wise_gradient_estimate_is_the_periods_dense_density_times_their_advantage():
     """g_e = grad (1/UT) sum_p A_p log pi(period p), the period's density from the dense covariance
     (5) of its noise (no filter) and the change of variables, against make_batch's sums."""
-    cfg = ppo.PPOConfig(**PERIODIC).resolved()
+    cfg = ppo_config.PPOConfig(**PERIODIC).resolved()
     env = TinyEnv(stop_prob=0.0)  # no trial resets: every unroll starts a period (6 = 2 periods)
     tr = ppo.make_ppo(cfg, env)
     st = tr.init(jax.random.PRNGKey(3))
@@ -83,7 +83,7 @@ def _point(tmp_path, cfg, st, name="p"):
 
 def test_a_matched_state_holds_the_points_networks_at_another_control_step(tmp_path):
     env = TinyEnv(stop_prob=0.1)
-    cfg = ppo.PPOConfig(**dict(TINY, exploration="white", seed=5)).resolved()
+    cfg = ppo_config.PPOConfig(**dict(TINY, exploration="white", seed=5)).resolved()
     st = ppo.make_ppo(cfg, env).init(jax.random.PRNGKey(99))  # networks unlike seed 5's
     st = st.replace(obs_stats=st.obs_stats._replace(mean=st.obs_stats.mean + 0.3))
     d = _point(tmp_path, cfg, st)
@@ -104,7 +104,7 @@ def test_a_matched_state_holds_the_points_networks_at_another_control_step(tmp_p
 
 def test_the_measurement_writes_every_group_once_and_continues(tmp_path, monkeypatch):
     env = TinyEnv(stop_prob=0.1)
-    cfg = ppo.PPOConfig(**dict(TINY, exploration="white", seed=0)).resolved()
+    cfg = ppo_config.PPOConfig(**dict(TINY, exploration="white", seed=0)).resolved()
     pts = {s: _point(tmp_path, dataclasses.replace(cfg, seed=s), ppo.make_ppo(cfg, env).init(jax.random.PRNGKey(s)),
                      f"s{s}") for s in (0, 1)}
     arms = {"white": {0.02: {"exploration": "white", "sigma": 1.0}, 0.01: {"exploration": "white", "sigma": 1.0}}}
@@ -152,23 +152,23 @@ def test_the_studys_snr_waits_for_its_cells_then_measures_white_and_nmp_at_every
     assert by_it[0][2] == tmp_path / "snr/dt0.02/white_it1/points/s2"
     assert arms["white"][0.0025]["sigma"] == 0.16 and arms["nmp"][0.02]["period_s"] == 0.06
     assert arms["nmp"][0.005]["period_s"] == 0.02 and arms["nmp"][0.005]["period_wise"] is True
-    assert path == tmp_path / exploration2.SNR_CSV
+    assert path == tmp_path / exploration2_cells.SNR_CSV
 
 
 def test_the_snr_summary_is_the_mean_and_t_interval_over_the_seeds(tmp_path):
     from scipy import stats
 
     vals = {0: [1.0, 2.0, 4.5], 16: [0.5, 0.25, 0.0]}
-    with open(tmp_path / exploration2.SNR_CSV, "w", newline="") as fh:
+    with open(tmp_path / exploration2_cells.SNR_CSV, "w", newline="") as fh:
         w = csv.DictWriter(fh, matched_snr.COLUMNS)
         w.writeheader()
         for it, xs in vals.items():
             for s, x in enumerate(xs):
                 w.writerow({"seed": s, "iteration": it, "control_dt": 0.0025, "arm": "white", "snr_per_s": x})
-    exploration2._snr_report(tmp_path)
-    got = {r["iteration"]: r for r in csv.DictReader(open(tmp_path / exploration2.SNR_SUMMARY_CSV))}
+    exploration2_analysis._snr_report(tmp_path)
+    got = {r["iteration"]: r for r in csv.DictReader(open(tmp_path / exploration2_analysis.SNR_SUMMARY_CSV))}
     x = np.array(vals[0])
     lo, hi = stats.t.interval(0.95, 2, loc=x.mean(), scale=stats.sem(x))
     assert float(got["0"]["mean"]) == pytest.approx(2.5) and float(got["0"]["ci_lo"]) == pytest.approx(lo)
     assert float(got["16"]["ci_hi"]) == pytest.approx(stats.t.interval(0.95, 2, loc=0.25, scale=stats.sem(vals[16]))[1])
-    assert (tmp_path / exploration2.SNR_FIGURE).stat().st_size > 0
+    assert (tmp_path / exploration2_analysis.SNR_FIGURE).stat().st_size > 0

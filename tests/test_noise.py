@@ -1,4 +1,5 @@
-"""Tests of nmrl.paper.noise (eqs. (4)-(7), Sec. IV) and nmrl.paper.toy (Sec. II).
+"""Tests of nmrl.paper.noise and nmrl.paper.likelihood (eqs. (4)-(7), Sec. IV) and of nmrl.paper.toy
+(Sec. II).
 
 Every check is against an independent computation: Monte Carlo moments vs eq. (5),
 dense float64 solves vs the tridiagonal closed form, ``jax.grad`` of the dense Gaussian
@@ -16,13 +17,14 @@ import numpy as np
 import pytest
 from jax.scipy.stats import multivariate_normal
 
+from nmrl.paper import likelihood as LR
 from nmrl.paper import noise as N
 from nmrl.paper import toy
 
 OBS, HID, ACT = 31, 8, 6
 
 # jitted entry point (apply_fn and delta are static); eager calls are also exercised below
-lr_jit = jax.jit(N.likelihood_ratio, static_argnums=(0, 6))
+lr_jit = jax.jit(LR.likelihood_ratio, static_argnums=(0, 6))
 
 
 # --------------------------------------------------------------------------- helpers
@@ -184,9 +186,9 @@ def test_lambda_inv_matvec_matches_dense_solve(l: int, alpha: float, n: int) -> 
     u = np.random.default_rng(l * 100 + n).standard_normal((l, n))
     want = np.linalg.solve(dense_lambda(l, alpha), u)
     with jax.enable_x64(True):
-        got64 = np.asarray(N.lambda_inv_matvec(jnp.asarray(u), alpha))
+        got64 = np.asarray(LR.lambda_inv_matvec(jnp.asarray(u), alpha))
     np.testing.assert_allclose(got64, want, rtol=1e-9, atol=1e-9)
-    got32 = np.asarray(N.lambda_inv_matvec(jnp.asarray(u, jnp.float32), alpha))
+    got32 = np.asarray(LR.lambda_inv_matvec(jnp.asarray(u, jnp.float32), alpha))
     assert got32.dtype == np.float32
     np.testing.assert_allclose(got32, want, atol=2e-5 * max(1.0, np.abs(want).max()))
 
@@ -194,12 +196,12 @@ def test_lambda_inv_matvec_matches_dense_solve(l: int, alpha: float, n: int) -> 
 def test_lambda_inv_matvec_masked_equals_unmasked() -> None:
     l_max, n, alpha = 12, 6, 0.8
     u = jnp.asarray(np.random.default_rng(0).standard_normal((l_max, n)), jnp.float32)
-    f = jax.jit(N.lambda_inv_matvec_masked)
+    f = jax.jit(LR.lambda_inv_matvec_masked)
     for length in (1, 2, 5, 11, 12):
         got = np.asarray(f(u, alpha, jnp.int32(length)))
         want = np.linalg.solve(dense_lambda(length, alpha), np.asarray(u, np.float64)[:length])
         np.testing.assert_allclose(got[:length], want, atol=1e-5)
-        np.testing.assert_allclose(got[:length], np.asarray(N.lambda_inv_matvec(u[:length], alpha)), atol=1e-6)
+        np.testing.assert_allclose(got[:length], np.asarray(LR.lambda_inv_matvec(u[:length], alpha)), atol=1e-6)
         assert np.all(got[length:] == 0.0)
     assert f._cache_size() == 1
 
@@ -208,14 +210,14 @@ def test_lambda_inv_matvec_masked_equals_unmasked() -> None:
 
 
 def test_sampled_indices() -> None:
-    assert N.sampled_indices(10, 4).tolist() == [0, 4, 8]
-    assert N.sampled_indices(9, 4).tolist() == [0, 4, 8]
-    assert N.sampled_indices(8, 4).tolist() == [0, 4]
-    assert N.sampled_indices(1, 3).tolist() == [0]
-    assert N.sampled_indices(10, 1).tolist() == list(range(10))
+    assert LR.sampled_indices(10, 4).tolist() == [0, 4, 8]
+    assert LR.sampled_indices(9, 4).tolist() == [0, 4, 8]
+    assert LR.sampled_indices(8, 4).tolist() == [0, 4]
+    assert LR.sampled_indices(1, 3).tolist() == [0]
+    assert LR.sampled_indices(10, 1).tolist() == list(range(10))
     for l in range(1, 20):
         for d in range(1, 6):
-            idx = N.sampled_indices(l, d)
+            idx = LR.sampled_indices(l, d)
             assert idx[-1] + 1 == 1 + (l - 1) // d * d  # L of the paper (1-based last instant)
 
 
@@ -230,7 +232,7 @@ def test_likelihood_ratio_matches_dense_grad(delta: int, alpha: float, sigma) ->
     got = lr_jit(mlp_apply, params, S, A, alpha, sig, delta)
     assert_tree_close(got, want, rtol=1e-4)
     with jax.enable_x64(True):
-        got64 = N.likelihood_ratio(mlp_apply, to64(params), to64(S), to64(A), alpha, to64(sig), delta)
+        got64 = LR.likelihood_ratio(mlp_apply, to64(params), to64(S), to64(A), alpha, to64(sig), delta)
     assert_tree_close(got64, want, rtol=1e-10)
 
 
@@ -238,7 +240,7 @@ def test_likelihood_ratio_l1_is_stationary_score() -> None:
     params = mlp_init(jax.random.key(5))
     S, A = make_period(jax.random.key(6), 1, 0.8, 1.5, params)
     want = dense_lr(params, S, A, 0.8, 1.5, 1)
-    assert_tree_close(N.likelihood_ratio(mlp_apply, params, S, A, 0.8, 1.5), want, rtol=1e-5)
+    assert_tree_close(LR.likelihood_ratio(mlp_apply, params, S, A, 0.8, 1.5), want, rtol=1e-5)
 
 
 @pytest.mark.parametrize("delta", [1, 4])
@@ -246,7 +248,7 @@ def test_likelihood_ratio_masked_equals_unpadded(delta: int) -> None:
     params = mlp_init(jax.random.key(3))
     l_max, alpha, sig = 12, 0.8, jnp.linspace(0.5, 2.0, ACT)
     S, A = make_period(jax.random.key(4), l_max, alpha, sig, params)
-    f = jax.jit(lambda S, A, n: N.likelihood_ratio(mlp_apply, params, S, A, alpha, sig, delta, length=n))
+    f = jax.jit(lambda S, A, n: LR.likelihood_ratio(mlp_apply, params, S, A, alpha, sig, delta, length=n))
     for length in (1, 3, 5, 9, 12):
         got = f(S, A, jnp.int32(length))
         want = dense_lr(params, S[:length], A[:length], alpha, sig, delta)
@@ -261,7 +263,7 @@ def test_likelihood_ratio_vmap_over_batch() -> None:
     alpha, l, B = 0.8, 8, 4
     keys = jax.random.split(jax.random.key(8), B)
     S, A = jax.vmap(lambda k: make_period(k, l, alpha, 1.0, params))(keys)
-    got = jax.jit(jax.vmap(lambda s, a: N.likelihood_ratio(mlp_apply, params, s, a, alpha, 1.0, 4)))(S, A)
+    got = jax.jit(jax.vmap(lambda s, a: LR.likelihood_ratio(mlp_apply, params, s, a, alpha, 1.0, 4)))(S, A)
     for b in range(B):
         want = dense_lr(params, S[b], A[b], alpha, 1.0, 4)
         assert_tree_close({k: v[b] for k, v in got.items()}, want, rtol=1e-4)
@@ -275,44 +277,44 @@ def test_online_accumulation_equals_batch(delta: int) -> None:
     alpha_hat = alpha**delta
 
     # Python loop, step by step, with the skipped steps passed as active=False
-    add = jax.jit(N.online_lr_add, static_argnums=(1,))
-    olr = N.online_lr_init(params, OBS, ACT)
+    add = jax.jit(LR.online_lr_add, static_argnums=(1,))
+    olr = LR.online_lr_init(params, OBS, ACT)
     for i in range(l):
         u = A[i] - mlp_apply(params, S[i : i + 1])[0]
         olr = add(olr, mlp_apply, params, S[i], u, alpha_hat, sig, i % delta == 0)
     want = dense_lr(params, S, A, alpha, sig, delta)
     assert_tree_close(olr.grad, want, rtol=1e-4)
-    assert int(olr.count) == len(N.sampled_indices(l, delta))
-    assert_tree_close(olr.grad, N.likelihood_ratio(mlp_apply, params, S, A, alpha, sig, delta), rtol=1e-5)
+    assert int(olr.count) == len(LR.sampled_indices(l, delta))
+    assert_tree_close(olr.grad, LR.likelihood_ratio(mlp_apply, params, S, A, alpha, sig, delta), rtol=1e-5)
 
     # the same under jit + lax.scan, two periods with a reset in between
     def body(o, x):
         i, s, a = x
-        o = jax.lax.cond(i == 0, N.online_lr_reset, lambda o: o, o)
+        o = jax.lax.cond(i == 0, LR.online_lr_reset, lambda o: o, o)
         u = a - mlp_apply(params, s[None])[0]
-        o = N.online_lr_add(o, mlp_apply, params, s, u, alpha_hat, sig, active=(i % delta == 0))
+        o = LR.online_lr_add(o, mlp_apply, params, s, u, alpha_hat, sig, active=(i % delta == 0))
         return o, o.grad
 
     S2, A2 = make_period(jax.random.key(11), l, alpha, sig, params)
     xs = (jnp.tile(jnp.arange(l), 2), jnp.concatenate([S, S2]), jnp.concatenate([A, A2]))
-    _, grads = jax.jit(lambda o: jax.lax.scan(body, o, xs))(N.online_lr_init(params, OBS, ACT))
+    _, grads = jax.jit(lambda o: jax.lax.scan(body, o, xs))(LR.online_lr_init(params, OBS, ACT))
     assert_tree_close({k: v[l - 1] for k, v in grads.items()}, want, rtol=1e-4)
     assert_tree_close({k: v[2 * l - 1] for k, v in grads.items()}, dense_lr(params, S2, A2, alpha, sig, delta), 1e-4)
 
 
 def test_online_cotangents_first_and_inactive() -> None:
     u_prev, u = jnp.array([1.0, 2.0]), jnp.array([0.5, -1.0])
-    c_prev, c_cur = N.online_lr_cotangents(u_prev, u, 0.6, jnp.array([1.0, 2.0]), True)
+    c_prev, c_cur = LR.online_lr_cotangents(u_prev, u, 0.6, jnp.array([1.0, 2.0]), True)
     np.testing.assert_allclose(c_prev, 0.0)
     np.testing.assert_allclose(c_cur, [0.5, -0.25])
     # not first: gradient of -1/2 e^T Sigma^-1 e w.r.t. the means (u = a - mean), by hand
-    c_prev, c_cur = N.online_lr_cotangents(u_prev, u, 0.6, jnp.array([1.0, 2.0]), False)
+    c_prev, c_cur = LR.online_lr_cotangents(u_prev, u, 0.6, jnp.array([1.0, 2.0]), False)
     e = (np.array([0.5, -1.0]) - 0.6 * np.array([1.0, 2.0])) / 0.8
     np.testing.assert_allclose(c_cur, e / np.array([1.0, 4.0]) / 0.8, rtol=1e-6)
     np.testing.assert_allclose(c_prev, -0.6 * e / np.array([1.0, 4.0]) / 0.8, rtol=1e-6)
     params = mlp_init(jax.random.key(0))
-    olr = N.online_lr_init(params, OBS, ACT)
-    same = N.online_lr_add(olr, mlp_apply, params, jnp.ones(OBS), jnp.ones(ACT), 0.5, active=jnp.bool_(False))
+    olr = LR.online_lr_init(params, OBS, ACT)
+    same = LR.online_lr_add(olr, mlp_apply, params, jnp.ones(OBS), jnp.ones(ACT), 0.5, active=jnp.bool_(False))
     assert int(same.count) == 0 and all(np.all(np.asarray(v) == 0) for v in same.grad.values())
 
 
@@ -332,7 +334,7 @@ def test_bad_l(l) -> None:
     with pytest.raises(ValueError, match="l "):
         N.validate(l=l)
     with pytest.raises(ValueError, match="l "):
-        N.sampled_indices(l, 1)
+        LR.sampled_indices(l, 1)
 
 
 @pytest.mark.parametrize("delta", [0, -2, 1.5])
@@ -341,7 +343,7 @@ def test_bad_delta(delta) -> None:
         N.validate(delta=delta)
     params = mlp_init(jax.random.key(0))
     with pytest.raises(ValueError, match="delta"):
-        N.likelihood_ratio(mlp_apply, params, jnp.zeros((4, OBS)), jnp.zeros((4, ACT)), 0.5, delta=delta)
+        LR.likelihood_ratio(mlp_apply, params, jnp.zeros((4, OBS)), jnp.zeros((4, ACT)), 0.5, delta=delta)
 
 
 def test_good_values_pass() -> None:
@@ -353,11 +355,11 @@ def test_good_values_pass() -> None:
 def test_likelihood_ratio_shape_mismatch() -> None:
     params = mlp_init(jax.random.key(0))
     with pytest.raises(ValueError, match="same number of rows"):
-        N.likelihood_ratio(mlp_apply, params, jnp.zeros((10, OBS)), jnp.zeros((9, ACT)), 0.5)
+        LR.likelihood_ratio(mlp_apply, params, jnp.zeros((10, OBS)), jnp.zeros((9, ACT)), 0.5)
     with pytest.raises(ValueError, match="2-D"):
-        N.likelihood_ratio(mlp_apply, params, jnp.zeros((OBS,)), jnp.zeros((ACT,)), 0.5)
+        LR.likelihood_ratio(mlp_apply, params, jnp.zeros((OBS,)), jnp.zeros((ACT,)), 0.5)
     with pytest.raises(ValueError, match="length"):
-        N.likelihood_ratio(mlp_apply, params, jnp.zeros((4, OBS)), jnp.zeros((4, ACT)), 0.5, length=5)
+        LR.likelihood_ratio(mlp_apply, params, jnp.zeros((4, OBS)), jnp.zeros((4, ACT)), 0.5, length=5)
 
 
 # --------------------------------------------------------------------------- Sec. II toy
@@ -397,8 +399,8 @@ def test_online_lr_add_vmap_over_envs() -> None:
     B, alpha = 3, 0.7
     S = jax.random.normal(jax.random.key(13), (2, B, OBS))
     U = jax.random.normal(jax.random.key(14), (2, B, ACT))
-    olr = jax.vmap(lambda _: N.online_lr_init(params, OBS, ACT))(jnp.arange(B))
-    add = jax.jit(jax.vmap(lambda o, s, u, act: N.online_lr_add(o, mlp_apply, params, s, u, alpha, 1.0, act)))
+    olr = jax.vmap(lambda _: LR.online_lr_init(params, OBS, ACT))(jnp.arange(B))
+    add = jax.jit(jax.vmap(lambda o, s, u, act: LR.online_lr_add(o, mlp_apply, params, s, u, alpha, 1.0, act)))
     olr = add(olr, S[0], U[0], jnp.array([True, True, False]))
     olr = add(olr, S[1], U[1], jnp.array([True, False, True]))
     assert np.asarray(olr.count).tolist() == [2, 1, 1]

@@ -34,8 +34,9 @@ import pytest  # noqa: E402
 
 from nmrl import cli  # noqa: E402
 from nmrl.runs import checkpoint  # noqa: E402
-from nmrl.paper.learner import (OPT_VOCAB, PRESETS, TrainConfig, canonical_opt, injected, make_train,  # noqa: E402
-                                parse_opt, sgd_rule)
+from nmrl.learners.ac_config import PRESETS, TrainConfig  # noqa: E402
+from nmrl.learners.ac_train import make_train  # noqa: E402
+from nmrl.learners.optimizers import OPT_VOCAB, canonical_opt, injected, parse_opt, sgd_rule  # noqa: E402
 
 try:  # pytest puts tests/ on sys.path (rootdir-relative "prepend" import mode)
     from test_learner import flat, mlp, run_learner, tiny_config

@@ -27,9 +27,9 @@ import numpy as np
 import pytest
 
 from nmrl import explore, learners, options
-from nmrl.learners import ppo
+from nmrl.learners import ppo, ppo_config
 from nmrl.paper.env import MODEL_PATH
-from nmrl.paper.learner import TrainConfig
+from nmrl.learners.ac_config import TrainConfig
 from nmrl.runs import bounds, compact, identity
 from nmrl.runs.checkpoint_files import _sha256_file
 
@@ -78,16 +78,16 @@ class _OtherOrder(NamedTuple):
 
 
 def test_ppo_hyper_from_the_declarations_gives_the_same_chunk_bit_for_bit():
-    cfg = ppo.PPOConfig(num_envs=2, batch_size=4, num_minibatches=2, epochs=2, unroll_s=0.1, policy_layers=2,
-                        policy_width=8, value_layers=2, value_width=8, control_dt=0.02, exploration="ou",
-                        sigma=0.7, corr_time_s=0.05, discount_horizon_s=0.3, clip_eps=0.2).resolved()
+    cfg = ppo_config.PPOConfig(num_envs=2, batch_size=4, num_minibatches=2, epochs=2, unroll_s=0.1, policy_layers=2,
+                               policy_width=8, value_layers=2, value_width=8, control_dt=0.02, exploration="ou",
+                               sigma=0.7, corr_time_s=0.05, discount_horizon_s=0.3, clip_eps=0.2).resolved()
     f32 = np.float32
     other = _OtherOrder(f32(3e-4), f32(1e-3), f32(0.2), f32(0.5), f32(math.exp(-0.02 / 0.3)),
-                        f32(math.exp(-0.02 / ppo.BRAX_HORIZON_S)), f32(1.0),
+                        f32(math.exp(-0.02 / ppo_config.BRAX_HORIZON_S)), f32(1.0),
                         explore.Process(phi=jnp.asarray([math.exp(-0.02 / 0.05)], jnp.float32),
                                         w=jnp.ones(1, jnp.float32), sigma=jnp.float32(0.7),
                                         period=jnp.asarray(explore.NO_RESET, jnp.int32)))
-    declared = ppo.Hyper.from_config(cfg)
+    declared = ppo_config.Hyper.from_config(cfg)
     for k in _OtherOrder._fields:
         for a, b in zip(jax.tree.leaves(getattr(declared, k)), jax.tree.leaves(getattr(other, k))):
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=k)
@@ -101,9 +101,10 @@ def test_ppo_hyper_from_the_declarations_gives_the_same_chunk_bit_for_bit():
 
 
 @pytest.mark.parametrize("cls, field, value", [
-    (ppo.PPOConfig, "sigma", 0.0), (ppo.PPOConfig, "learning_rate", 0.0), (ppo.PPOConfig, "clip_eps", 0.0),
-    (ppo.PPOConfig, "stop_prob", 1.5), (ppo.PPOConfig, "squash", "sigmoid"), (ppo.PPOConfig, "normalize_obs", 1),
-    (ppo.PPOConfig, "entropy_cost", float("nan")), (TrainConfig, "sigma", 0.0), (TrainConfig, "beta_v", -1.0),
+    (ppo_config.PPOConfig, "sigma", 0.0), (ppo_config.PPOConfig, "learning_rate", 0.0),
+    (ppo_config.PPOConfig, "clip_eps", 0.0), (ppo_config.PPOConfig, "stop_prob", 1.5),
+    (ppo_config.PPOConfig, "squash", "sigmoid"), (ppo_config.PPOConfig, "normalize_obs", 1),
+    (ppo_config.PPOConfig, "entropy_cost", float("nan")), (TrainConfig, "sigma", 0.0), (TrainConfig, "beta_v", -1.0),
     (TrainConfig, "gamma", 1.5), (TrainConfig, "stop_prob", 1.5), (TrainConfig, "preset", "turbo"),
 ])
 def test_config_validate_refuses_a_value_outside_its_declared_range(cls, field, value):
@@ -112,8 +113,8 @@ def test_config_validate_refuses_a_value_outside_its_declared_range(cls, field, 
 
 
 @pytest.mark.parametrize("cls, field, value, allowed", [
-    (TrainConfig, "beta_theta", 1e3, "[0, 1]"), (ppo.PPOConfig, "learning_rate", 1.5, "(0, 1]"),
-    (ppo.PPOConfig, "sigma", 11.0, "(0, 10]"), (TrainConfig, "control_dt", 2.0, "(0, 1]"),
+    (TrainConfig, "beta_theta", 1e3, "[0, 1]"), (ppo_config.PPOConfig, "learning_rate", 1.5, "(0, 1]"),
+    (ppo_config.PPOConfig, "sigma", 11.0, "(0, 10]"), (TrainConfig, "control_dt", 2.0, "(0, 1]"),
 ])
 def test_a_cap_of_sense_is_checked_before_a_run_not_by_validate(cls, field, value, allowed):
     """Code may set a step size beyond 1 (a test that makes a run diverge on purpose); a run may not."""
@@ -153,7 +154,7 @@ def test_ppo_takes_every_exploration_process():
     lr = learners.get("ppo")
     assert lr.explorations == explore.KINDS
     for kind in explore.KINDS:
-        ppo.PPOConfig(exploration=kind).resolved()
+        ppo_config.PPOConfig(exploration=kind).resolved()
 
 
 @pytest.mark.parametrize("learner, expect", [("ac", {"l": 5}), ("ppo", {"period_s": 0.1})])

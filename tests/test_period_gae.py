@@ -93,7 +93,8 @@ def test_period_wise_ppo_with_one_step_periods_is_the_per_step_ppo():
 
     import jax
 
-    from nmrl.learners.ppo import PPOConfig, make_ppo
+    from nmrl.learners.ppo import make_ppo
+    from nmrl.learners.ppo_config import PPOConfig
 
     cfg = PPOConfig(exploration="nm-periods", period_s=0.02, corr_time_s=0.0896, num_envs=4, batch_size=4,
                     num_minibatches=2, epochs=2, value_layers=1, value_width=8, policy_layers=1, policy_width=8,
@@ -112,7 +113,8 @@ def test_period_wise_ppo_with_one_step_periods_is_the_per_step_ppo():
 def test_period_wise_ppo_learns_on_longer_periods_and_is_refused_without_periods():
     import jax
 
-    from nmrl.learners.ppo import PPOConfig, make_ppo
+    from nmrl.learners.ppo import make_ppo
+    from nmrl.learners.ppo_config import PPOConfig
 
     cfg = PPOConfig(exploration="nm-periods", period_s=0.1, num_envs=4, batch_size=4, num_minibatches=1,
                     epochs=1, value_layers=1, value_width=8, policy_layers=1, policy_width=8, period_wise=True,

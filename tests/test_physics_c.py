@@ -20,7 +20,7 @@ import pytest
 from nmrl import cli
 from nmrl.paper import geometry as g
 from nmrl.paper.env import MODEL_PATH, EnvConfig, HalfCheetah
-from nmrl.paper.learner import TrainConfig
+from nmrl.learners.ac_config import TrainConfig
 from nmrl.physics import mujoco_c
 from nmrl.runs import driver as run
 from nmrl.runs import identity

@@ -26,7 +26,7 @@ import pytest
 import scipy.stats
 
 from nmrl import explore
-from nmrl.learners import contract, ppo
+from nmrl.learners import contract, ppo, ppo_config
 from nmrl.learners import ppo_losses as L
 from nmrl.learners import ppo_networks as nn_
 
@@ -113,8 +113,8 @@ def _random_batch(rng, cfg, B, obs_dim, act_dim, K=1):
 def test_minibatch_loss_matches_numpy():
     """The whole loss of one minibatch (white noise, learned std, tanh, normalised observations and
     advantages) against a float64 NumPy implementation of Brax's compute_ppo_loss."""
-    cfg = ppo.PPOConfig(**TINY, exploration="white", sigma=0.8, entropy_cost=0.01, clip_eps=0.2,
-                        reward_scale=0.5, discount_horizon_s=0.1, gae_horizon_s=0.05, control_dt=0.02)
+    cfg = ppo_config.PPOConfig(**TINY, exploration="white", sigma=0.8, entropy_cost=0.01, clip_eps=0.2,
+                               reward_scale=0.5, discount_horizon_s=0.1, gae_horizon_s=0.05, control_dt=0.02)
     env = TinyEnv()
     tr = ppo.make_ppo(cfg, env)
     st = tr.init(jax.random.PRNGKey(1))
@@ -158,7 +158,7 @@ def test_minibatch_loss_matches_numpy():
 def _nm_cfg(**kw):
     base = dict(TINY, exploration="nm-periods", sigma=0.7, period_s=0.12, corr_time_s=0.05)
     base.update(kw)
-    return ppo.PPOConfig(**base)
+    return ppo_config.PPOConfig(**base)
 
 
 @pytest.fixture(scope="module")
@@ -250,8 +250,8 @@ def test_exact_likelihood_ratio_matches_dense_gaussian(nm_trainer):
 
 
 def test_minibatches_are_whole_unrolls_each_once_per_epoch():
-    cfg = ppo.PPOConfig(num_envs=2, batch_size=4, num_minibatches=3, epochs=1, unroll_s=0.08, policy_layers=1,
-                        policy_width=4, value_layers=1, value_width=4)
+    cfg = ppo_config.PPOConfig(num_envs=2, batch_size=4, num_minibatches=3, epochs=1, unroll_s=0.08, policy_layers=1,
+                               policy_width=4, value_layers=1, value_width=4)
     tr = ppo.make_ppo(cfg, TinyEnv())
     N, U, T = 2, cfg.unrolls_per_env, cfg.unroll_length
     assert (U, T) == (6, 4)
@@ -289,7 +289,7 @@ def test_chunk_vmap_over_points_equals_each_point_alone():
                     corr_time_s=0.2, period_s=0.3, gae_horizon_s=0.1, seed=1)]
     assert contract.program_key(cfgs[0]) == contract.program_key(cfgs[1])
     tr = ppo.make_ppo(cfgs[0], env)
-    states = [tr.init(jax.random.PRNGKey(c.seed), ppo.Hyper.from_config(c.resolved())) for c in cfgs]
+    states = [tr.init(jax.random.PRNGKey(c.seed), ppo_config.Hyper.from_config(c.resolved())) for c in cfgs]
     chunk = jax.jit(tr.chunk)
     alone = [chunk(s) for s in states]
     both_s, both_m = jax.jit(jax.vmap(tr.chunk))(jax.tree.map(lambda *a: jnp.stack(a), *states))
@@ -306,8 +306,8 @@ def test_chunk_vmap_over_points_equals_each_point_alone():
 
 def test_defaults_are_the_brax_baseline_and_times_are_in_seconds():
     base = json.loads((REPO / "results/baseline_ppo/ppo_s0/config.json").read_text())
-    c = ppo.PPOConfig().resolved()
-    h = ppo.Hyper.from_config(c)
+    c = ppo_config.PPOConfig().resolved()
+    h = ppo_config.Hyper.from_config(c)
     assert (c.unroll_length, c.batch_size, c.num_minibatches, c.epochs, c.num_envs) == (
         base["unroll_length"], base["batch_size"], base["num_minibatches"], base["num_updates_per_batch"],
         base["num_envs"])
@@ -320,12 +320,12 @@ def test_defaults_are_the_brax_baseline_and_times_are_in_seconds():
     assert c.iteration_steps * c.num_envs == base["batch_size"] * base["num_minibatches"] * base["unroll_length"]
     assert nn_.ACTION_SCALE == 20.0 and c.exploration == "white"
     # 5 ms: the same seconds, 4x the steps; the discount per second unchanged
-    f = ppo.PPOConfig(control_dt=0.005).resolved()
-    hf = ppo.Hyper.from_config(f)
+    f = ppo_config.PPOConfig(control_dt=0.005).resolved()
+    hf = ppo_config.Hyper.from_config(f)
     assert f.unroll_length == 80 and f.iteration_steps == 4 * c.iteration_steps
     np.testing.assert_allclose(float(hf.gamma) ** 4, 0.95, rtol=1e-6)
-    nm = ppo.PPOConfig(exploration="nm-periods", control_dt=0.005).resolved()
-    assert int(ppo.Hyper.from_config(nm).process.period) == 40  # 0.2 s
+    nm = ppo_config.PPOConfig(exploration="nm-periods", control_dt=0.005).resolved()
+    assert int(ppo_config.Hyper.from_config(nm).process.period) == 40  # 0.2 s
 
 
 @pytest.mark.parametrize("kw, name", [
@@ -337,17 +337,17 @@ def test_defaults_are_the_brax_baseline_and_times_are_in_seconds():
 ])
 def test_bad_config_names_the_value(kw, name):
     with pytest.raises(ValueError, match=name):
-        ppo.PPOConfig(**kw).resolved()
+        ppo_config.PPOConfig(**kw).resolved()
 
 
 def test_registered_and_config_round_trips():
     lr = contract.get("ppo")
-    c = ppo.PPOConfig(exploration="ou", corr_time_s=0.3, seed=4).resolved()
+    c = ppo_config.PPOConfig(exploration="ou", corr_time_s=0.3, seed=4).resolved()
     assert contract.of(c) is lr and contract.config_from_dict(json.loads(json.dumps(contract.config_dict(c)))) == c
     assert set(lr.policy_fields) <= set(lr.compact_fields)
     assert {f.name for f in dataclasses.fields(ppo.PPOState)} >= {"step", "trials", "diverged", "key", "hyper",
                                                                    *lr.env_fields, *lr.compact_fields}
-    assert set(lr.hyper_fields) <= {f.name for f in dataclasses.fields(ppo.PPOConfig)}
+    assert set(lr.hyper_fields) <= {f.name for f in dataclasses.fields(ppo_config.PPOConfig)}
 
 
 def test_deterministic_policy_is_the_squashed_mean(nm_trainer):
@@ -373,10 +373,10 @@ import json, sys
 sys.path.insert(0, sys.argv[1])
 import jax, jax.numpy as jnp
 from tiny_env import TinyEnv
-from nmrl.learners import ppo
+from nmrl.learners import ppo, ppo_config
 from nmrl.runs import sharding
-cfg = ppo.PPOConfig(num_envs=4, batch_size=4, num_minibatches=2, epochs=2, unroll_s=0.1, policy_layers=1,
-                    policy_width=8, value_layers=1, value_width=8, exploration="nm-periods")
+cfg = ppo_config.PPOConfig(num_envs=4, batch_size=4, num_minibatches=2, epochs=2, unroll_s=0.1, policy_layers=1,
+                           policy_width=8, value_layers=1, value_width=8, exploration="nm-periods")
 env = TinyEnv(stop_prob=0.1)
 one = ppo.make_ppo(cfg, env)
 two = ppo.make_ppo(cfg, env, axis_name=sharding.AXIS, num_shards=2)
@@ -412,7 +412,7 @@ def test_sharded_chunk_equals_unsharded():
 def test_divergence_undoes_the_update_and_freezes_the_point():
     """A parameter norm above max_param_norm after an iteration: that iteration's update (parameters,
     Adam, observation statistics) is undone, ``diverged`` is set and stays, the rollouts go on."""
-    cfg = ppo.PPOConfig(**{**TINY, "epochs": 1}, max_param_norm=1.0)  # the initial policy's norm is > 1
+    cfg = ppo_config.PPOConfig(**{**TINY, "epochs": 1}, max_param_norm=1.0)  # the initial policy's norm is > 1
     tr = ppo.make_ppo(cfg, TinyEnv())
     st0 = tr.init(jax.random.PRNGKey(0))
     chunk = jax.jit(tr.chunk)
@@ -423,3 +423,24 @@ def test_divergence_undoes_the_update_and_freezes_the_point():
                     jax.tree.leaves((st2.policy, st2.value, st2.opt, st2.obs_stats))):
         np.testing.assert_array_equal(np.asarray(b), np.asarray(a))
     assert not np.array_equal(np.asarray(st2.env.obs), np.asarray(st0.env.obs))
+
+
+@pytest.mark.parametrize("max_grad_norm", [None, 1e9, 1e-12])
+def test_max_grad_norm_clips_the_gradient_before_adam(max_grad_norm):
+    """One Adam step (one epoch of one minibatch) from the initial parameters: Adam's first step is
+    -lr g / (|g| + 1e-8) per element, so an unclipped gradient (no clip, or a bound far above its
+    norm) moves every parameter with |g| >> 1e-8 by lr, while one clipped to global norm c moves
+    each by at most lr c / 1e-8 (optax.clip_by_global_norm before scale_by_adam, as Brax's PPO)."""
+    cfg = ppo_config.PPOConfig(**{**TINY, "epochs": 1, "num_minibatches": 1, "unroll_s": 0.2},
+                               max_grad_norm=max_grad_norm)  # one unroll per environment: one Adam step
+    tr = ppo.make_ppo(cfg, TinyEnv())
+    st0 = tr.init(jax.random.PRNGKey(0))
+    st1, _ = jax.jit(tr.chunk)(st0)
+    assert cfg.resolved().unrolls_per_env == 2 and cfg.resolved().chunk_steps == cfg.resolved().unroll_length * 2
+    moved = np.concatenate([np.abs(np.asarray(b) - np.asarray(a)).ravel()
+                            for a, b in zip(jax.tree.leaves(st0.policy), jax.tree.leaves(st1.policy))])
+    lr = cfg.learning_rate
+    if max_grad_norm == 1e-12:
+        assert moved.max() <= lr * max_grad_norm / 1e-8 * 1.01
+    else:
+        assert np.quantile(moved, 0.5) == pytest.approx(lr, rel=1e-3)  # most elements: a full step lr

@@ -23,10 +23,10 @@ def test_gradient_estimate_per_environment_matches_an_independent_computation():
     from tests.tiny_env import TinyEnv
     from jax.flatten_util import ravel_pytree
     from nmrl.experiments import ppo_gradsnr
-    from nmrl.learners import ppo
+    from nmrl.learners import ppo, ppo_config
     from nmrl.learners import ppo_networks as nn_
 
-    cfg = ppo.PPOConfig(**dict(TINY, num_envs=3, batch_size=6), exploration="white", reward_scale=0.5).resolved()
+    cfg = ppo_config.PPOConfig(**dict(TINY, num_envs=3, batch_size=6), exploration="white", reward_scale=0.5).resolved()
     env = TinyEnv(stop_prob=0.1)
     tr = ppo.make_ppo(cfg, env)
     st = tr.init(jax.random.PRNGKey(1))
@@ -64,11 +64,11 @@ def test_gradient_estimate_per_environment_matches_an_independent_computation():
 _SIDE_BY_SIDE = """
 import json, jax, numpy as np
 from nmrl.experiments import gradvar, ppo_gradsnr
-from nmrl.learners import ppo
+from nmrl.learners import ppo, ppo_config
 from tests.test_ppo import TINY
 from tests.tiny_env import TinyEnv
 assert jax.local_device_count() == 2, jax.devices()
-cfg = ppo.PPOConfig(**dict(TINY, num_envs=3, batch_size=6), exploration="ou", reward_scale=0.5).resolved()
+cfg = ppo_config.PPOConfig(**dict(TINY, num_envs=3, batch_size=6), exploration="ou", reward_scale=0.5).resolved()
 env = TinyEnv(stop_prob=0.1)
 tr = ppo.make_ppo(cfg, env)
 states = [tr.init(jax.random.PRNGKey(s)) for s in (1, 2, 3)]

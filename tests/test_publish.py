@@ -12,7 +12,7 @@ import pytest
 from scipy import stats as sps
 
 from nmrl.experiments import sweep
-from nmrl.paper.learner import TrainConfig
+from nmrl.learners.ac_config import TrainConfig
 from nmrl.runs import store
 
 SCRIPTS = pathlib.Path(__file__).resolve().parents[1] / "scripts"

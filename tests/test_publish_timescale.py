@@ -57,7 +57,7 @@ def test_the_tables_carry_each_arms_mean_and_t_interval():
 
 @pytest.mark.parametrize("args,needle", [(["{tmp}/none"], "DIR="), (["{tmp}/a", "{tmp}/b", "{tmp}/c"], "DIR=")])
 def test_bad_directories_are_one_line_exit_2_nothing_written(tmp_path, args, needle):
-    p = subprocess.run([sys.executable, "-m", "nmrl.analysis.publish_timescale",
+    p = subprocess.run([sys.executable, "scripts/publish/publish_timescale.py",
                         *[a.replace("{tmp}", str(tmp_path)) for a in args]], cwd=REPO, capture_output=True,
                        text=True, timeout=120)
     lines = p.stderr.strip().splitlines()

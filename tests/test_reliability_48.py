@@ -153,8 +153,8 @@ def _snapshot(d: pathlib.Path) -> dict[str, bytes]:
 @pytest.mark.parametrize("run, opts", [("ppo", ["--learner", "ac", "--l", "5"]),
                                        ("ac", ["--learner", "ppo", "--epochs", "2"])])
 def test_a_resume_with_another_learners_options_is_one_line(tmp_path, run, opts):
-    from nmrl.learners.ppo import PPOConfig
-    from nmrl.paper.learner import TrainConfig
+    from nmrl.learners.ppo_config import PPOConfig
+    from nmrl.learners.ac_config import TrainConfig
 
     d = _started(tmp_path / run, PPOConfig(num_envs=4) if run == "ppo" else TrainConfig(preset="fast", num_envs=4))
     before = _snapshot(d)
@@ -165,7 +165,7 @@ def test_a_resume_with_another_learners_options_is_one_line(tmp_path, run, opts)
 
 
 def test_a_sweep_resume_with_a_point_of_another_learner_is_one_line(tmp_path):
-    from nmrl.learners.ppo import PPOConfig
+    from nmrl.learners.ppo_config import PPOConfig
 
     s = tmp_path / "S"
     rc, _, err = _main(["sweep", *T, "--steps", "100", "--l", "10", "--seeds", "1", "--quiet", "--out", str(s)])

@@ -11,7 +11,7 @@ import sys
 import numpy as np
 
 from nmrl.runs import driver as run
-from nmrl.paper.learner import TrainConfig
+from nmrl.learners.ac_config import TrainConfig
 
 CFG = TrainConfig(num_envs=8, chunk_steps=20, steps=40, hidden_actor=8, hidden_critic=8,
                   beta_theta=1e-3, beta_v=1e-3, l=3)
@@ -21,7 +21,7 @@ KEYS = ("avg_reward", "theta_norm", "v_norm", "td_mean", "forward_speed")
 def test_two_devices_match_one(tmp_path):
     one = run.train(CFG, tmp_path / "one", progress=False)
     code = (
-        "import json, sys; from nmrl.runs import driver as run; from nmrl.paper.learner import TrainConfig; import jax;"
+        "import json, sys; from nmrl.runs import driver as run; from nmrl.learners.ac_config import TrainConfig; import jax;"
         "assert len(jax.devices()) == 2, jax.devices();"
         f"rows = run.train(TrainConfig(**json.loads(sys.argv[1])), sys.argv[2], progress=False);"
         "print(json.dumps(rows))"

@@ -12,7 +12,7 @@ import pytest
 
 from nmrl.runs import driver as run
 from nmrl.experiments import gradvar, study
-from nmrl.paper.learner import TrainConfig
+from nmrl.learners.ac_config import TrainConfig
 from nmrl.experiments.timescale import DELTA_0, TimescaleSpec
 
 REPO = pathlib.Path(__file__).resolve().parents[1]

@@ -14,7 +14,8 @@ import pytest
 from nmrl import cli
 from nmrl.runs import checkpoint, driver as run
 from nmrl.experiments import sweep
-from nmrl.paper.learner import TrainConfig, make_train
+from nmrl.learners.ac_config import TrainConfig
+from nmrl.learners.ac_train import make_train
 
 # Tiny networks, 8 environments, 2 chunks of 25 steps: 400 periods per point at l = 1.
 BASE = TrainConfig(num_envs=8, chunk_steps=25, steps=50, hidden_actor=8, hidden_critic=8,

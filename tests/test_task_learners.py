@@ -18,7 +18,7 @@ gym = pytest.importorskip("gymnasium")
 
 from nmrl import cli  # noqa: E402
 from nmrl.learners import ac  # noqa: E402
-from nmrl.paper.learner import TrainConfig  # noqa: E402
+from nmrl.learners.ac_config import TrainConfig  # noqa: E402
 from nmrl.physics import mujoco_c  # noqa: E402
 from nmrl.runs import checkpoint, identity  # noqa: E402
 from nmrl.tasks.gym_v5 import TASKS  # noqa: E402
@@ -233,9 +233,10 @@ def test_every_exploration_process_trains_on_every_task(tmp_path, learner, kind,
     out = tmp_path / "r"
     dt = _gym(name).unwrapped.dt
     if learner == "ppo":
-        from nmrl.learners import ppo
+        from nmrl.learners import ppo, ppo_config
 
-        it = ppo.PPOConfig(env=name, control_dt=dt, num_envs=4, batch_size=4, num_minibatches=2).resolved().iteration_steps
+        it = ppo_config.PPOConfig(env=name, control_dt=dt, num_envs=4, batch_size=4,
+                                  num_minibatches=2).resolved().iteration_steps
         # colored's default band ends at 25 Hz, above the Nyquist frequency 10 Hz of HalfCheetah's 0.05 s
         band = ["--f-max-hz", str(0.5 / dt)] if kind == "colored" and 0.5 / dt < 25 else []
         argv = [*PPO_TINY, "--exploration", kind, *band, "--steps", str(2 * it)]

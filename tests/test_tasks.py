@@ -216,7 +216,7 @@ def test_make_env_and_its_refusals():
 
 def test_ppo_takes_env_into_its_config_and_identity(tmp_path, capsys):
     from nmrl import cli
-    from nmrl.learners.ppo import PPOConfig
+    from nmrl.learners.ppo_config import PPOConfig
     from nmrl.runs import identity
 
     assert "env" not in identity.identity_config(PPOConfig())  # runs made before the option keep their digest
@@ -309,11 +309,11 @@ def test_ppo_acts_within_the_tasks_action_space(name):
     """PPO's squashed action covers the task's action space and nothing beyond it (Gymnasium's
     ``action_space``, read from gymnasium itself); on the paper's robot it spans a = 20 u (Sec. V-A:
     a^0 = 0.1 a in [-2, 2])."""
-    from nmrl.learners import ppo
+    from nmrl.learners import ppo, ppo_config
 
     space = _gym(name).action_space
     for env_name, lo, hi in ((name, space.low, space.high), ("paper-cheetah", -20.0, 20.0)):
-        cfg = ppo.PPOConfig(env=env_name, physics="c", num_envs=2, policy_layers=1, value_layers=1)
+        cfg = ppo_config.PPOConfig(env=env_name, physics="c", num_envs=2, policy_layers=1, value_layers=1)
         tr = ppo.make_ppo(cfg)
         st = tr.init(jax.random.PRNGKey(0))
         pol = ppo.policy(cfg, tr.env)
@@ -329,10 +329,10 @@ def test_ppo_acts_within_the_tasks_action_space(name):
 def test_ppo_learns_from_a_fall_as_a_termination_and_from_nothing_else_as_one():
     """Gymnasium's Hopper terminates when it is unhealthy (the value after the fall is 0); PPO's
     batch marks those steps as terminations, not as truncations (which carry no learning signal)."""
-    from nmrl.learners import ppo
+    from nmrl.learners import ppo, ppo_config
 
-    cfg = ppo.PPOConfig(env="hopper-v5", physics="c", num_envs=4, batch_size=4, num_minibatches=2,
-                        policy_layers=1, value_layers=1, sigma=3.0)
+    cfg = ppo_config.PPOConfig(env="hopper-v5", physics="c", num_envs=4, batch_size=4, num_minibatches=2,
+                               policy_layers=1, value_layers=1, sigma=3.0)
     tr = ppo.make_ppo(cfg)
     st = tr.init(jax.random.PRNGKey(0))
     _, data = jax.jit(tr.rollout)(st, jax.random.PRNGKey(1))

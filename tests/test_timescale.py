@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from nmrl.paper import noise
-from nmrl.paper.learner import TrainConfig
+from nmrl.paper import likelihood
+from nmrl.learners.ac_config import TrainConfig
 from nmrl.experiments.timescale import at_control_step
 
 BASE = TrainConfig()  # the paper's constants at 0.02 s
@@ -26,9 +26,9 @@ def test_per_second_quantities_are_unchanged(dt):
     assert math.isclose(ret, ret0, rel_tol=0.02)
     assert c.l == round(0.2 / dt) and c.lam == BASE.lam
     # the same number of sampled actions per period as at 0.02 s with l = 10, Delta = 4
-    assert len(noise.sampled_indices(c.l, c.delta)) == len(noise.sampled_indices(10, 4))
+    assert len(likelihood.sampled_indices(c.l, c.delta)) == len(likelihood.sampled_indices(10, 4))
     # ... at the same instants in seconds
-    np.testing.assert_allclose(noise.sampled_indices(c.l, c.delta) * dt, noise.sampled_indices(10, 4) * 0.02)
+    np.testing.assert_allclose(likelihood.sampled_indices(c.l, c.delta) * dt, likelihood.sampled_indices(10, 4) * 0.02)
 
 
 def test_stationary_arm_decays_traces_per_second():

@@ -10,9 +10,9 @@ import pytest
 from scipy import stats
 
 from nmrl import cli
-from nmrl.learners.ppo import PPOConfig
+from nmrl.learners.ppo_config import PPOConfig
 from nmrl.paper.env import EnvConfig, HalfCheetah
-from nmrl.paper.learner import TrainConfig
+from nmrl.learners.ac_config import TrainConfig
 from nmrl.runs import identity
 
 

@@ -28,8 +28,8 @@ import numpy as np
 
 from nmrl import learners, tasks
 from nmrl.analysis import eval_env
+from nmrl.paper.control_step import DELTA_0
 
-DELTA_0 = 0.02  #: the paper's control step: reward per second = mean r_t / DELTA_0
 START_NOISE = 0.05  #: rad (angles, uniform half-width) and rad/s (velocities, standard deviation)
 
 

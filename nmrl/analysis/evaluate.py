@@ -43,7 +43,8 @@ import numpy as np
 from nmrl import learners, tasks
 from nmrl.analysis import eval_env, task_eval
 from nmrl.analysis.gait_pictures import plot_strobe, write_gif
-from nmrl.paper.env import REWARD_TERMS, EnvConfig, forward_kinematics
+from nmrl.paper.env import REWARD_TERMS, EnvConfig
+from nmrl.paper.robot import forward_kinematics
 from nmrl.runs import checkpoint, io_errors
 from nmrl.runs.store import atomic_path, atomic_write_text, fsync_path
 

@@ -26,10 +26,9 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from nmrl.analysis import stats
+from nmrl.paper.control_step import DELTA_0
 from nmrl.runs import store
 
-#: the control step the paper's rewards are per-step values of (reward per second = mean r_t / DELTA_0)
-DELTA_0 = 0.02
 RESULT_COLUMNS = ("learner", "exploration", "setting", "control_dt", "seed", "control_steps", "simulated_s",
                   "iterations", "avg_reward", "avg_reward_per_s", "auc_reward_per_s", "det_reward", "det_reward_per_s",
                   "forward_speed", "det_forward_speed", "diverged")

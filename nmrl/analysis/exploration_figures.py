@@ -14,7 +14,8 @@ from typing import Sequence
 import numpy as np
 
 from nmrl.analysis import gait_pictures, stats
-from nmrl.analysis.exploration_answers import DELTA_0, cells, finished
+from nmrl.analysis.exploration_answers import cells, finished
+from nmrl.paper.control_step import DELTA_0
 from nmrl.analysis.exploration_report import ms as _ms
 from nmrl.analysis.plots import plt
 from nmrl.runs import store

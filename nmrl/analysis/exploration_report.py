@@ -199,7 +199,7 @@ def report(summary: dict, results: Sequence[dict], screen: Sequence[dict], snr: 
     done = finished(results, iterations)
     lines = ["# The exploration × control-step study: its numbers",
              "",
-             f"Written by `scripts/publish_exploration.py` from `results.csv`, `summary.json`, `snr.csv` and "
+             f"Written by `scripts/publish/publish_exploration.py` from `results.csv`, `summary.json`, `snr.csv` and "
              f"`screen.csv`; the design and the discussion: docs/exploration-study.md. **{len(done)} of "
              f"{len(results)} grid runs** started so far have their budget ({iterations} PPO iterations) or "
              f"diverged; only those enter the numbers below. Rewards per second = mean r_t / 20 ms at every "

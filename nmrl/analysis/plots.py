@@ -22,6 +22,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from nmrl.analysis.stats import mean_ci95, smooth  # noqa: E402
+from nmrl.paper.control_step import DELTA_0  # noqa: E402
 from nmrl.runs.store import atomic_path  # noqa: E402
 
 #: The values of Fig. 3 that the paper's text states (Sec. V-D).
@@ -219,7 +220,7 @@ def timescale(out: str | os.PathLike, grid: list[dict], final: list[dict], gradv
     for j, dt in enumerate(dts[:3]):
         ax = axes[1, j]
         for a in arms:
-            cs = [([x["step"] * dt for x in m], [x["avg_reward"] / 0.02 for x in m])
+            cs = [([x["step"] * dt for x in m], [x["avg_reward"] / DELTA_0 for x in m])
                   for m in curves.get((a, dt), [])]
             if not cs:
                 continue
@@ -249,7 +250,7 @@ def _grid_figure(grid: list[dict], arms: list[str], dts: list[float], path: path
             for r in grid:
                 if r["arm"] == a and float(r["dt"]) == dt:
                     s = float(r["score"])
-                    z[bts.index(float(r["beta_theta"])), bvs.index(float(r["beta_v"]))] = s / 0.02 if np.isfinite(s) else np.nan
+                    z[bts.index(float(r["beta_theta"])), bvs.index(float(r["beta_v"]))] = s / DELTA_0 if np.isfinite(s) else np.nan
                     if r["chosen"]:
                         ax.add_patch(plt.Rectangle((bvs.index(float(r["beta_v"])) - 0.5, bts.index(float(r["beta_theta"])) - 0.5),
                                                    1, 1, fill=False, ec="red", lw=2))

@@ -16,20 +16,19 @@ the rest from them, so that the published files follow from the committed data a
   ``gaits/best_and_worst.png`` where the two gaits' trajectories (``trajectory.npz``, not committed:
   ``nmrl eval`` writes them) are there.
 
-    python -m nmrl.analysis.publish_exploration [--dest results/exploration]
+    .venv/bin/python scripts/publish/publish_exploration.py [--dest results/exploration]
 """
 
 from __future__ import annotations
 
 import json
 import pathlib
-import sys
 from typing import Sequence
 
 from nmrl.analysis import exploration_answers as xa
 from nmrl.analysis import exploration_figures, exploration_report
 from nmrl.explore.spec import KINDS as PROCESSES
-from nmrl.runs import parser, store
+from nmrl.runs import store
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 RECORD = ROOT / "results" / "exploration"
@@ -120,21 +119,3 @@ def publish(record: pathlib.Path = RECORD, dest: pathlib.Path | None = None,
         written.append(exploration_figures.draw_gaits(gaits, dest / "gaits" / "best_and_worst.png"))
     return written
 
-
-def main(argv: Sequence[str] | None = None) -> int:
-    ap = parser.OneLineParser(prog="python -m nmrl.analysis.publish_exploration",
-                                 description=__doc__.split("\n\n")[0])
-    ap.add_argument("--record", default=str(RECORD), help="the study's record (default: results/exploration)")
-    ap.add_argument("--dest", default=None, help="where the files go (default: the record itself)")
-    a = ap.parse_args(argv)
-    record = pathlib.Path(a.record)
-    if not (record / "study.json").is_file():
-        ap.error(f"--record={a.record!r} is invalid: it holds no study.json (give the study's record, "
-                 f"results/exploration)")
-    written = publish(record, None if a.dest is None else pathlib.Path(a.dest))
-    print(f"{len(written)} files under {a.dest or record}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -8,22 +8,19 @@ record makes its own figures again byte for byte). :func:`tables` is the record'
 Markdown tables of docs/timescale.md: reward per second (mean and 95% t-interval over seeds) per δ
 and arm with the change from 0.02 s and the chosen step sizes, and the gradient statistics.
 
-    python -m nmrl.analysis.publish_timescale STUDY_DIR RESULTS_DIR   # copy, draw, print the tables
-    python -m nmrl.analysis.publish_timescale RESULTS_DIR             # draw and print from the record
+    .venv/bin/python scripts/publish/publish_timescale.py STUDY_DIR RESULTS_DIR   # copy, draw, print the tables
+    .venv/bin/python scripts/publish/publish_timescale.py RESULTS_DIR             # draw and print from the record
 """
 
 from __future__ import annotations
 
 import pathlib
 import shutil
-import sys
-from typing import Sequence
 
 import numpy as np
 
 from nmrl.analysis import plots
 from nmrl.analysis.stats import mean_ci95
-from nmrl.runs import parser
 from nmrl.runs.store import read_csv, read_jsonl
 
 TABLES = ("study.json", "grid.csv", "final.csv", "gradvar.csv")
@@ -92,24 +89,3 @@ def tables(record: pathlib.Path) -> str:
                 out.append(f"| {p} | {a} | " + " | ".join(cells) + " |")
     return "\n".join(out) + "\n"
 
-
-def main(argv: Sequence[str] | None = None) -> int:
-    ap = parser.OneLineParser(prog="python -m nmrl.analysis.publish_timescale", description=__doc__.split("\n\n")[0])
-    ap.add_argument("dirs", nargs="+", metavar="DIR", help="STUDY_DIR RESULTS_DIR, or a RESULTS_DIR alone")
-    a = ap.parse_args(argv)
-    if len(a.dirs) > 2:
-        ap.error(f"DIR={' '.join(a.dirs)!r} is invalid: give STUDY_DIR RESULTS_DIR, or a RESULTS_DIR alone")
-    src = pathlib.Path(a.dirs[0])
-    for f in ("grid.csv", "final.csv"):
-        if not (src / f).is_file():
-            ap.error(f"DIR={a.dirs[0]!r} is invalid: it holds no {f} (give a finished study or its record)")
-    if len(a.dirs) == 2:
-        publish(src, pathlib.Path(a.dirs[1]))
-    else:
-        figures(src)
-    print(tables(pathlib.Path(a.dirs[-1])), end="")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

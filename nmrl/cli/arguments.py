@@ -2,7 +2,7 @@
 
 ``--learner NAME`` picks the learner (nmrl/learners/; default ``ac``, the paper's actor-critic;
 a resume takes the run's own). Every field of the learner's config is an option of ``train`` and
-``sweep`` (the actor-critic's :class:`nmrl.paper.learner.TrainConfig`: ``--beta-theta 2e-6``,
+``sweep`` (the actor-critic's :class:`nmrl.learners.ac_config.TrainConfig`: ``--beta-theta 2e-6``,
 ``--num-envs 256``, ``--actor-opt clip:10,sgd``, ...; ``nmrl train --learner NAME --help`` lists
 them), and ``--exploration {white,nm-periods,ou,colored}`` with the process's parameters in seconds
 or Hz sets the learner's exploration noise (the actor-critic: ``white`` is l = 1, ``nm-periods``

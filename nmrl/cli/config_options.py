@@ -2,10 +2,12 @@
 
 Every field of the learner's config (nmrl/learners/contract.py) whose declaration (nmrl/options.py)
 makes it an option is one option ``--<flag>`` of the command, spelled and explained by that
-declaration (the actor-critic's :class:`nmrl.paper.learner.TrainConfig`: ``--beta-theta 2e-6``,
+declaration (the actor-critic's :class:`nmrl.learners.ac_config.TrainConfig`: ``--beta-theta 2e-6``,
 ``--num-envs 256``, ``--actor-opt clip:10,sgd``, ...); :func:`config_from_args` builds the config
 from the options given, with the exploration process applied (nmrl/cli/exploration_options.py).
-The learner and JAX are imported only when a command asks (after nmrl.runs.devices.configure).
+The learner and JAX are imported only when a command asks (after nmrl.runs.devices.configure has
+set the host device count). A run given no budget takes its config's (the actor-critic's:
+nmrl.learners.ac_config.DEFAULT_STEPS).
 """
 
 from __future__ import annotations

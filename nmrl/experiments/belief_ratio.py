@@ -26,7 +26,8 @@ from typing import Any
 import jax
 import numpy as np
 
-from nmrl.learners.ppo import PPOConfig, PPOState, make_ppo
+from nmrl.learners.ppo import PPOState, make_ppo
+from nmrl.learners.ppo_config import PPOConfig
 
 
 def parts(cfg: PPOConfig, st: PPOState, key: jax.Array, env: Any = None) -> dict[str, np.ndarray]:

@@ -5,7 +5,7 @@ environment gives the actor's gradient estimate of Table II without traces,
 
     g_k = d_k * grad_theta ln pi_Ahat(Ahat_k; S_k, theta),     d_k = r_bar_k + gamma^l V(s') - V(s),
 
-(eq. (7) with Delta-sampling; nmrl/paper/learner.py accumulates sum_k g_k and sum_k |g_k|^2 when
+(eq. (7) with Delta-sampling; nmrl/learners/ac_train.py accumulates sum_k g_k and sum_k |g_k|^2 when
 ``grad_stats`` is on). From n periods this module reports
 
 * ``trcov``: tr Cov(g_k), the total variance of one period's estimate (unbiased, n - 1);
@@ -32,7 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from nmrl import learners
-from nmrl.paper.learner import Hyper, TrainConfig
+from nmrl.learners.ac_config import Hyper, TrainConfig
 from nmrl.analysis.stats import mean_ci95
 from nmrl.runs.points import stack_trees
 

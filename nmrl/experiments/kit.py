@@ -21,8 +21,9 @@ budget and scores it:
 :func:`publish` copies what continues and re-scores a study (no full checkpoints) into a folder
 small enough to commit, with ``analysis.csv``, the study's own analysis of the rows (its
 pre-registered contrasts), its report's figures and tables, and the files of its measurements (steps
-after the cells that are not sweeps, :class:`Measurement`). A study's own module (e.g. nmrl/experiments/exploration2.py) holds its
-cells as data and any rule that makes later cells from earlier rows.
+after the cells that are not sweeps, :class:`Measurement`). A study's own modules (e.g.
+nmrl/experiments/exploration2.py and its cells, rules and analysis beside it) hold its cells as
+data and any rule that makes later cells from earlier rows.
 """
 
 from __future__ import annotations
@@ -36,12 +37,12 @@ import subprocess
 import sys
 from typing import Callable, Sequence
 
+from nmrl.paper.control_step import DELTA_0
 from nmrl.runs import store
 
 ROWS = "rows.csv"
 ANALYSIS = "analysis.csv"
 ENDPOINT = "endpoint.json"
-DELTA_0 = 0.02  #: reward per second = mean r_t / DELTA_0 (nmrl/experiments/timescale.py)
 COLUMNS = ("cell", "point", "seed", "field", "value", "control_dt", "steps", "budget", "diverged",
            "avg_reward_per_s", "auc_reward_per_s", "det_reward_per_s", "det_forward_speed")
 _PUBLISHED_POINT_FILES = ("config.json", "metrics.jsonl", "compact.npz", ENDPOINT)
@@ -83,8 +84,8 @@ class Endpoint:
 
 @dataclasses.dataclass(frozen=True)
 class Measurement:
-    """A step of a study after its cells that is not a sweep: ``run(out, rows)`` writes ``file`` in the
-    study's directory from the rows and the cells' points, continuing what an earlier call left
+    """A step of a study after its cells that is not a sweep: ``run(out, rows)`` writes ``file`` (a
+    file or a folder) in the study's directory from the rows and the cells' points, continuing what an earlier call left
     there, and does nothing while a cell it needs is unfinished; :func:`publish` copies ``file``."""
 
     file: str
@@ -266,6 +267,8 @@ def publish(study: Study, out: str | os.PathLike, dest: str | os.PathLike) -> No
     for m in study.measurements:
         if (out / m.file).is_file():
             shutil.copy2(out / m.file, dest / m.file)
+        elif (out / m.file).is_dir():
+            shutil.copytree(out / m.file, dest / m.file, dirs_exist_ok=True)
     if study.analysis is not None:
         table = study.analysis(r)
         store.write_csv(dest / ANALYSIS, list(dict.fromkeys(k for row in table for k in row)), table)

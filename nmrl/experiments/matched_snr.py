@@ -28,7 +28,9 @@ from typing import Any, Sequence
 import jax
 
 from nmrl.experiments import ppo_gradsnr
-from nmrl.learners.ppo import PPOConfig, PPOState, make_ppo
+from nmrl.learners.ppo import PPOState, make_ppo
+from nmrl.learners.ppo_config import PPOConfig
+from nmrl.paper.control_step import DELTA_0
 from nmrl.runs import compact, store
 
 DTS = (0.02, 0.005, 0.0025)
@@ -44,7 +46,7 @@ POLICY_FIELDS = ("policy", "value", "obs_stats")
 def config_at(cfg: PPOConfig, dt: float, exploration: dict) -> PPOConfig:
     """``cfg``'s learner at control step ``dt`` with ``exploration`` (the config fields of an arm):
     the reward scale dt / 20 ms as in every cell, the trial rate in seconds kept, no budget."""
-    return dataclasses.replace(cfg, control_dt=dt, reward_scale=dt / 0.02, steps=None, trials=None,
+    return dataclasses.replace(cfg, control_dt=dt, reward_scale=dt / DELTA_0, steps=None, trials=None,
                                chunk_steps=None, **exploration).resolved()
 
 

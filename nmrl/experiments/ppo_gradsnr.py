@@ -33,7 +33,8 @@ from jax.flatten_util import ravel_pytree
 from nmrl.experiments import gradvar
 from nmrl.learners import ppo_losses as L
 from nmrl.learners import ppo_networks as nn_
-from nmrl.learners.ppo import PPOConfig, PPOState, make_ppo
+from nmrl.learners.ppo import PPOState, make_ppo
+from nmrl.learners.ppo_config import PPOConfig
 from nmrl.runs import points
 
 

@@ -47,8 +47,9 @@ import numpy as np
 from nmrl.analysis import stats
 from nmrl.experiments import gradvar
 from nmrl.experiments.kit import StudyError
-from nmrl.experiments.timescale import DELTA_0, TimescaleSpec, arm_name
+from nmrl.experiments.timescale import TimescaleSpec, arm_name
 from nmrl import learners
+from nmrl.paper.control_step import DELTA_0
 from nmrl.paper.env import PHYSICS_HELP
 from nmrl.runs import checkpoint, command, driver, lock, parser, store
 from nmrl.runs.store import read_csv, read_metrics, write_csv

@@ -2,7 +2,7 @@
 
 Every (l, seed) point is one training state; the states are stacked and one jitted program runs
 the learner's chunk on all of them. l lives in the actor-critic's traced ``Hyper`` pytree
-(nmrl/paper/learner.py): the in-period index is a counter compared with l, so no padding is needed
+(nmrl/learners/ac_train.py): the in-period index is a counter compared with l, so no padding is needed
 and no point recompiles. Any learner (nmrl/learners/contract.py) sweeps the same way over one of
 its traced hyperparameters (``SweepSpec.field``, e.g. ``l``; None: over seeds only), its points
 named ``{field}{value}_s{seed}`` (``s{seed}``).

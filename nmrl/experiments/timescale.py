@@ -36,12 +36,10 @@ import dataclasses
 import math
 
 from nmrl import learners
+from nmrl.paper.control_step import DELTA_0
 from nmrl.paper.env import PHYSICS
-from nmrl.paper.learner import TrainConfig
+from nmrl.learners.ac_config import TrainConfig
 from nmrl.runs import bounds
-
-#: The paper's control step [s].
-DELTA_0 = 0.02
 
 
 def _as_int(x: float, what: str) -> int:

@@ -33,6 +33,7 @@ import numpy as np
 from nmrl.explore.colored import colored_components, time_constants
 from nmrl.explore.process import NO_RESET, Process
 from nmrl.options import option
+from nmrl.paper.control_step import DELTA_0
 
 __all__ = [
     "KINDS",
@@ -55,7 +56,7 @@ __all__ = [
 KINDS = ("white", "nm-periods", "ou", "colored")
 DEFAULT_KIND = "nm-periods"  # the paper's process
 #: the paper's alpha = 0.8 per 20 ms step as a correlation time
-PAPER_CORR_TIME_S = -0.02 / math.log(0.8)
+PAPER_CORR_TIME_S = -DELTA_0 / math.log(0.8)
 DEFAULTS: dict[str, dict[str, Any]] = {
     "white": {},
     "nm-periods": {"period_s": 0.2, "corr_time_s": PAPER_CORR_TIME_S},

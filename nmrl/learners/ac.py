@@ -1,8 +1,10 @@
-"""The paper's actor-critic (nmrl/paper/learner.py, Table II) as the learner ``ac``.
+"""The paper's actor-critic (Table II) as the learner ``ac``.
 
-The learner itself stays in nmrl/paper/ (its code and numbers are the paper's); this module only
-says how the driver takes it (nmrl/learners/contract.py): its config is
-:class:`~nmrl.paper.learner.TrainConfig`, its traced hyperparameters :class:`~nmrl.paper.learner.Hyper`
+Its training program is nmrl/learners/ac_train.py, its config nmrl/learners/ac_config.py and its
+update rules nmrl/learners/optimizers.py; the equations it is built of (the networks of (6), the
+noise (4) and its likelihood ratio (7), the robot) are nmrl/paper/. This module says how the driver
+takes it (nmrl/learners/contract.py): its config is
+:class:`~nmrl.learners.ac_config.TrainConfig`, its traced hyperparameters :class:`~nmrl.learners.ac_config.Hyper`
 (l, Delta, alpha, sigma, gamma, lambda and the step sizes: a sweep over any of them is one program),
 the per-environment part of its state the ``slots`` (environment, noise (4), likelihood ratio (7),
 traces), the compact continuation state the parameters theta, v and the count of learned periods,
@@ -23,7 +25,7 @@ its squashed action (``ppo_networks.action_range``, ``Task.action_scale``/``acti
 offset + scale * clip(a / 20, -1, 1), so the task sees an action inside Gymnasium's
 ``action_space`` and the noise keeps its share of the range. On the paper's robot a goes to the
 robot unchanged (its torque saturates by itself). A task's termination (a fall) ends the period,
-which is learned from with the value after it 0 (nmrl/paper/learner.py, Table II step 2); its
+which is learned from with the value after it 0 (nmrl/learners/ac_train.py, Table II step 2); its
 truncation (the time limit) discards the period, as the paper's random stop does.
 """
 
@@ -36,9 +38,10 @@ import jax.numpy as jnp
 
 from nmrl import explore, options, tasks
 from nmrl.learners import ppo_networks
+from nmrl.learners.ac_config import Hyper, TrainConfig
+from nmrl.learners.ac_train import OPT_FIELDS, make_train
 from nmrl.learners.contract import Learner, Policy, register
 from nmrl.paper import networks, noise
-from nmrl.paper.learner import OPT_FIELDS, Hyper, TrainConfig, make_train
 
 NAME = "ac"
 #: the exploration processes the actor-critic can use

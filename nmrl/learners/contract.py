@@ -96,7 +96,7 @@ METRICS = ("avg_reward", "forward_speed", "trials_in_chunk", "step", "trials", "
 
 class Trainer(Protocol):
     """What ``Learner.make`` returns: the one meaning of ``Trainer`` in nmrl (the actor-critic's
-    :class:`nmrl.paper.learner.ACTrainer` has these fields and more)."""
+    :class:`nmrl.learners.ac_train.ACTrainer` has these fields and more)."""
 
     config: Any
     env: Any

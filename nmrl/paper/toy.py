@@ -23,7 +23,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nmrl.paper.noise import likelihood_ratio, piecewise_ar, validate
+from nmrl.paper.likelihood import likelihood_ratio
+from nmrl.paper.noise import piecewise_ar, validate
 
 __all__ = [
     "num_steps",
@@ -111,7 +112,7 @@ def sample_nm(
     """n Monte Carlo draws of the nm-period REINFORCE estimator g = (r - c) sum_k grad ln pi_A.
 
     The noise is the piecewise AR process (4) with periods of ``l`` steps; the per-period
-    likelihood ratio is ``nmrl.paper.noise.likelihood_ratio`` (vmapped over samples and periods).
+    likelihood ratio is ``nmrl.paper.likelihood.likelihood_ratio`` (vmapped over samples and periods).
     """
     T = num_steps(delta_t)
     k_xi, k_y = jax.random.split(key)

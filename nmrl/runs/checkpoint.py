@@ -8,8 +8,8 @@ trees in nmrl/runs/trees.py; their public names are importable from this module.
 One :class:`Checkpointer` per run holds one orbax ``CheckpointManager`` for a whole session (the
 chunk loop, nmrl/runs/loop.py, opens one per point): its ``save(ts, config)`` (or the one-off
 ``save(run_dir, ts, config)``) writes the whole state of any learner (nmrl/learners/contract.py; for
-the actor-critic the :class:`~nmrl.paper.learner.TrainState`: theta, v, every
-:class:`~nmrl.paper.learner.EnvSlot` with its MJX state, noise, likelihood ratio and traces, the PRNG key,
+the actor-critic the :class:`~nmrl.learners.ac_train.TrainState`: theta, v, every
+:class:`~nmrl.learners.ac_train.EnvSlot` with its MJX state, noise, likelihood ratio and traces, the PRNG key,
 the traced hyperparameters, the counters and the divergence flag) to ``RUN_DIR/checkpoints/<step>/``;
 ``restore(run_dir, trainer)`` gives it back bit for bit, so a resumed run continues exactly as an
 uninterrupted one. ``restore_policy`` reads only the learner's policy parameters (the

@@ -65,7 +65,8 @@ def main(argv=None) -> int:
     from nmrl.runs import driver, points, store
     from nmrl.experiments import sweep
     from nmrl.analysis import stats
-    from nmrl.paper.learner import Hyper, TrainConfig, make_train
+    from nmrl.learners.ac_config import Hyper, TrainConfig
+    from nmrl.learners.ac_train import make_train
 
     cfgs = [TrainConfig(l=l, seed=s, num_envs=args.num_envs, chunk_steps=args.chunk_steps,
                         trials=args.trials).resolved() for l in args.ls for s in range(args.seeds)]

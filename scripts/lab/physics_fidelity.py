@@ -49,7 +49,8 @@ import numpy as np
 
 from nmrl.paper import networks, noise
 from nmrl.runs import checkpoint, store
-from nmrl.paper.env import ACT_DIM, EnvConfig, HalfCheetah, kinematics, observation
+from nmrl.paper.env import ACT_DIM, EnvConfig, HalfCheetah
+from nmrl.paper.robot import kinematics, observation
 
 CANDIDATES = {
     "A: iter 2": {"solver_iterations": 2},

@@ -3,7 +3,7 @@ import dataclasses, sys
 from nmrl.runs import devices
 devices.configure(devices.AUTO)
 from nmrl.runs import driver
-from nmrl.paper.learner import TrainConfig
+from nmrl.learners.ac_config import TrainConfig
 base = TrainConfig(l=30, seed=0, num_envs=64, chunk_steps=250, trials=int(sys.argv[sys.argv.index("--trials") + 1]) if "--trials" in sys.argv else 2000, preset="fast",
                    actor_opt="sgd,clip:0.03", critic_opt="sgd,clip:1")
 cfgs = [base, dataclasses.replace(base, beta_v=1e-4)]

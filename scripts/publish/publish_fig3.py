@@ -74,7 +74,7 @@ def main() -> None:
 
 
 def _spec(src: pathlib.Path) -> dict:
-    from nmrl.paper.learner import TrainConfig
+    from nmrl.learners.ac_config import TrainConfig
 
     s = json.loads((src / sweep.SPEC_FILE).read_text())
     return {"ls": tuple(s["ls"]), "seeds": s["seeds"], "base": TrainConfig(**s["base"])}

@@ -39,7 +39,7 @@ import numpy as np
 from nmrl.analysis import plots, publish_fig3, stats
 from nmrl.analysis.publish_fig3 import MILESTONES, falls_md, progress_md  # noqa: F401
 from nmrl.experiments import sweep
-from nmrl.paper.learner import TrainConfig
+from nmrl.learners.ac_config import TrainConfig
 from nmrl.runs import store
 
 

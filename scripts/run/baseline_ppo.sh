@@ -17,8 +17,8 @@
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 . scripts/run/seed_run.sh
-# shellcheck source=scripts/lower_priority.sh
-source scripts/lower_priority.sh
+# shellcheck source=scripts/run/lower_priority.sh
+source scripts/run/lower_priority.sh
 lower_priority  # a background launch (setsid) yields the CPUs to interactive work
 OUT=${OUT:-runs/baseline_ppo}
 PUBLISHED=${PUBLISHED:-results/baseline_ppo}

@@ -8,8 +8,8 @@
 #   .venv/bin/python scripts/publish/publish_fast_preset.py --run $PRESET=$OUT
 set -euo pipefail
 cd "$(dirname "$0")/../.."
-# shellcheck source=scripts/lower_priority.sh
-source scripts/lower_priority.sh
+# shellcheck source=scripts/run/lower_priority.sh
+source scripts/run/lower_priority.sh
 lower_priority  # a background launch (setsid) yields the CPUs to interactive work
 PRESET=${PRESET:-fast_clip}
 OUT=${OUT:-runs/fast_preset/$PRESET}

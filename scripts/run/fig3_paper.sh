@@ -10,14 +10,14 @@
 # continues from the compact states (statistically, not bitwise, equal: every environment starts
 # a new trial). Publish the progress with: .venv/bin/python scripts/publish/publish_fig3_paper.py
 #
-# PRESET=fast uses the "fast" step sizes (nmrl/paper/learner.py) instead of the paper's.
+# PRESET=fast uses the "fast" step sizes (nmrl/learners/ac_config.py) instead of the paper's.
 # CPUS=0 (a taskset list) runs it on those cores only, with one XLA device per core: the way to
 # share the machine with another long run (scripts/run/baseline_ppo.sh with CPUS=1), since the sweep's
 # devices step in one program and one busy core holds them all back.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
-# shellcheck source=scripts/lower_priority.sh
-source scripts/lower_priority.sh
+# shellcheck source=scripts/run/lower_priority.sh
+source scripts/run/lower_priority.sh
 lower_priority  # a background launch (setsid) yields the CPUs to interactive work
 PRESET=${PRESET:-paper}
 OUT=${OUT:-runs/fig3_$PRESET}

@@ -14,8 +14,8 @@
 #   OUT=runs/ppo_validation_c PUBLISHED=results/physics_c/ppo/validation PHYSICS=c scripts/run/ppo_validation.sh
 set -euo pipefail
 cd "$(dirname "$0")/../.."
-# shellcheck source=scripts/lower_priority.sh
-source scripts/lower_priority.sh
+# shellcheck source=scripts/run/lower_priority.sh
+source scripts/run/lower_priority.sh
 lower_priority  # a background launch (setsid) yields the CPUs to interactive work
 OUT=${OUT:-runs/ppo_validation}
 PUBLISHED=${PUBLISHED:-results/ppo/validation}

@@ -16,7 +16,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 # Every process runs at nice $NICE (default 10) in the caller's session: the session's own CPU share
-# (scripts/lower_priority.sh) is left as it is, so a setsid launch takes a session's share.
+# (scripts/run/lower_priority.sh) is left as it is, so a setsid launch takes a session's share.
 NICE=${NICE:-10}
 OUT=${OUT:-runs/standard_tasks}
 PUBLISHED=${PUBLISHED:-results/standard_tasks}

@@ -2,16 +2,16 @@
 # The second exploration study (docs/exploration-study-2.md, nmrl/experiments/exploration2.py) in
 # the background, resumable on any machine.
 #
-#   scripts/exploration2.sh start    # start or resume (a fresh clone seeds from results/exploration2/runs)
-#   scripts/exploration2.sh status   # what runs, the log's last lines, the rows so far
-#   scripts/exploration2.sh stop     # SIGTERM, wait for the sweep in flight to save, publish
+#   scripts/run/exploration2.sh start    # start or resume (a fresh clone seeds from results/exploration2/runs)
+#   scripts/run/exploration2.sh status   # what runs, the log's last lines, the rows so far
+#   scripts/run/exploration2.sh stop     # SIGTERM, wait for the sweep in flight to save, publish
 #
 # start runs `python -m nmrl.experiments.exploration2 run` in its own session at the lowest CPU
-# share (scripts/lower_priority.sh), logging to runs/exploration2.log. stop sends SIGTERM to that
+# share (scripts/run/lower_priority.sh), logging to runs/exploration2.log. stop sends SIGTERM to that
 # session (the sweep saves every active point after its chunk: up to one PPO iteration, minutes at
 # 2.5 ms), then publishes the compact states and rows to results/exploration2/runs (commit it).
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 PY=${PY:-.venv/bin/python}
 OUT=${OUT:-runs/exploration2}
 PUB=${PUB:-results/exploration2/runs}
@@ -22,7 +22,7 @@ case "${1:-}" in
   start)
     if pgrep -f "$PAT" > /dev/null; then echo "already running"; exit 0; fi
     mkdir -p runs
-    setsid bash -c "source scripts/lower_priority.sh; lower_priority; exec nice -n \${NICE:-19} $PY -m $PAT \
+    setsid bash -c "source scripts/run/lower_priority.sh; lower_priority; exec nice -n \${NICE:-19} $PY -m $PAT \
       --published $PUB" >> runs/exploration2.log 2>&1 < /dev/null &
     echo "started (log: runs/exploration2.log)"
     ;;

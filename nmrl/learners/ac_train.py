@@ -10,7 +10,8 @@ Per environment e, per nm-period k (Table II):
 
 1. perform l_k actions a_t = a~(s_t; theta) + xi_t (eq. (6)) with xi the piecewise AR process (4);
    accumulate r_bar_k = sum_i gamma^i r_{t_k+i}; accumulate the Delta-sampled likelihood ratio
-   grad ln pi_Ahat(Ahat_k; S_k, theta) online (nmrl.paper.noise.online_lr_add, the innovation form of (7));
+   grad ln pi_Ahat(Ahat_k; S_k, theta) online (nmrl.paper.likelihood.online_lr_add, the innovation
+   form of (7));
 2. if the trial was stopped within the period, discard it: no update, traces z, y := 0 (a new trial
    begins), and a new period starts at the reset state; an environment that ends trials by a rule
    of its own (a Gymnasium task's ``terminated``: a fall) ends the period there instead, and it is
@@ -51,24 +52,13 @@ period); at other steps the parameters and the optimizer states stay as they are
 changes nothing (the summed update is zero there); a stateful optimizer does not see zero
 gradients in between.
 
-Other update rules. ``actor_opt`` and ``critic_opt`` name an optax chain per
-network from a small vocabulary (:data:`OPT_VOCAB`: ``sgd``, ``adam``, ``clip`` = clip by global
-norm; :func:`parse_opt`), e.g. ``"clip:1000,sgd"`` or ``"sgd,clip:1"`` or ``"adam:b1=0.8"``;
-exactly one element (sgd or adam) takes the traced step size. The chain is compiled into the
-program (a sweep's points share it) and recorded in canonical form in the config, so it is part
-of the run's identity; its state (e.g. Adam's moments) is in ``opt_theta`` / ``opt_v``. The
-presets name ``sgd`` for both networks, and a chain of one ``sgd`` is ``optax.sgd`` itself (no
-``optax.chain`` around it).
-
-The sgd chain is the paper's update written by hand, ``theta + beta * sum_e d_e z_e``: optax.sgd
-adds -beta * -S, and -beta * -S == beta * S exactly in floating point (tests/test_learner.py
-recomputes the hand-written rule around every control step of a chunk and compares).
+The update rules (``actor_opt``, ``critic_opt``: sgd, adam, clipping by global norm, as chains) are
+nmrl/learners/optimizers.py; the config, its traced :class:`Hyper` and the presets are
+nmrl/learners/ac_config.py; nmrl/learners/ac.py registers the program as the learner ``ac``.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import math
 from typing import Any, Callable, NamedTuple
 
 import jax
@@ -77,10 +67,10 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from nmrl import options, tasks
-from nmrl.options import AT_LEAST_ONE, POSITIVE, STEP_SIZE, Range, option, run_option
-from nmrl.paper import networks, noise
-from nmrl.paper.env import EnvConfig, HalfCheetah, State, env_option
+from nmrl.learners.ac_config import Hyper, TrainConfig
+from nmrl.learners.optimizers import injected, opt_rule, parse_opt, with_learning_rate
+from nmrl.paper import likelihood, networks, noise
+from nmrl.paper.env import HalfCheetah, State
 from nmrl.pytrees import check_shards, global_norm, tree_where
 
 Params = Any
@@ -90,220 +80,6 @@ OptState = Any
 #: optimizer lacks them; nmrl/runs/checkpoint.py restores it with fresh ones, see :func:`make_train`'s ``init_opt``).
 OPT_FIELDS = ("opt_theta", "opt_v")
 
-#: Named step-size presets. "paper" is Sec. V-C. "fast" is for the budgets this 2-core machine
-#: allows (10^3-10^4 trials instead of the paper's 10^5): with the paper's step sizes and 16-64
-#: environments nothing measurable is learned within a few thousand control steps (measured when
-#: the preset was chosen; no test or record of those runs is kept; 256 environments do learn:
-#: -0.71 -> +0.57 in 4000 steps, README), while beta^theta = 5x and beta^v = 50x the paper's raise the
-#: average reward of 64 environments from -0.68 to +0.55 within 4000 steps (~1000 trials;
-#: tests/test_learner.py::test_halfcheetah_learning_raises_average_reward). The critic needs the
-#: larger factor: with the paper's beta^v its value estimates lag and the TD errors are mostly noise.
-#: The budget of a run given none (control steps per environment): a few minutes on 2 CPU cores.
-DEFAULT_STEPS = 4000
-
-#: Each preset also names the update rule of actor and critic (an optimizer chain, see
-#: :func:`parse_opt`); "paper" and "fast" use the paper's rule, plain sgd.
-PRESETS: dict[str, dict[str, Any]] = {
-    "paper": {"beta_theta": 2e-6, "beta_v": 1e-5, "actor_opt": "sgd", "critic_opt": "sgd"},
-    "fast": {"beta_theta": 1e-5, "beta_v": 5e-4, "actor_opt": "sgd", "critic_opt": "sgd"},
-    #: the fast step sizes with every update clipped by global norm (results/fast_preset/):
-    #: in the fast preset's collapses the critic blows up first (|v| 90 -> 58,000 within one chunk,
-    #: TD errors x10^4, the actor then takes one huge step). The bounds are in parameter units (after
-    #: sgd): the actor's summed update had a mean norm of ~0.01 per control step, the critic's ~0.3-1.5
-    #: (l = 1, 2 highest), with outliers of 0.1-0.2 and 10-100 in the first chunk.
-    "fast_clip": {"beta_theta": 1e-5, "beta_v": 5e-4, "actor_opt": "sgd,clip:0.03", "critic_opt": "sgd,clip:1"},
-}
-
-# ------------------------------------------------------------------------ optimizer vocabulary
-#: The update rules a config may name for the actor (``actor_opt``) and the critic (``critic_opt``):
-#: a chain of optax transformations, written ``name[:param[:param...]][,name...]``, applied left to
-#: right to the negated pseudo-gradient (module docstring). Parameters are given in the order
-#: below or as ``key=value``; omitted ones take the defaults (None: required). Exactly one element
-#: is a *step* (sgd or adam): its learning rate is the traced step size of ``Hyper``
-#: (beta_theta / beta_v). ``clip`` before the step bounds the global norm of the summed
-#: pseudo-gradient sum_e d_e z_e; after it, the global norm of the update itself (parameter units).
-OPT_VOCAB: dict[str, dict[str, float | None]] = {
-    "sgd": {},  #: optax.sgd(beta): p += beta * sum_e d_e z_e, the paper's rule
-    "adam": {"b1": 0.9, "b2": 0.999, "eps": 1e-8},  #: optax.adam(beta, b1, b2, eps)
-    "clip": {"max_norm": None},  #: optax.clip_by_global_norm(max_norm)
-}
-#: The elements that take the step size (one per chain).
-OPT_STEPS = ("sgd", "adam")
-OPT_HELP = ("optimizer chain, e.g. 'sgd' (the paper's rule), 'clip:10,sgd' (clip the summed pseudo-gradient "
-            "by global norm 10, then sgd), 'sgd,clip:0.01' (clip the update), 'adam' or "
-            "'adam:b1=0.9:b2=0.999:eps=1e-8'; elements: sgd, adam[:b1:b2:eps], clip:max_norm; exactly one "
-            "sgd or adam, whose step size is --beta-theta / --beta-v")
-
-
-class OptStep(NamedTuple):
-    """One element of an optimizer chain: a name of :data:`OPT_VOCAB` and its parameters (all given)."""
-
-    name: str
-    params: tuple[tuple[str, float], ...]
-
-
-def parse_opt(spec: Any, field: str = "opt") -> tuple[OptStep, ...]:
-    """The chain an optimizer spec names (see :data:`OPT_VOCAB`); ValueError naming the bad part and
-    listing what is allowed."""
-    allowed = ", ".join(f"{n}" + "".join(f"[:{k}]" if d is not None else f":{k}" for k, d in ps.items())
-                        for n, ps in OPT_VOCAB.items())
-    if not isinstance(spec, str) or not spec.strip():
-        raise options.invalid(field, spec, f"must be a chain of {allowed} separated by commas, e.g. 'clip:10,sgd'")
-    chain = []
-    for part in spec.split(","):
-        name, *args = [a.strip() for a in part.strip().split(":")]
-        if name not in OPT_VOCAB:
-            raise options.invalid(field, spec, f"unknown optimizer {name!r}; allowed: {allowed} (e.g. 'clip:10,sgd')")
-        defaults = OPT_VOCAB[name]
-        keys = list(defaults)
-        given: dict[str, float] = {}
-        if len(args) > len(keys):
-            raise options.invalid(field, spec, f"{name} takes {len(keys)} parameter(s) ({', '.join(keys) or 'none'}), "
-                                          f"got {len(args)}")
-        for i, a in enumerate(args):
-            k, eq, v = a.partition("=")
-            k, v = (k.strip(), v.strip()) if eq else (keys[i], a)
-            if k not in defaults:
-                raise options.invalid(field, spec, f"{name} has no parameter {k!r}; its parameters: "
-                                              f"{', '.join(keys) or 'none'}")
-            if k in given:
-                raise options.invalid(field, spec, f"{name}'s parameter {k} is given twice")
-            try:
-                x = float(v)
-            except ValueError:
-                raise options.invalid(field, spec, f"{name}'s {k}={v!r} is not a number") from None
-            if not math.isfinite(x):
-                raise options.invalid(field, spec, f"{name}'s {k}={v!r} must be finite")
-            given[k] = x
-        params = []
-        for k, d in defaults.items():
-            x = given.get(k, d)
-            if x is None:
-                raise options.invalid(field, spec, f"{name} needs {k} (e.g. '{name}:10')")
-            ok = {"max_norm": x > 0, "eps": x > 0, "b1": 0 <= x < 1, "b2": 0 <= x < 1}[k]
-            if not ok:
-                rng = {"max_norm": "> 0", "eps": "> 0", "b1": "in [0, 1)", "b2": "in [0, 1)"}[k]
-                raise options.invalid(field, spec, f"{name}'s {k}={x!r} must be {rng}")
-            params.append((k, x))
-        chain.append(OptStep(name, tuple(params)))
-    steps = [s.name for s in chain if s.name in OPT_STEPS]
-    if len(steps) != 1:
-        raise options.invalid(field, spec, f"needs exactly one step element ({' or '.join(OPT_STEPS)}, which takes the "
-                                      f"step size beta), got {len(steps)}")
-    return tuple(chain)
-
-
-def format_opt(chain: tuple[OptStep, ...]) -> str:
-    """The canonical spec of a chain (every parameter spelled out): what config.json records."""
-    return ",".join(s.name + "".join(f":{k}={x!r}" for k, x in s.params) for s in chain)
-
-
-def canonical_opt(spec: str, field: str = "opt") -> str:
-    return format_opt(parse_opt(spec, field))
-
-
-def opt_rule(chain: tuple[OptStep, ...]) -> Callable[[jax.Array], optax.GradientTransformation]:
-    """``learning_rate -> GradientTransformation`` of a parsed chain. A chain of one ``sgd`` is exactly
-    :func:`sgd_rule` (the paper's rule, the same state as before the vocabulary)."""
-
-    def rule(learning_rate: jax.Array) -> optax.GradientTransformation:
-        parts = []
-        for s in chain:
-            p = dict(s.params)
-            if s.name == "sgd":
-                parts.append(sgd_rule(learning_rate))
-            elif s.name == "adam":
-                parts.append(optax.adam(learning_rate, b1=p["b1"], b2=p["b2"], eps=p["eps"]))
-            elif s.name == "clip":
-                parts.append(optax.clip_by_global_norm(p["max_norm"]))
-            else:  # pragma: no cover - parse_opt admits only the vocabulary
-                raise ValueError(s.name)
-        return parts[0] if len(parts) == 1 else optax.chain(*parts)
-
-    return rule
-
-
-@dataclasses.dataclass(frozen=True)
-class TrainConfig:
-    """Everything that defines a training run. Defaults are the paper's (Sec. V-C, Table II). Every
-    field is declared once (nmrl/options.py); ``traced`` ones are :class:`Hyper`'s leaves."""
-
-    # Table II / Sec. V-C
-    l: int = option(10, "nm-period length l [control steps]", traced=True, range=AT_LEAST_ONE)
-    delta: int = option(4, "sampling interval Delta of the likelihood ratio (7) [control steps]", traced=True,
-                        range=AT_LEAST_ONE)
-    alpha: float = option(0.8, "AR coefficient alpha of the noise xi, eq. (4)", traced=True,
-                          range=Range(0.0, 1.0, open_lo=True))
-    sigma: float = option(1.0, "standard deviation of xi (Sigma = sigma^2 I)", traced=True, range=noise.SIGMA_RANGE)
-    gamma: float = option(0.995, "discount per control step", traced=True, range=Range(0.0, 1.0))
-    lam: float = option(0.5, "lambda of the TD(lambda) traces", traced=True, range=Range(0.0, 1.0))
-    beta_theta: float | None = option(None, "actor step size (default: the preset's)", traced=True, range=STEP_SIZE)
-    beta_v: float | None = option(None, "critic step size (default: the preset's)", traced=True, range=STEP_SIZE)
-    actor_opt: str | None = option(None, f"actor update rule: {OPT_HELP} (default: the preset's)")
-    critic_opt: str | None = option(None, "critic update rule, as --actor-opt (default: the preset's)")
-    preset: str = option("paper", f"step-size and update-rule preset: {', '.join(sorted(PRESETS))}",
-                         choices=tuple(sorted(PRESETS)))
-    hidden_actor: int = option(100, "hidden units M^A of the actor", range=AT_LEAST_ONE)
-    hidden_critic: int = option(200, "hidden units M^C of the critic", range=AT_LEAST_ONE)
-    # environment
-    control_dt: float = env_option("control_dt", 0.02)
-    stop_prob: float = env_option("stop_prob", 1 / 250)
-    trial_s: float | None = env_option("trial_s", None)
-    physics: str = env_option("physics", "mjx")
-    physics_timestep: float | None = env_option("physics_timestep", None)
-    env: str = option("paper-cheetah", f"the environment: {', '.join(tasks.ENVS)} (docs/tasks.md)")
-    # batching and budget
-    num_envs: int = option(256, "N environments in lock-step", range=AT_LEAST_ONE)
-    chunk_steps: int = option(250, "control steps per environment in one jitted chunk", range=AT_LEAST_ONE)
-    steps: int | None = run_option("steps", None, f"budget in control steps per environment (default: {DEFAULT_STEPS})")
-    trials: int | None = run_option("trials", None, "budget in trials, summed over environments (the paper's measure)")
-    seed: int = run_option("seed", 0)
-    max_param_norm: float = run_option("max_param_norm", 1e5)
-    #: the finer-delta study gives delta / 0.02 s, so that the discounted return, an integral over time,
-    #: keeps its scale (nmrl/experiments/timescale.py)
-    reward_scale: float = option(1.0, "the learner receives reward_scale * r_t; metrics report r_t", range=POSITIVE)
-    #: per-period actor gradient estimates g_k = d_k grad ln pi for nmrl/experiments/gradvar.py (costs a little)
-    grad_stats: bool = option(False, "diagnostic: every chunk also returns sums of the per-period actor gradient "
-                                     "estimates", cli=False)
-
-    def resolved(self) -> "TrainConfig":
-        """Validate, fill step sizes from the preset and the default budget (:data:`DEFAULT_STEPS`)."""
-        self.validate()
-        p = PRESETS[self.preset]
-        out = dataclasses.replace(
-            self,
-            beta_theta=p["beta_theta"] if self.beta_theta is None else self.beta_theta,
-            beta_v=p["beta_v"] if self.beta_v is None else self.beta_v,
-            actor_opt=canonical_opt(p["actor_opt"] if self.actor_opt is None else self.actor_opt, "actor_opt"),
-            critic_opt=canonical_opt(p["critic_opt"] if self.critic_opt is None else self.critic_opt, "critic_opt"),
-        )
-        if out.steps is None and out.trials is None:
-            out = dataclasses.replace(out, steps=DEFAULT_STEPS)
-        return out
-
-    def validate(self) -> None:
-        """Eq. (4)'s alpha and the period lengths (nmrl.paper.noise), every field by its declaration
-        (type, finiteness, range, choices; nmrl/options.py), the update rules, one budget, the
-        environment."""
-        noise.validate(alpha=self.alpha, l=self.l, delta=self.delta)
-        options.check(self, limits=False)
-        for name in ("actor_opt", "critic_opt"):
-            if getattr(self, name) is not None:
-                parse_opt(getattr(self, name), name)
-        if self.steps is not None and self.trials is not None:
-            raise ValueError("give the budget as steps or as trials, not both")
-        self.env_config().validate()
-
-    def env_config(self) -> EnvConfig:
-        return EnvConfig(control_dt=self.control_dt, stop_prob=self.stop_prob, auto_reset=True,
-                         physics=self.physics, trial_s=self.trial_s, timestep=self.physics_timestep)
-
-
-#: the traced hyperparameters: one leaf per traced field of :class:`TrainConfig` (l, Delta, alpha,
-#: sigma, gamma, lambda, beta^theta, beta^v), int32 or float32 by the field's type; one program serves
-#: every value (the sweep vmaps over them)
-Hyper = options.hyper_type(TrainConfig)
-
 
 @struct.dataclass
 class EnvSlot:
@@ -311,7 +87,7 @@ class EnvSlot:
 
     env: State
     ar: noise.ARState  #: xi_{t-1} and the in-period index of the next step
-    olr: noise.OnlineLR  #: likelihood ratio of the current period, accumulated online
+    olr: likelihood.OnlineLR  #: likelihood ratio of the current period, accumulated online
     z: Params  #: actor eligibility trace
     y: Params  #: critic eligibility trace
     s_start: jax.Array  #: s_{t_k}
@@ -347,23 +123,6 @@ class ACTrainer(NamedTuple):
     chunk: Callable[[TrainState], tuple[TrainState, dict]]
     #: ``init_opt(theta, v, hyper) -> (opt_theta, opt_v)``: fresh optimizer states (as ``init`` makes)
     init_opt: Callable[[Params, Params, Hyper], tuple[OptState, OptState]]
-
-
-def sgd_rule(learning_rate: jax.Array) -> optax.GradientTransformation:
-    """The paper's update (Table II, steps 4 and 5): p := p - beta g on the negated pseudo-gradient
-    g = -sum_e d_e z_e (actor) or -sum_e d_e y_e (critic), i.e. p := p + beta sum_e d_e z_e."""
-    return optax.sgd(learning_rate)
-
-
-def injected(rule: Callable[[jax.Array], optax.GradientTransformation], learning_rate: jax.Array
-             ) -> optax.GradientTransformation:
-    """``rule`` with its step size as a traced hyperparameter (``optax.inject_hyperparams``)."""
-    return optax.inject_hyperparams(lambda learning_rate: rule(learning_rate))(learning_rate=learning_rate)
-
-
-def _with_learning_rate(state: OptState, learning_rate: jax.Array) -> OptState:
-    """The injected-hyperparameter state with its ``learning_rate`` replaced (traced per point)."""
-    return state._replace(hyperparams={**state.hyperparams, "learning_rate": learning_rate})
 
 
 def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = None,
@@ -419,7 +178,7 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
         v = networks.init_params(critic, k_c, OBS_DIM)
         env_states = jax.vmap(env.reset)(jax.random.split(k_env, N))
         zeros_like = lambda t: jax.tree.map(lambda x: jnp.zeros((N,) + x.shape, x.dtype), t)  # noqa: E731
-        olr = noise.online_lr_init(theta, OBS_DIM, ACT_DIM)
+        olr = likelihood.online_lr_init(theta, OBS_DIM, ACT_DIM)
         slots = EnvSlot(
             env=env_states,
             ar=jax.vmap(lambda _: noise.ar_init(ACT_DIM))(jnp.arange(N)),
@@ -442,12 +201,12 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
         s_start = jnp.where(start, obs, slot.s_start)
         rbar = jnp.where(start, 0.0, slot.rbar)
         gpow = jnp.where(start, 1.0, slot.gpow)
-        olr = tree_where(start, noise.online_lr_reset(slot.olr), slot.olr)
+        olr = tree_where(start, likelihood.online_lr_reset(slot.olr), slot.olr)
         i_used = slot.ar.i
         mean = actor.apply(theta, obs)
         ar, xi = noise.ar_step(slot.ar, eps, h.alpha, h.l, h.sigma)
         sampled = jnp.remainder(i_used, h.delta) == 0
-        olr = noise.online_lr_add(olr, actor.apply, theta, obs, xi, h.alpha ** h.delta, h.sigma,
+        olr = likelihood.online_lr_add(olr, actor.apply, theta, obs, xi, h.alpha ** h.delta, h.sigma,
                                   active=sampled)
         env_state = env.step(slot.env, mean + xi if action_map is None else action_map(mean + xi))
         r = env_state.reward * cfg.reward_scale
@@ -487,8 +246,8 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
         # -sum_e d_e z_e and -sum_e d_e y_e (d_e = 0 where no period ended) and the traced step sizes.
         g_theta = jax.tree.map(lambda z: -psum(jnp.tensordot(d, z, axes=1)), slots.z)
         g_v = jax.tree.map(lambda y: -psum(jnp.tensordot(d, y, axes=1)), slots.y)
-        u_theta, opt_theta = tx_theta.update(g_theta, _with_learning_rate(ts.opt_theta, h.beta_theta), ts.theta)
-        u_v, opt_v = tx_v.update(g_v, _with_learning_rate(ts.opt_v, h.beta_v), ts.v)
+        u_theta, opt_theta = tx_theta.update(g_theta, with_learning_rate(ts.opt_theta, h.beta_theta), ts.theta)
+        u_v, opt_v = tx_v.update(g_v, with_learning_rate(ts.opt_v, h.beta_v), ts.v)
         theta = optax.apply_updates(ts.theta, u_theta)
         v = optax.apply_updates(ts.v, u_v)
         learn = n_learn > 0  # an update instant: some environment's period ended at this step

@@ -6,6 +6,6 @@
 # Resumable: run the same command again and every phase continues where it stopped.
 # Extra arguments go to `python -m nmrl.experiments.study` (they must be the same on every call).
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 OUT=${OUT:-runs/timescale}
 exec .venv/bin/python -m nmrl.experiments.study --out "$OUT" "$@"

@@ -1,0 +1,162 @@
+"""The second exploration study's analysis and report (docs/exploration-study-2.md), from its rows.
+
+:func:`analysis`: the pre-registered families on the deterministic endpoint of the complete grid
+cells (Welch contrasts, Holm, TOST; nmrl/analysis/prereg_stats.py) and the checks that decide
+nothing. :func:`report`: ``cells.csv``, the screen's and the grid's learning curves and the SNR's
+summary, from the published points.
+"""
+
+from __future__ import annotations
+
+import json
+import pathlib
+
+import numpy as np
+
+from nmrl.experiments.exploration2_cells import SNR_CSV, asymptote_name, grid_name
+from nmrl.experiments.exploration2_rules import best_correlated, complete_cells
+from nmrl.paper.control_step import DELTA_0
+from nmrl.runs import store
+
+MARGIN = 50.0  #: the TOST margin of "no difference" [reward/s]
+#: the primary family P1-P7 (docs/exploration-study-2.md), contrasts of the grid cells' endpoints
+CONTRASTS = (
+    ("P1", {grid_name("white", 0.0025): 1.0, grid_name("white", 0.02): -1.0}),
+    ("P2", {grid_name("ws", 0.0025): 1.0, grid_name("white", 0.0025): -1.0}),
+    ("P3", {grid_name("ou", 0.0025): 1.0, grid_name("white", 0.0025): -1.0}),
+    ("P4", {grid_name("colored", 0.0025): 1.0, grid_name("white", 0.0025): -1.0}),
+    ("P5", {grid_name("nms", 0.0025): 1.0, grid_name("white", 0.0025): -1.0}),
+    ("P6", {grid_name("nmp", 0.0025): 1.0, grid_name("white", 0.0025): -1.0}),
+    ("P7", {grid_name("nmp", 0.0025): 1.0, grid_name("nmp", 0.02): -1.0,
+            grid_name("white", 0.0025): -1.0, grid_name("white", 0.02): 1.0}),
+)
+
+
+#: the secondary family (Holm apart from the primary): the 5 ms column against 20 ms, and the
+#: interactions like P7 of OU, CN and NMs screened at 20 ms
+SECONDARY = (
+    ("S1", {grid_name("white", 0.005): 1.0, grid_name("white", 0.02): -1.0}),
+    ("S2", {grid_name("ws", 0.005): 1.0, grid_name("white", 0.005): -1.0}),
+    ("S3", {grid_name("nmp", 0.005): 1.0, grid_name("white", 0.005): -1.0}),
+    ("S4", {grid_name("nmp", 0.005): 1.0, grid_name("nmp", 0.02): -1.0,
+            grid_name("white", 0.005): -1.0, grid_name("white", 0.02): 1.0}),
+    *((f"S{5 + i}", {grid_name(arm, 0.0025): 1.0, grid_name(arm, 0.02): -1.0,
+                     grid_name("white", 0.0025): -1.0, grid_name("white", 0.02): 1.0})
+      for i, arm in enumerate(("ou", "colored", "nms"))),
+)
+
+
+def _reported(name: str, weights: dict[str, float], cells: dict[str, list[float]]) -> dict:
+    """One contrast with its 95% Welch interval, no decision (a check that decides nothing)."""
+    from nmrl.analysis import prereg_stats
+
+    row = {"family": "check", "contrast": name, "cells": " ".join(f"{w:+g}*{c}" for c, w in weights.items())}
+    try:
+        r = prereg_stats.contrast([cells[c] for c in weights], list(weights.values()))
+    except (KeyError, ValueError):
+        return {**row, "decision": "pending"}
+    return {**row, "n": " ".join(str(len(cells[c])) for c in weights), "estimate": r.diff, "lo": r.lo,
+            "hi": r.hi, "p": r.p, "decision": "reported"}
+
+
+def analysis(rows: list[dict]) -> list[dict]:
+    """The primary family P1-P7 on the deterministic endpoint (reward per second) of the complete
+    grid cells: Welch contrasts, Holm over P1-P7, TOST at +-50 (nmrl.analysis.prereg_stats.family);
+    the secondary family S1-S7 the same way, Holm apart; and two checks that decide nothing, each
+    with its Welch interval: W's sigma sensitivity at 2.5 ms (each neighbouring sigma minus the grid's
+    W) and the asymptote at 5 ms (the best correlated arm minus white at 4x the budget)."""
+    from nmrl.analysis import prereg_stats
+
+    cells = complete_cells(rows)
+    out = [{"family": "primary", **r} for r in prereg_stats.family(cells, CONTRASTS, MARGIN)]
+    out += [{"family": "secondary", **r} for r in prereg_stats.family(cells, SECONDARY, MARGIN)]
+    for c in sorted(c for c in cells if c.startswith("sensitivity/")):
+        out.append(_reported(c.split("/")[-1], {c: 1.0, grid_name("white", 0.0025): -1.0}, cells))
+    best = best_correlated(rows)
+    if best is not None:
+        out.append(_reported("asymptote", {asymptote_name(best): 1.0, asymptote_name("white"): -1.0}, cells))
+    return out
+
+
+CELLS_CSV = "cells.csv"
+SCREEN_FIGURE, GRID_FIGURE = "screen_curves.png", "learning_curves.png"
+CELL_COLUMNS = ("cell", "value", "n", "mean", "sd", "ci_lo", "ci_hi", "iqm", "iqm_lo", "iqm_hi")
+
+
+def _curve(point: pathlib.Path) -> tuple[np.ndarray, np.ndarray]:
+    """A point's learning curve: simulated seconds per environment, exploring reward per second."""
+    cfg = json.loads((point / "config.json").read_text())
+    m = store.read_metrics(point)
+    return (np.array([r["step"] * cfg["control_dt"] for r in m]),
+            np.array([r["avg_reward"] / DELTA_0 for r in m]))
+
+
+def report(rows: list[dict], dest: pathlib.Path) -> None:
+    """``cells.csv`` (every cell's and screened value's deterministic endpoint at its budget:
+    nmrl.analysis.cell_curves.summary), the screen's learning curves (one panel per screened arm and
+    control step, one line per value, extensions included) and, once grid cells exist, the grid's
+    (one panel per control step, one line per arm), from the published points' metrics."""
+    from nmrl.analysis import cell_curves
+
+    groups: dict[tuple[str, str], list[float]] = {}
+    screen: dict[str, dict[str, list]] = {}
+    grid: dict[str, dict[str, list]] = {}
+    for r in rows:
+        key = (r["cell"], f"{float(r['value']):g}" if r["cell"].startswith("screen/") else "")
+        at_budget = int(r["steps"]) == int(r["budget"]) and r["det_reward_per_s"] != ""
+        groups.setdefault(key, []).extend([float(r["det_reward_per_s"])] if at_budget else [])
+        point = dest / r["cell"] / "points" / r["point"]
+        if not (point / "metrics.jsonl").is_file():
+            continue
+        base_name = r["cell"].split("+")[0]
+        if r["cell"].startswith("screen/"):
+            field = r["field"].replace("_", " ")
+            screen.setdefault(base_name.removeprefix("screen/"), {}).setdefault(f"{field} {key[1]}", []).append(
+                _curve(point))
+        elif r["cell"].startswith("grid/"):
+            _, dt, arm = r["cell"].split("/")
+            grid.setdefault(f"control step {float(dt[2:]) * 1000:g} ms", {}).setdefault(arm, []).append(_curve(point))
+    store.write_csv(dest / CELLS_CSV, CELL_COLUMNS,
+                   [{"cell": c, "value": v, **cell_curves.summary(x)} for (c, v), x in groups.items()])
+    if screen:
+        cell_curves.figure(screen, dest / SCREEN_FIGURE, "exploring reward per second", "the screen (seeds 100, 101)")
+    if grid:
+        cell_curves.figure(grid, dest / GRID_FIGURE, "exploring reward per second", "the grid")
+    if (dest / SNR_CSV).is_file():
+        _snr_report(dest)
+
+
+SNR_SUMMARY_CSV, SNR_FIGURE = "snr_summary.csv", "snr.png"
+
+
+def _snr_report(dest: pathlib.Path) -> None:
+    """``snr_summary.csv``: per arm, iteration and control step, the SNR per second over the seeds'
+    policies (cell_curves.summary: mean, 95% t interval); ``snr.png``: one panel per arm, the mean
+    against the control step, one line per iteration, with the t intervals."""
+    from nmrl.analysis import cell_curves, plots
+
+    got = store.read_csv(dest / SNR_CSV)
+    groups: dict[tuple[str, int, float], list[float]] = {}
+    for r in got:
+        groups.setdefault((r["arm"], int(r["iteration"]), float(r["control_dt"])), []).append(float(r["snr_per_s"]))
+    table = [{"arm": a, "iteration": it, "control_dt": dt, **cell_curves.summary(x)}
+             for (a, it, dt), x in sorted(groups.items())]
+    store.write_csv(dest / SNR_SUMMARY_CSV, ("arm", "iteration", "control_dt", *CELL_COLUMNS[2:]), table)
+    arms = sorted({a for a, _, _ in groups})
+    fig, axes = plots.plt.subplots(1, len(arms), figsize=(4.6 * len(arms), 3.6), sharey=True, squeeze=False,
+                                   layout="constrained")
+    for ax, arm in zip(axes[0], arms):
+        for it in sorted({i for a, i, _ in groups if a == arm}):
+            rs = [r for r in table if r["arm"] == arm and r["iteration"] == it]
+            dt_ms = [1000 * r["control_dt"] for r in rs]
+            mean = [r["mean"] for r in rs]
+            err = [[m - (r["ci_lo"] if r["ci_lo"] != "" else m) for m, r in zip(mean, rs)],
+                   [(r["ci_hi"] if r["ci_hi"] != "" else m) - m for m, r in zip(mean, rs)]]
+            ax.errorbar(dt_ms, mean, yerr=err, marker="o", capsize=3, label=f"iteration {it}")
+        ax.set_xscale("log")
+        ax.set_title(arm)
+        ax.set_xlabel("control step [ms]")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    axes[0][0].set_ylabel("gradient SNR per second of experience")
+    plots.save(fig, dest / SNR_FIGURE, dpi=110, bbox_inches="tight")

@@ -1,0 +1,119 @@
+"""The second exploration x control-step study's cells as data (docs/exploration-study-2.md).
+
+Every cell is the native PPO at the first study's settings (64 environments, value net 2x64, Brax's
+unroll 0.4 s, 32 minibatches of 512 unrolls, 8 epochs: 102.4 simulated seconds per environment
+and 256 Adam steps per iteration at every control step), with the reward scale delta / 20 ms,
+trials of 5 s on average at every delta (``--trial-s 5``), MuJoCo C physics at a 2.5 ms timestep
+in every cell (``--physics c --physics-timestep 0.0025``).
+
+The screen's first phase (:data:`SIGMA_SCREEN`): the noise scale sigma in {0.064, 0.16, 0.4, 1.0}
+x 2 seeds (100, 101: never grid seeds) x 4 iterations per arm and control step, each arm's time
+constant at the middle of its screened range; scored by the deterministic endpoint (8 rollouts of
+10 s from perturbed starts). The later phases (time constants at the chosen sigma, the grid, the
+secondary parts) are these cells with the values the rules of
+nmrl/experiments/exploration2_rules.py choose from the rows.
+"""
+
+from __future__ import annotations
+
+from nmrl.experiments import kit
+from nmrl.explore.spec import PAPER_CORR_TIME_S
+from nmrl.paper.control_step import DELTA_0
+
+ITERATION_S = 102.4  #: simulated seconds per environment in one PPO iteration (256 unrolls of 0.4 s)
+SIGMAS = (0.064, 0.16, 0.4, 1.0)
+SCREEN_SEED0, SCREEN_SEEDS, SCREEN_ITERATIONS = 100, 2, 4
+#: the paper's alpha = 0.8 per 20 ms step as a correlation time, to the 5 digits the cells' options give
+NM_CORR_TIME_S = round(PAPER_CORR_TIME_S, 5)
+#: each arm's exploration options at the middle of its screened time constant
+ARMS = {
+    "white": ("--exploration", "white"),
+    "ou": ("--exploration", "ou", "--corr-time-s", "0.03"),
+    "colored": ("--exploration", "colored", "--beta", "0.5"),
+    "nms": ("--exploration", "nm-periods", "--period-s", "0.06", "--corr-time-s", str(NM_CORR_TIME_S)),
+    "nmp": ("--exploration", "nm-periods", "--period-s", "0.06", "--corr-time-s", str(NM_CORR_TIME_S),
+            "--period-wise", "true"),
+}
+
+
+def base(dt: float, iterations: int) -> tuple[str, ...]:
+    """The options every cell at control step ``dt`` shares (module docstring)."""
+    steps = round(iterations * ITERATION_S / dt)
+    return ("--learner", "ppo", "--num-envs", "64", "--value-layers", "2", "--value-width", "64",
+            "--batch-size", "512", "--num-minibatches", "32", "--epochs", "8", "--reward-scale", f"{dt / DELTA_0:g}",
+            "--control-dt", f"{dt:g}", "--trial-s", "5", "--physics", "c", "--physics-timestep", "0.0025",
+            "--steps", str(steps))
+
+
+def sigma_cell(arm: str, dt: float) -> kit.Cell:
+    """``arm``'s sigma screen at control step ``dt``: every value of :data:`SIGMAS`, the screen's seeds and budget."""
+    return kit.Cell(f"screen/sigma/dt{dt:g}/{arm}",
+                    (*base(dt, SCREEN_ITERATIONS), *ARMS[arm], "--vary", "sigma", *map(str, SIGMAS),
+                     "--seeds", str(SCREEN_SEEDS), "--seed0", str(SCREEN_SEED0)))
+
+
+#: the sigma screen in run order (docs/exploration-study-2.md): white and nm-periods learned as wholes
+#: (nmp) at 20 ms (cheap; scaled white follows from white's), then every arm at 2.5 ms; nms is
+#: nm-periods with per-step conditional ratios
+SIGMA_SCREEN = (sigma_cell("white", 0.02), sigma_cell("nmp", 0.02),
+                *(sigma_cell(arm, 0.0025) for arm in ("white", "ou", "colored", "nms", "nmp")))
+
+
+#: each correlated arm's time constant: the option, its screened values (the middle one is the sigma
+#: screen's), and the factor an edge extension steps by
+TIME_CONSTANTS = {"ou": ("corr_time_s", (0.01, 0.03, 0.09), 3.0), "colored": ("beta", (0.25, 0.5, 1.0), 2.0),
+                  "nms": ("period_s", (0.02, 0.06, 0.18), 3.0), "nmp": ("period_s", (0.02, 0.06, 0.18), 3.0)}
+SIGMA_FACTOR = 2.5
+MAX_EXTENSIONS = 2
+
+
+#: the primary family's screened settings (arm, control step), and the grid that follows them
+PRIMARY = (("white", 0.02), ("nmp", 0.02), ("white", 0.0025), ("ou", 0.0025), ("colored", 0.0025),
+           ("nms", 0.0025), ("nmp", 0.0025))
+GRID_SEEDS, GRID_ITERATIONS, SECONDARY_SEEDS = 8, 16, 4
+#: the secondary screens: OU, CN and NMs at 20 ms (run after the primary grid and the 5 ms column)
+SECONDARY_SCREEN = tuple(sigma_cell(arm, 0.02) for arm in ("ou", "colored", "nms"))
+SIGMA_MAX = 10.0  #: the largest --sigma nmrl takes (nmrl/runs/bounds.py)
+
+
+def scaled_white_sigma(sigma_w20: float, dt: float) -> float:
+    """Ws: white with sigma(dt) = sigma*(W, 20 ms) (20 ms / dt)^(1/2), which holds white noise's
+    low-frequency power sigma^2 dt (eq. (1)) at its tuned 20 ms value."""
+    return sigma_w20 * (0.02 / dt) ** 0.5
+
+
+def grid_cell(arm: str, dt: float, choice: dict, seeds: int, name: str | None = None,
+              iterations: int = GRID_ITERATIONS) -> kit.Cell:
+    """``arm`` at ``dt`` with its chosen sigma and time constant, seeds 0.. at the full budget
+    (``iterations``: the grid's 16 unless given)."""
+    options = list(ARMS["white" if arm == "ws" else arm])
+    for field, value in choice.items():
+        flag = "--" + field.replace("_", "-")
+        if flag in options:
+            options[options.index(flag) + 1] = f"{value:.6g}"
+        else:
+            options += [flag, f"{value:.6g}"]
+    return kit.Cell(name or f"grid/dt{dt:g}/{arm}",
+                    (*base(dt, iterations), *options, "--seeds", str(seeds), "--seed0", "0"))
+
+
+SNR_SEEDS = 3  #: seeds of the matched policies (0-2: the grid's white at 20 ms holds their iteration 16)
+SNR_POLICY_ITERATIONS = (1, 4, 8)  #: iteration 1's point gives iteration 0's observation statistics
+SNR_CSV = "snr.csv"
+CORRELATED = ("ou", "colored", "nms", "nmp")
+ASYMPTOTE_ITERATIONS = 4 * GRID_ITERATIONS  #: the asymptote's budget: 4x the grid's, at 5 ms
+
+
+def grid_name(arm: str, dt: float) -> str:
+    """The directory of ``arm``'s grid cell at control step ``dt``."""
+    return f"grid/dt{dt:g}/{arm}"
+
+
+def asymptote_name(arm: str) -> str:
+    """The directory of ``arm``'s asymptote cell (5 ms, 4x the grid's budget)."""
+    return f"asymptote/dt0.005/{arm}"
+
+
+def snr_name(it: int) -> str:
+    """The directory of white's 20 ms policies after ``it`` iterations (the SNR at matched policies)."""
+    return f"snr/dt0.02/white_it{it}"

@@ -1,0 +1,171 @@
+"""The second exploration study's rules (docs/exploration-study-2.md): from the rows so far, the
+cells that follow.
+
+The screen's rule (:func:`choose`: the value with the highest mean deterministic endpoint, never
+one with a diverged run; a winner at an edge of the screened values extends the screen, at most
+twice), then the grid of the primary settings, the secondary parts and the checks
+(:func:`later_cells`); a rule reads only finished cells' rows (:func:`ended`).
+"""
+
+from __future__ import annotations
+
+from nmrl.experiments import kit
+from nmrl.experiments.exploration2_cells import (ARMS, ASYMPTOTE_ITERATIONS, CORRELATED, GRID_SEEDS, MAX_EXTENSIONS,
+                                                 PRIMARY, SCREEN_ITERATIONS, SCREEN_SEED0, SCREEN_SEEDS,
+                                                 SECONDARY_SCREEN, SECONDARY_SEEDS, SIGMA_FACTOR, SIGMA_MAX,
+                                                 SIGMA_SCREEN, SNR_POLICY_ITERATIONS, SNR_SEEDS, TIME_CONSTANTS,
+                                                 asymptote_name, base, grid_cell, grid_name, scaled_white_sigma,
+                                                 snr_name)
+
+
+def _finished(rows: list[dict], prefix: str) -> list[dict] | None:
+    """The rows of the cells named ``prefix`` or ``prefix+...`` when every point is at its budget and
+    scored; None while any is not."""
+    mine = [r for r in rows if r["cell"] == prefix or r["cell"].startswith(prefix + "+")]
+    if not mine or not all(ended(r) for r in mine):
+        return None
+    return mine
+
+
+def ended(r: dict) -> bool:
+    """Whether a run's row is final: at its budget, or diverged (frozen at its last good policy),
+    and scored."""
+    return (int(r["steps"]) == int(r["budget"]) or str(r["diverged"]) == "True") and r["det_reward_per_s"] != ""
+
+
+def choose(rows: list[dict]) -> tuple[float, bool, list[float]] | None:
+    """``(best value, at an edge, the values screened)`` of finished screen rows: the value whose
+    seeds' mean deterministic reward per second is highest; a value with a diverged run is never
+    chosen (None if every value has one)."""
+    by: dict[float, list[dict]] = {}
+    for r in rows:
+        by.setdefault(float(r["value"]), []).append(r)
+    ok = {v: sum(float(r["det_reward_per_s"]) for r in rs) / len(rs) for v, rs in by.items()
+          if not any(str(r["diverged"]) == "True" for r in rs)}
+    if not ok:
+        return None
+    best = max(ok, key=ok.get)
+    values = sorted(by)
+    return best, best in (values[0], values[-1]), values
+
+
+def _extension(cell: kit.Cell, rows: list[dict], factor: float) -> kit.Cell | None:
+    """The next value beyond the edge the winner sits at (``cell`` with that one value), if allowed."""
+    got = choose(rows)
+    if got is None:
+        return None
+    best, edge, values = got
+    n_ext = len({r["cell"] for r in rows if r["cell"].startswith(cell.name + "+")})
+    if not edge or n_ext >= MAX_EXTENSIONS:
+        return None
+    nxt = best * factor if best == values[-1] else best / factor
+    argv = list(cell.sweep)
+    i = argv.index("--vary")
+    j = i + 2
+    while j < len(argv) and not argv[j].startswith("--"):
+        j += 1
+    argv[i + 2:j] = [f"{nxt:.6g}"]
+    return kit.Cell(f"{cell.name}+{nxt:.6g}", tuple(argv))
+
+
+def _screen(rows: list[dict], cell: kit.Cell) -> tuple[list[kit.Cell], dict | None]:
+    """One sigma-screen cell's rule (docs/exploration-study-2.md): the cells it adds so far (a sigma
+    winner at an edge adds the next sigma, x or / 2.5, at most twice; once sigma is chosen, the
+    arm's time constant's other values at that sigma, with the same edge extension by the values'
+    own factor: x or / 3, beta x or / 2) and, once every one of them is finished, the choice:
+    ``{"sigma": ..., <time constant field>: ...}`` (None until then)."""
+    arm, dt = cell.name.split("/")[-1], float(cell.name.split("/")[2].removeprefix("dt"))
+    done = _finished(rows, cell.name)
+    if done is None:
+        return [], None
+    ext = _extension(cell, done, SIGMA_FACTOR)
+    if ext is not None:
+        return [ext], None
+    sigma = choose(done)
+    if sigma is None:
+        return [], None
+    if arm not in TIME_CONSTANTS:
+        return [], {"sigma": sigma[0]}
+    field, vals, factor = TIME_CONSTANTS[arm]
+    options = list(ARMS[arm])
+    k = options.index("--" + field.replace("_", "-"))
+    del options[k:k + 2]  # the field is varied instead
+    tc = kit.Cell(f"screen/tc/dt{dt:g}/{arm}",
+                  (*base(dt, SCREEN_ITERATIONS), *options, "--sigma", f"{sigma[0]:.6g}",
+                   "--vary", field, f"{vals[0]:g}", f"{vals[2]:g}",
+                   "--seeds", str(SCREEN_SEEDS), "--seed0", str(SCREEN_SEED0)))
+    tc_rows = _finished(rows, tc.name)
+    if tc_rows is None:
+        return [tc], None
+    at_sigma = [dict(r, value=vals[1]) for r in done if float(r["value"]) == sigma[0]]
+    ext = _extension(tc, tc_rows + at_sigma, factor)
+    if ext is not None:
+        return [tc, ext], None
+    best = choose(tc_rows + at_sigma)
+    return [tc], None if best is None else {"sigma": sigma[0], field: best[0]}
+
+
+def later_cells(rows: list[dict]) -> list[kit.Cell]:
+    """The cells the rows so far call for, in run order (docs/exploration-study-2.md): the screen's
+    extensions and time constants; once every primary setting is chosen, the primary grid (W and NMp
+    at 20 ms, W, Ws, OU, CN, NMs and NMp at 2.5 ms, 8 seeds, 16 iterations), then the secondary
+    parts: the 5 ms column (W and NMp with the 2.5 ms choices, Ws by eq. (1)), OU, CN and NMs at
+    20 ms with their own screens, 4 seeds each, and W's sigma sensitivity at 2.5 ms (one screen step
+    either side of its choice). A Ws sigma above nmrl's range (10) is not run (reported)."""
+    out: list[kit.Cell] = []
+    chosen: dict[tuple[str, float], dict] = {}
+    for cell in SIGMA_SCREEN:
+        add, ch = _screen(rows, cell)
+        out += add
+        if ch is not None:
+            chosen[(cell.name.split("/")[-1], float(cell.name.split("/")[2].removeprefix("dt")))] = ch
+    if any(key not in chosen for key in PRIMARY):
+        return out
+    s20 = chosen[("white", 0.02)]["sigma"]
+    for arm, dt in PRIMARY:
+        out.append(grid_cell(arm, dt, chosen[(arm, dt)], GRID_SEEDS))
+        if arm == "white" and dt != 0.02 and scaled_white_sigma(s20, dt) <= SIGMA_MAX:  # at 20 ms Ws is W
+            out.append(grid_cell("ws", dt, {"sigma": scaled_white_sigma(s20, dt)}, GRID_SEEDS))
+    for arm in ("white", "ws", "nmp"):  # the 5 ms column takes the 2.5 ms choices
+        ch = {"sigma": scaled_white_sigma(s20, 0.005)} if arm == "ws" else chosen[(arm, 0.0025)]
+        if ch["sigma"] <= SIGMA_MAX:
+            out.append(grid_cell(arm, 0.005, ch, SECONDARY_SEEDS))
+    for cell in SECONDARY_SCREEN:
+        add, ch = _screen(rows, cell)
+        out += [cell, *add]
+        if ch is not None:
+            out.append(grid_cell(cell.name.split("/")[-1], 0.02, ch, SECONDARY_SEEDS))
+    sw = chosen[("white", 0.0025)]["sigma"]
+    for s in (sw / SIGMA_FACTOR, sw * SIGMA_FACTOR):
+        if s <= SIGMA_MAX:
+            out.append(grid_cell("white", 0.0025, {"sigma": s}, SECONDARY_SEEDS,
+                                 name=f"sensitivity/dt0.0025/white_sigma{s:.6g}"))
+    best = best_correlated(rows)
+    if best is not None:
+        for arm in ("white", best):
+            out.append(grid_cell(arm, 0.005, chosen[(arm, 0.0025)], SECONDARY_SEEDS,
+                                 name=asymptote_name(arm), iterations=ASYMPTOTE_ITERATIONS))
+    for it in SNR_POLICY_ITERATIONS:  # white's 20 ms policies for the SNR at matched policies
+        out.append(grid_cell("white", 0.02, chosen[("white", 0.02)], SNR_SEEDS, name=snr_name(it), iterations=it))
+    return out
+
+
+def complete_cells(rows: list[dict]) -> dict[str, list[float]]:
+    """The deterministic endpoints of every cell whose runs all ended (at the budget, or diverged
+    and scored by their last good policy) and were scored; a cell with a run still going is left
+    out (its contrasts stay pending)."""
+    by: dict[str, list[dict]] = {}
+    for r in rows:
+        if not r["cell"].startswith("screen/"):
+            by.setdefault(r["cell"], []).append(r)
+    return {c: [float(r["det_reward_per_s"]) for r in rs] for c, rs in by.items() if all(ended(r) for r in rs)}
+
+
+def best_correlated(rows: list[dict]) -> str | None:
+    """The correlated arm (OU, CN, NMs, NMp) whose 2.5 ms grid cell has the highest mean
+    deterministic reward per second, once all four cells are complete (None before): the arm the
+    asymptote runs against white."""
+    cells = complete_cells(rows)
+    means = {arm: sum(cells[grid_name(arm, 0.0025)]) / len(cells[grid_name(arm, 0.0025)]) for arm in CORRELATED
+             if grid_name(arm, 0.0025) in cells}
+    return max(means, key=means.get) if len(means) == len(CORRELATED) else None

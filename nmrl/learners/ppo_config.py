@@ -1,0 +1,177 @@
+"""PPO's run config (:class:`PPOConfig`) and its traced hyperparameters (:class:`Hyper`).
+
+Every field is declared once (nmrl/options.py): help, range and whether it is traced; the traced
+ones (the step size, the entropy cost, the clip epsilon, the value-loss weight, the reward scale,
+the discount and GAE factors per control step and the exploration process) are the leaves of
+:class:`Hyper`, so a sweep over any of them is one compiled program (nmrl/learners/ppo.py).
+
+The exploration is an nmrl.explore.ExplorationSpec, its fields flat in the config (parameters in
+seconds and Hz, :data:`SPEC_FIELDS`); every process of nmrl.explore is allowed.
+
+**Time in seconds.** The discount ``gamma = exp(-control_dt / discount_horizon_s)``, the GAE
+``lambda = exp(-control_dt / gae_horizon_s)``, the unroll ``unroll_s`` and the noise's correlation
+times are given in seconds; at 0.02 s every default is the Brax baseline's (results/baseline_ppo,
+``gamma = 0.95``, ``lambda = 0.95``, ``T = 20``, 32 minibatches of 512 unrolls, 8 epochs, lr 3e-4,
+entropy 1e-3, clip 0.3, policy 4x32, value 5x256, 64 environments, observation normalisation,
+reward scaling 1). docs/ppo.md has the conversions and what differs from Brax.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+
+from nmrl import explore, options, tasks
+from nmrl.options import AT_LEAST_ONE, NON_NEGATIVE, POSITIVE, Range, option, run_option
+from nmrl.paper import noise
+from nmrl.paper.env import EnvConfig, env_option
+
+#: the horizon (s) of Brax's discounting 0.95 (and GAE lambda 0.95) at the baseline's 0.02 s step
+BRAX_HORIZON_S = -0.02 / math.log(0.95)
+SQUASHES = ("tanh", "clip")
+#: Adam's step size: > 0 (0 would learn nothing), at most 1
+_LEARNING_RATE = Range(0.0, 1.0, open_lo=True, why="a step size", cap=True)
+#: iterations of the budget a run given none gets
+DEFAULT_ITERATIONS = 1
+
+
+def _per_step(horizon: str) -> Callable[["PPOConfig"], jax.Array]:
+    """``exp(-control_dt / horizon_s)`` in float32: a horizon in seconds as a factor per control step."""
+    return lambda c: jnp.asarray(math.exp(-c.control_dt / getattr(c, horizon)), jnp.float32)
+
+
+_X = explore.config_option
+_TIME = Range(0.0, open_lo=True, why="seconds, at least the control step")
+
+
+@dataclasses.dataclass(frozen=True)
+class PPOConfig:
+    """A PPO run. Defaults at control_dt = 0.02 s are the Brax baseline's (module docstring). Every
+    field is declared once (nmrl/options.py); ``traced`` ones are :class:`Hyper`'s leaves."""
+
+    # exploration: an nmrl.explore.ExplorationSpec, flat (parameters in seconds and Hz)
+    exploration: str = _X("exploration", "white")
+    sigma: float = option(1.0, "marginal std of the noise xi, multiplying the learned std_theta (1: Brax's learned "
+                               "std alone)", traced="process", range=noise.SIGMA_RANGE)
+    period_s: float | None = _X("period_s")
+    corr_time_s: float | None = _X("corr_time_s")
+    beta: float | None = _X("beta")
+    f_min_hz: float | None = _X("f_min_hz")
+    f_max_hz: float | None = _X("f_max_hz")
+    order: int | None = _X("order")
+    learn_std: bool = option(True, "learn a state-dependent std_theta(s) = softplus + min_std (Brax); false: "
+                                   "std_theta = 1")
+    min_std: float = option(1e-3, "floor of the learned std (Brax: 0.001)", range=POSITIVE)
+    squash: str = option("tanh", "env action = 20 tanh(x) (Brax) or 20 clip(x, -1, 1)", choices=SQUASHES)
+    period_wise: bool = option(False, "learn on nm-periods as wholes: one ratio per period (eq. (7)), advantage and "
+                                      "critic at period starts (ppo_losses.period_gae; default: per-step conditional "
+                                      "ratios)")
+    # PPO, times in seconds
+    discount_horizon_s: float = option(BRAX_HORIZON_S, "discount horizon [s]: gamma = exp(-control_dt / it) (0.95 "
+                                                       "at 0.02 s)", traced="gamma", range=_TIME)
+    gae_horizon_s: float = option(BRAX_HORIZON_S, "GAE horizon [s]: lambda = exp(-control_dt / it) (0.95 at 0.02 s)",
+                                  traced="lam", range=_TIME)
+    unroll_s: float = option(0.4, "unroll length [s]: T = round(unroll_s / control_dt) steps (20 at 0.02 s)",
+                             range=_TIME)
+    batch_size: int = option(512, "unrolls per minibatch (a multiple of --num-envs)", range=AT_LEAST_ONE)
+    num_minibatches: int = option(32, "minibatches per epoch", range=AT_LEAST_ONE)
+    epochs: int = option(8, "passes over an iteration's data (Brax: num_updates_per_batch)", range=AT_LEAST_ONE)
+    learning_rate: float = option(3e-4, "Adam's step size", traced=True, range=_LEARNING_RATE)
+    entropy_cost: float = option(1e-3, "weight of the entropy bonus", traced=True, range=NON_NEGATIVE)
+    clip_eps: float = option(0.3, "PPO's clip epsilon of the ratio", traced=True, range=POSITIVE)
+    vf_coef: float = option(0.5, "weight of the value loss", traced=True, range=POSITIVE)
+    reward_scale: float = option(1.0, "the learner receives reward_scale * r (delta / 0.02 s keeps the return's "
+                                      "scale); metrics report r", traced=True, range=POSITIVE)
+    max_grad_norm: float | None = option(None, "clip the gradient's global norm (default: no clipping, Brax's)",
+                                         range=POSITIVE)
+    normalize_obs: bool = option(True, "running mean/std observation normalisation (Brax's)")
+    normalize_advantage: bool = option(True, "normalise advantages per minibatch (Brax's)")
+    policy_layers: int = option(4, "hidden layers of the policy", range=AT_LEAST_ONE)
+    policy_width: int = option(32, "units per policy layer", range=AT_LEAST_ONE)
+    value_layers: int = option(5, "hidden layers of the value net", range=AT_LEAST_ONE)
+    value_width: int = option(256, "units per value layer", range=AT_LEAST_ONE)
+    # environment, batching, budget (common to every learner)
+    env: str = option("paper-cheetah", f"the environment: {', '.join(tasks.ENVS)} (docs/tasks.md)")
+    control_dt: float = env_option("control_dt", 0.02)
+    stop_prob: float = env_option("stop_prob", 1 / 250)
+    trial_s: float | None = env_option("trial_s", None)
+    physics: str = env_option("physics", "mjx")
+    physics_timestep: float | None = env_option("physics_timestep", None)
+    num_envs: int = option(64, "environments in lock-step (must divide --batch-size)", range=AT_LEAST_ONE)
+    chunk_steps: int | None = option(None, "control steps per environment per chunk, a multiple of one iteration's "
+                                           "(default: one)", range=AT_LEAST_ONE)
+    steps: int | None = run_option("steps", None, "budget in control steps per environment (default: one iteration)")
+    trials: int | None = run_option("trials", None)
+    seed: int = run_option("seed", 0)
+    max_param_norm: float = run_option("max_param_norm", 1e5)
+
+    # ----------------------------------------------------------------------- derived
+    def spec(self) -> explore.ExplorationSpec:
+        return explore.ExplorationSpec(kind=self.exploration, **{k: getattr(self, k) for k in SPEC_FIELDS})
+
+    @property
+    def unroll_length(self) -> int:
+        """T, control steps per unroll."""
+        return max(1, int(math.floor(self.unroll_s / self.control_dt + 0.5)))
+
+    @property
+    def unrolls_per_env(self) -> int:
+        """U, unrolls of each environment per iteration."""
+        return self.batch_size * self.num_minibatches // self.num_envs
+
+    @property
+    def iteration_steps(self) -> int:
+        """Control steps per environment in one iteration (U T)."""
+        return self.unrolls_per_env * self.unroll_length
+
+    def env_config(self) -> EnvConfig:
+        return EnvConfig(control_dt=self.control_dt, stop_prob=self.stop_prob, auto_reset=True,
+                         physics=self.physics, trial_s=self.trial_s, timestep=self.physics_timestep)
+
+    def validate(self) -> None:
+        """Every field by its declaration (type, finiteness, range, choices; nmrl/options.py), then
+        what relates fields: the exploration at the control step, the period-wise learning's process,
+        times of at least one control step, minibatches of whole environments, chunks of whole
+        iterations, one budget, the environment."""
+        options.check(self, limits=False)
+        self.spec().validate(self.control_dt)
+        if self.period_wise and self.exploration != "nm-periods":
+            raise options.invalid("period_wise", self.period_wise, "true only with --exploration nm-periods (a process whose "
+                                                        "noise restarts at period starts), else false")
+        dt = self.control_dt
+        for name in ("discount_horizon_s", "gae_horizon_s", "unroll_s"):
+            if getattr(self, name) < dt * (1 - 1e-9):
+                raise options.invalid(name, getattr(self, name), f"must be a finite time >= the control step {dt:g} s")
+        if self.batch_size % self.num_envs:
+            raise options.invalid("num_envs", self.num_envs, f"must divide batch_size={self.batch_size} (every minibatch "
+                                                  f"holds batch_size / num_envs unrolls of each environment)")
+        if self.chunk_steps is not None and self.chunk_steps % self.iteration_steps:
+            raise options.invalid("chunk_steps", self.chunk_steps, f"must be a multiple of one iteration's "
+                                                        f"{self.iteration_steps} control steps per environment")
+        if self.steps is not None and self.trials is not None:
+            raise ValueError("give the budget as steps or as trials, not both")
+        self.env_config().validate()
+        tasks.check_env(self.env, self.env_config())
+
+    def resolved(self) -> "PPOConfig":
+        """Validated, with the exploration's defaults, one iteration per chunk and a budget of
+        :data:`DEFAULT_ITERATIONS` iterations filled in where not given."""
+        self.validate()
+        spec = self.spec()
+        out = dataclasses.replace(self, **{k: getattr(spec, k) for k in SPEC_FIELDS})
+        if out.chunk_steps is None:
+            out = dataclasses.replace(out, chunk_steps=out.iteration_steps)
+        if out.steps is None and out.trials is None:
+            out = dataclasses.replace(out, steps=DEFAULT_ITERATIONS * out.iteration_steps)
+        return out
+
+
+#: the exploration parameters of the config, as nmrl.explore.ExplorationSpec names them
+SPEC_FIELDS = explore.PARAMETERS
+#: the traced values, per control step (from the config's seconds) and the noise process
+Hyper = options.hyper_type(PPOConfig, {"gamma": _per_step("discount_horizon_s"), "lam": _per_step("gae_horizon_s"),
+                                       "process": lambda c: c.spec().process(c.control_dt)})
