@@ -9,7 +9,7 @@ the learner's ``Hyper`` pytree: a sweep's points may differ in it, one compiled 
 value), the values it allows (a :class:`Range` or ``choices``), its command-line spelling where it is
 not the field name with dashes, and whether it is an option at all. From the declarations come:
 
-* :func:`helps`: the help of every option (``Learner.help``; nmrl/cli.py builds one option per field);
+* :func:`helps`: the help of every option (``Learner.help``; nmrl/cli/config_options.py builds one option per field);
 * :func:`traced`: the traced fields (``Learner.hyper_fields``, what ``nmrl sweep --vary`` takes);
 * :func:`hyper_type`: the ``Hyper`` NamedTuple, its leaves the traced fields in declaration order,
   cast to float32 or int32 by the field's type; a field whose traced value needs code (PPO's

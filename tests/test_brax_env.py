@@ -139,14 +139,15 @@ def test_ppo_baseline_trains_checkpoints_resumes_and_evaluates(tmp_path, capsys)
     """A tiny Brax PPO run through ``nmrl baseline``: rows per iteration, a checkpoint each, the
     resume continues from the newest step (a changed config is refused by name), evaluation reads it."""
     from nmrl import cli
-    from nmrl.experiments import baseline_ppo as bp
+    from nmrl.experiments import baseline_brax as bb, baseline_config as bc, baseline_ppo as bp
     from nmrl.runs import checkpoint, store
 
     out = tmp_path / "ppo"
     tiny = ["--num-envs", "4", "--batch-size", "4", "--num-minibatches", "2", "--unroll-length", "5", "--quiet"]
     # the tiny networks are not a CLI option: run the first call through the API, then the CLI resumes it
-    cfg = bp.PPOConfig(num_timesteps=4 * 2 * 5 * 3, num_envs=4, batch_size=4, num_minibatches=2, unroll_length=5,
-                       num_updates_per_batch=1, policy_hidden=(4,), value_hidden=(4,), eval_seconds=0.2)
+    cfg = bc.BaselineConfig(num_timesteps=4 * 2 * 5 * 3, num_envs=4, batch_size=4, num_minibatches=2,
+                            unroll_length=5, num_updates_per_batch=1, policy_hidden=(4,), value_hidden=(4,),
+                            eval_seconds=0.2)
     rows = bp.run(cfg, out, progress=False, max_iterations=2)
     assert [r["step"] for r in rows] == [0, 40, 80]
     assert checkpoint.all_steps(out)[-1] == 80
@@ -201,25 +202,25 @@ def test_ppo_baseline_trains_checkpoints_resumes_and_evaluates(tmp_path, capsys)
     assert cli.main(["baseline", "eval", str(clone), "--step", "80", "--no-render", "--out", str(tmp_path / "ev3")]) == 2
     assert "not 80" in capsys.readouterr().err
     # the evaluation is the saved policy's: the same rollout from the restored parameters
-    meta, params = checkpoint.restore_tree(out, bp.initial_params(cfg))
-    again = bp.evaluate_params(cfg, params, seconds=0.5)
+    meta, params = checkpoint.restore_tree(out, bb.initial_params(cfg))
+    again = bb.evaluate_params(cfg, params, seconds=0.5)
     assert again["avg_reward"] == res["deterministic"]["avg_reward"]
     assert cli.main(["baseline", "ppo", "--out", str(out), "--num-envs", "4"]) == 2  # a fresh run over a run
     assert "already holds a run" in capsys.readouterr().err
 
 
 def test_ppo_config_errors_name_the_value():
-    from nmrl.experiments import baseline_ppo as bp
+    from nmrl.experiments import baseline_config as bc
 
     with pytest.raises(ValueError, match="num_envs=7"):
-        bp.PPOConfig(num_envs=7).validate()
+        bc.BaselineConfig(num_envs=7).validate()
     with pytest.raises(ValueError, match="discounting=1.5"):
-        bp.PPOConfig(discounting=1.5).validate()
+        bc.BaselineConfig(discounting=1.5).validate()
     with pytest.raises(ValueError, match="policy_hidden"):
-        bp.PPOConfig(policy_hidden=()).validate()
+        bc.BaselineConfig(policy_hidden=()).validate()
     with pytest.raises(ValueError, match="multiple of the 2 device"):
-        bp.PPOConfig(num_envs=1, batch_size=1, num_minibatches=1).validate(n_devices=2)
-    cfg = bp.PPOConfig()
+        bc.BaselineConfig(num_envs=1, batch_size=1, num_minibatches=1).validate(n_devices=2)
+    cfg = bc.BaselineConfig()
     assert cfg.steps_per_iteration == 512 * 32 * 20 and cfg.iterations == 77  # 77 x 327,680 >= 2.5e7
 
 

@@ -87,35 +87,47 @@ def test_baseline_refuses_an_unknown_env_in_one_line_and_writes_nothing(tmp_path
 
 
 def test_a_task_config_has_the_tasks_own_step_and_time_limit_and_refuses_another_limit():
-    from nmrl.experiments import baseline_ppo as bp
+    from nmrl.experiments import baseline_config as bc
 
     for name, dt in (("halfcheetah-v5", 0.05), ("hopper-v5", 0.008), ("walker2d-v5", 0.008)):
-        cfg = bp.task_config(name)
+        cfg = bc.task_config(name)
         task = Task(name)
         assert cfg.control_dt == task.control_dt == pytest.approx(dt)
         assert cfg.episode_cap == task.max_steps == 1000
         cfg.validate()
-    finer = bp.task_config("halfcheetah-v5", control_dt=0.01)
+    finer = bc.task_config("halfcheetah-v5", control_dt=0.01)
     assert finer.episode_cap == Task("halfcheetah-v5", TaskConfig(control_dt=0.01)).max_steps == 5000
     with pytest.raises(ValueError, match="episode_cap=10000.*1000"):
-        bp.PPOConfig(env="hopper-v5", control_dt=0.008).validate()
+        bc.BaselineConfig(env="hopper-v5", control_dt=0.008).validate()
     with pytest.raises(ValueError, match="stop_prob"):
-        bp.task_config("hopper-v5", stop_prob=0.01).validate()
+        bc.task_config("hopper-v5", stop_prob=0.01).validate()
 
 
 @pytest.mark.parametrize("path", sorted((ROOT / "results").glob("baseline_ppo/ppo_s*/config.json")))
 def test_published_baseline_configs_load_and_are_stored_as_they_are(path):
     """A run made before ``env`` existed (the paper's robot) loads, and its config is stored with the
     same fields and values (the file a resume rewrites, and the checkpoints' config, are unchanged)."""
-    from nmrl.experiments import baseline_ppo as bp
+    from nmrl.experiments import baseline_config as bc
 
-    cfg = bp.load_config(path.parent)
+    cfg = bc.load_config(path.parent)
     assert cfg.env == "paper-cheetah"
     saved = json.loads(path.read_text())
-    stored = bp._asdict(cfg)
+    stored = bc.stored(cfg)
     assert "env" not in stored
     assert {k: v for k, v in stored.items() if k in saved} == saved
     assert set(stored) - set(saved) <= {"physics"}  # written by later versions, at the value of these runs
+
+
+@pytest.mark.parametrize("path", sorted((ROOT / "results").glob("standard_tasks/brax/ppo_s*/config.json")))
+def test_published_task_configs_load_and_are_stored_as_they_are(path):
+    """The published Brax runs on a task load as valid configs of that task, and are stored field for
+    field as the file holds them (a resume rewrites the same file)."""
+    from nmrl.experiments import baseline_config as bc
+
+    cfg = bc.load_config(path.parent)
+    cfg.validate()
+    assert cfg.is_task
+    assert bc.stored(cfg) == json.loads(path.read_text())
 
 
 @pytest.mark.slow
@@ -124,9 +136,9 @@ def test_a_brax_run_on_a_task_records_the_task_and_its_episode_returns_and_resum
     1,000-step limit; each row has the deterministic policy's 10-episode return, whose mean equals
     the mean of the episodes' returns it lists; a resume continues the same run."""
     pytest.importorskip("brax")
-    from nmrl.experiments import baseline_ppo as bp
+    from nmrl.experiments import baseline_brax as bb, baseline_config as bc, baseline_ppo as bp
 
-    cfg = bp.task_config("hopper-v5", num_envs=4, batch_size=4, num_minibatches=2, unroll_length=5,
+    cfg = bc.task_config("hopper-v5", num_envs=4, batch_size=4, num_minibatches=2, unroll_length=5,
                          num_updates_per_batch=1, num_timesteps=80, policy_hidden=(8,), value_hidden=(8,),
                          physics="c")
     out = tmp_path / "run"
@@ -136,9 +148,9 @@ def test_a_brax_run_on_a_task_records_the_task_and_its_episode_returns_and_resum
     assert [r["step"] for r in rows] == [0, 40]
     for r in rows:
         assert np.isfinite(r["eval_return"]) and 1 <= r["eval_length_mean"] <= 1000 and "eval_avg_reward" not in r
-    ev = bp.evaluate_params(cfg, bp.initial_params(cfg))
+    ev = bb.evaluate_params(cfg, bb.initial_params(cfg))
     assert ev["return"]["mean"] == pytest.approx(np.mean(ev["return"]["each"]))
     assert ev["terminated"] == sum(1 for n in ev["length"] if n < 1000)
-    more = bp.run(bp.load_config(out), out, resume=True, progress=False)
+    more = bp.run(bc.load_config(out), out, resume=True, progress=False)
     assert [r["step"] for r in more] == [80]
     assert json.loads((out / "config.json").read_text()) == saved

@@ -6,13 +6,13 @@
   ``results/...``, ...) exists, in the docs and the results' READMEs alike; a path with a
   placeholder (``<point>``, ``{md,json}``, ``*``) is a pattern, not a name, and is not checked;
 * every ``nmrl ...`` command line in a fenced block parses with nmrl's own argparse parsers, without
-  running: ``train``, ``sweep`` and ``eval`` with ``nmrl.cli.build_parser(learner)`` (the learner
+  running: ``train``, ``sweep`` and ``eval`` with ``nmrl.cli.arguments.build_parser(learner)`` (the learner
   ``--learner`` names, as ``nmrl.cli.main`` builds it), ``baseline`` and ``study`` with the parser
   their ``main`` builds (caught before it parses); a command named in a sentence (inline code, e.g.
   ``nmrl train --resume``) names only options that exist;
-* the README's "What is where" names exactly the files of ``nmrl/*/`` (``__init__.py`` aside) and
-  ``nmrl/cli.py``; the README starts with the two set-up commands, and the second is what ``.ci/run``
-  runs.
+* the README's "What is where" names exactly the files of ``nmrl/*/`` (``__init__.py`` aside),
+  ``nmrl/pytrees.py`` and ``nmrl/options.py``; the README starts with the two set-up commands, and
+  the second is what ``.ci/run`` runs.
 """
 
 from __future__ import annotations
@@ -157,13 +157,14 @@ class _Parsed(Exception):
 
 
 def _top_parser(sub: str, argv: list[str]) -> argparse.ArgumentParser:
-    """The parser ``nmrl <sub>`` uses: ``nmrl.cli.build_parser`` for train/sweep/eval, the one the
+    """The parser ``nmrl <sub>`` uses: ``nmrl.cli.arguments.build_parser`` for train/sweep/eval, the one the
     ``main`` of ``baseline``/``study`` builds (caught at its ``parse_args``, before it parses)."""
     if sub in ("train", "sweep", "eval"):
         from nmrl import cli
+        from nmrl.cli import arguments, config_options
 
-        learner = cli._learner(cli.learner_name([sub, *argv])) if sub in ("train", "sweep") else None
-        return cli.build_parser(learner)  # as cli.main builds it: with the options of the learner named
+        learner = config_options.get_learner(cli.learner_name([sub, *argv])) if sub in ("train", "sweep") else None
+        return arguments.build_parser(learner)  # as cli.main builds it: with the options of the learner named
     own = {"baseline": "baseline_ppo", "study": "study"}
     if sub not in own:
         pytest.fail(f"nmrl has no command {sub!r}")
@@ -244,7 +245,7 @@ def test_what_is_where_matches_the_tree():
     named = {n for n in re.findall(r"`(nmrl/[\w/.]+)`", _section(_text(README), "What is where"))
              if not n.endswith("/")}  # a package's name; its files are the rows
     tree = {str(p.relative_to(ROOT)) for p in (ROOT / "nmrl").glob("*/*")
-            if p.name not in ("__init__.py", "__pycache__")} | {"nmrl/cli.py", "nmrl/pytrees.py", "nmrl/options.py"}
+            if p.name not in ("__init__.py", "__pycache__")} | {"nmrl/pytrees.py", "nmrl/options.py"}
     assert sorted(tree - named) == [], "in the tree, not in the README's What is where"
     assert sorted(named - tree) == [], "in the README's What is where, not in the tree"
 

@@ -9,7 +9,7 @@ import json
 
 import pytest
 
-from nmrl import cli
+from nmrl.cli import arguments, commands, config_options
 from nmrl.experiments import exploration2_analysis, exploration2_cells, exploration2_rules, kit
 
 TINY = ("--learner", "ppo", "--num-envs", "4", "--batch-size", "4", "--num-minibatches", "1", "--epochs", "1",
@@ -18,15 +18,15 @@ TINY = ("--learner", "ppo", "--num-envs", "4", "--batch-size", "4", "--num-minib
 
 
 def _spec(argv):
-    learner = cli._learner("ppo")
-    args = cli.build_parser(learner).parse_args(["sweep", *argv, "--out", "unused"])
-    base = cli.config_from_args(args, skip=cli._sweep_skip(learner))
+    learner = config_options.get_learner("ppo")
+    args = arguments.build_parser(learner).parse_args(["sweep", *argv, "--out", "unused"])
+    base = config_options.config_from_args(args, skip=commands.sweep_skip(learner))
     if args.vary is None:  # seeds only (a grid cell)
         from nmrl.experiments import sweep
 
         spec = sweep.SweepSpec(ls=(None,), seeds=args.seeds, base=base, field=None, seed0=args.seed0)
     else:
-        spec = cli._varied_spec(args, learner, base)
+        spec = commands.varied_spec(args, learner, base)
     spec.validate()
     return spec
 

@@ -25,6 +25,7 @@ from flax import struct
 
 from nmrl import cli, learners
 from nmrl.analysis import evaluate
+from nmrl.cli import arguments, config_options
 from nmrl.experiments import sweep
 from nmrl.paper.env import EnvConfig, HalfCheetah
 from nmrl.runs import checkpoint, driver, store
@@ -290,8 +291,8 @@ def test_unknown_learner_or_exploration_exit_2_and_write_nothing(tmp_path, capsy
 
 
 def _ac_config(argv):
-    args = cli.build_parser().parse_args(["train", *argv, "--out", "x"])
-    return cli.config_from_args(args)
+    args = arguments.build_parser().parse_args(["train", *argv, "--out", "x"])
+    return config_options.config_from_args(args)
 
 
 def test_exploration_in_seconds_sets_the_actor_critics_l_and_alpha():

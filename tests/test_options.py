@@ -159,13 +159,13 @@ def test_ppo_takes_every_exploration_process():
 
 @pytest.mark.parametrize("learner, expect", [("ac", {"l": 5}), ("ppo", {"period_s": 0.1})])
 def test_exploration_options_are_parsed_under_the_spec_names(learner, expect):
-    from nmrl import cli
+    from nmrl.cli import arguments, config_options
 
-    lr = cli._learner(learner)
-    args = cli.build_parser(lr).parse_args(["train", "--learner", learner, "--out", "x", "--exploration",
+    lr = config_options.get_learner(learner)
+    args = arguments.build_parser(lr).parse_args(["train", "--learner", learner, "--out", "x", "--exploration",
                                             "nm-periods", "--period-s", "0.1"])
     assert args.period_s == 0.1 and not any(k.startswith("x_") for k in vars(args))
-    cfg = cli.config_from_args(args)
+    cfg = config_options.config_from_args(args)
     assert {k: getattr(cfg, k) for k in expect} == expect  # l = round(0.1 s / 0.02 s)
 
 

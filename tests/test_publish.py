@@ -89,10 +89,10 @@ def test_ppo_seed_is_published_with_its_parameters_only_while_unfinished(tmp_pat
     import dataclasses
     import json
 
-    from nmrl.experiments import baseline_ppo as bp
+    from nmrl.experiments import baseline_config as bc
 
     pub = _publisher("publish/publish_baseline_ppo")
-    cfg = bp.PPOConfig(num_timesteps=120, num_envs=4, batch_size=4, num_minibatches=2, unroll_length=5)
+    cfg = bc.BaselineConfig(num_timesteps=120, num_envs=4, batch_size=4, num_minibatches=2, unroll_length=5)
     assert cfg.steps_per_iteration == 40 and cfg.iterations == 3
     src, dest = tmp_path / "runs" / "ppo_s0", tmp_path / "results" / "ppo_s0"
     src.mkdir(parents=True)

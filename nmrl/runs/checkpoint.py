@@ -1,8 +1,9 @@
 """Checkpoints of a training run (orbax-checkpoint), and the one import of every checkpoint function.
 
-The full checkpoints live here; the files they are made of in nmrl/runs/checkpoint_files.py, the
-run identity in nmrl/runs/identity.py, the compact continuation states in nmrl/runs/compact.py and
-other learners' trees in nmrl/runs/trees.py; their public names are importable from this module.
+The full checkpoints live here; the files they are made of in nmrl/runs/checkpoint_files.py, orbax's
+step directories that hold them in nmrl/runs/checkpoint_steps.py, the run identity in
+nmrl/runs/identity.py, the compact continuation states in nmrl/runs/compact.py and other learners'
+trees in nmrl/runs/trees.py; their public names are importable from this module.
 
 One :class:`Checkpointer` per run holds one orbax ``CheckpointManager`` for a whole session (the
 chunk loop, nmrl/runs/loop.py, opens one per point): its ``save(ts, config)`` (or the one-off
@@ -70,14 +71,14 @@ from nmrl import learners
 from nmrl.paper.env import MODEL_PATH
 from nmrl.runs import io_errors, store
 from nmrl.runs.store import CHECKPOINTS, COMPACT_FILE
-from nmrl.runs.checkpoint_files import *  # noqa: F401,F403  (the public names of each part, see __all__)
-from nmrl.runs.checkpoint_files import (FORMAT, SCHEMA_VERSION, CheckpointError, Config, CorruptCheckpoint,
-                                        Params, State, Trainer, _SEP, _abstract, _digest, _err, _flatten,
-                                        _fsync_tree, _git_commit, _layout, _learner_of_meta, _manager, _nest, _ocp,
-                                        _quiet_absl, _restore_items, _as_state_trees, _sha256_file, _to_device,
-                                        _versions, checkpoint_dir, load_metadata)
+from nmrl.runs.checkpoint_files import (FORMAT, SCHEMA_VERSION, Config, Params, State, Trainer, _SEP, _abstract,
+                                        _digest, _err, _flatten, _fsync_tree, _git_commit, _layout, _learner_of_meta,
+                                        _nest, _as_state_trees, _sha256_file, _to_device, _versions)
+from nmrl.runs.checkpoint_steps import *  # noqa: F401,F403  (the public names of each part, see __all__)
+from nmrl.runs.checkpoint_steps import _manager, _ocp, _quiet_absl, _restore_items, checkpoint_dir, load_metadata
 from nmrl.runs.compact import *  # noqa: F401,F403
 from nmrl.runs.compact import restore_compact_params, uses_compact
+from nmrl.runs.errors import CheckpointError, CorruptCheckpoint, ForeignCheckpoint
 from nmrl.runs.identity import *  # noqa: F401,F403
 from nmrl.runs.identity import _check_config, _check_model, _config_from_meta, identity_digest
 from nmrl.runs.trees import *  # noqa: F401,F403

@@ -24,10 +24,10 @@ from nmrl import learners
 from nmrl.paper.env import MODEL_PATH
 from nmrl.runs import store
 from nmrl.runs.store import COMPACT_FILE
-from nmrl.runs.checkpoint_files import (CheckpointError, Config, CorruptCheckpoint, Params, State, Trainer, _SEP,
-                                        _as_state_trees, _digest, _err, _flatten, _learner_of_meta, _nest,
-                                        _sha256_file, _to_device,
-                                        _versions, checkpoint_dir)
+from nmrl.runs.checkpoint_files import (Config, Params, State, Trainer, _SEP, _as_state_trees, _digest, _err,
+                                        _flatten, _learner_of_meta, _nest, _sha256_file, _to_device, _versions)
+from nmrl.runs.checkpoint_steps import checkpoint_dir
+from nmrl.runs.errors import CheckpointError, CorruptCheckpoint
 from nmrl.runs.identity import _check_config, _check_model, _config_from_meta
 
 __all__ = ['COMPACT_FORMAT', 'COMPACT_SCHEMA', 'POLICY_ONLY', 'COMPACT_COUNTERS', 'compact_path', 'has_compact',

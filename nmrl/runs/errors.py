@@ -1,8 +1,11 @@
-"""The exceptions of a training run: why it cannot start or continue, why it stopped.
+"""The exceptions of a training run: why it cannot start or continue, why it stopped, why a
+checkpoint cannot be used.
 
-:mod:`nmrl.runs.driver` re-exports them; they sit in a module of their own so that every part of
-the driver (preflight.py, resume.py, layout.py, loop.py) raises them without importing the driver.
-A command turns each into its one line and exit status (nmrl/runs/command.py, nmrl/runs/exits.py).
+:mod:`nmrl.runs.driver` re-exports the run's, :mod:`nmrl.runs.checkpoint` the checkpoints'; they sit
+in a module of their own, without JAX, so that every part of the driver (preflight.py, resume.py,
+layout.py, loop.py) and of the checkpoints raises them without importing the driver, and a command
+turns each into its one line and exit status before JAX is imported (nmrl/runs/command.py,
+nmrl/runs/exits.py).
 """
 
 from __future__ import annotations
@@ -32,3 +35,15 @@ class Stopped(Exception):
     def exit_status(self) -> int:
         """The shell's convention for a process ended by a signal: 128 + the signal (130, 143)."""
         return 128 + self.signum
+
+
+class CheckpointError(Exception):
+    """A checkpoint cannot be written, found, read or used; the message names the path and why."""
+
+
+class CorruptCheckpoint(CheckpointError):
+    """The checkpoint's files cannot be read, are truncated, or do not match their digest."""
+
+
+class ForeignCheckpoint(CheckpointError):
+    """The checkpoint belongs to another run: its config or model differs from the run's."""

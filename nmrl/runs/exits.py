@@ -4,7 +4,7 @@ A script that drives nmrl decides from the status alone what happened and what t
 the command (2), pick other step sizes (3), restart the distributed run (4), free space or fix
 permissions and run the same command again (5), wait for the other writer (6), run with smaller
 sizes or on a larger machine (7), continue with ``--resume`` after a signal (130, 143).
-This module must not import JAX (nmrl/cli.py reads it before JAX starts).
+This module must not import JAX (nmrl/cli/ reads it before JAX starts).
 """
 
 from __future__ import annotations

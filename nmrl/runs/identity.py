@@ -21,8 +21,9 @@ import pathlib
 from nmrl import learners
 from nmrl.paper.env import MODEL_PATH
 from nmrl.runs import store
-from nmrl.runs.checkpoint_files import (CheckpointError, Config, CorruptCheckpoint, ForeignCheckpoint,
-                                        _err, _learner_of_meta, _sha256_file, load_metadata)
+from nmrl.runs.checkpoint_files import Config, _err, _learner_of_meta, _sha256_file
+from nmrl.runs.checkpoint_steps import load_metadata
+from nmrl.runs.errors import CheckpointError, CorruptCheckpoint, ForeignCheckpoint
 
 __all__ = ['RESUMABLE_FIELDS', 'RUN_CONFIG', 'LATER_FIELDS', 'load_config', 'load_run_config', 'identity_config',
            'identity_digest', 'check_identity']

@@ -76,7 +76,7 @@ class IOFailure(Exception):
         super().__init__(failure.line(what) + (f"; {hint}" if hint else ""))
 
 
-#: whether :func:`report` mutes stderr after its line; the process's entry point (nmrl/cli.py's
+#: whether :func:`report` mutes stderr after its line; the process's entry point (nmrl/cli/__init__.py's
 #: ``main`` run as the ``nmrl`` command) sets it, in-process callers leave their stderr alone
 mute_after_report = False
 

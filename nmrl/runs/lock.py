@@ -96,7 +96,7 @@ def _read_holder(fd: int) -> dict:
 
 def _command() -> str:
     argv = list(sys.argv)
-    if argv and os.path.basename(argv[0]) in ("nmrl", "__main__.py", "cli.py"):
+    if argv and os.path.basename(argv[0]) in ("nmrl", "__main__.py"):
         argv[0] = "nmrl"
     return " ".join(shlex.quote(a) for a in argv)
 

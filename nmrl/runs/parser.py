@@ -2,7 +2,7 @@
 
 argparse answers ``--num-envs 1.5`` with the whole usage (15-18 lines) and then ``error: argument
 --num-envs: invalid int value: '1.5'``. The project's rule for bad input is one line naming the
-value and what is allowed, exit status 2 (nmrl/cli.py). :class:`OneLineParser` keeps argparse's
+value and what is allowed, exit status 2 (nmrl/cli/). :class:`OneLineParser` keeps argparse's
 parsing and rewrites only its error: ``nmrl train: error: --num-envs='1.5' is invalid: must be an
 integer`` (an unknown option: ``... unknown option(s) --trials -5; see nmrl train --help``).
 Subparsers made by ``add_subparsers`` are of the same class, so every command answers alike.

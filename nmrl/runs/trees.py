@@ -14,11 +14,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from nmrl.runs import store
-from nmrl.runs.checkpoint_files import (SCHEMA_VERSION, CheckpointError, CorruptCheckpoint, _abstract, _digest,
-                                        _err, _flatten, _fsync_tree, _git_commit, _layout, _manager, _ocp,
-                                        _quiet_absl, _resolve_step, _restore_items, _to_device, _versions,
-                                        checkpoint_dir)
+from nmrl.runs.checkpoint_files import (SCHEMA_VERSION, _abstract, _digest, _err, _flatten, _fsync_tree, _git_commit,
+                                        _layout, _to_device, _versions)
+from nmrl.runs.checkpoint_steps import _manager, _ocp, _quiet_absl, _resolve_step, _restore_items, checkpoint_dir
 from nmrl.runs.compact import _read_npz, compact_path
+from nmrl.runs.errors import CheckpointError, CorruptCheckpoint
 
 __all__ = ['TREE_FORMAT', 'save_tree', 'restore_tree', 'save_tree_compact', 'restore_tree_compact']
 

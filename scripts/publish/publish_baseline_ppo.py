@@ -101,13 +101,13 @@ def publish_seed(src: pathlib.Path, dest: pathlib.Path) -> None:
     """Copy one seed's config, metrics and resumes to ``dest``, and its parameters (compact.npz)
     only while it is unfinished (its metrics short of its config's budget: baseline_ppo.finished_step);
     a finished seed's published compact.npz is removed."""
-    from nmrl.experiments import baseline_ppo as bp
+    from nmrl.experiments import baseline_config as bc, baseline_ppo as bp
 
     same = dest.exists() and src.resolve() == dest.resolve()
     for name in (store.CONFIG_FILE, store.METRICS_FILE, store.RESUMES_FILE):
         if (src / name).is_file() and not same:
             store.atomic_copy(src / name, dest / name)
-    if (dest / store.CONFIG_FILE).is_file() and bp.finished_step(dest, bp.load_config(dest)) is not None:
+    if (dest / store.CONFIG_FILE).is_file() and bp.finished_step(dest, bc.load_config(dest)) is not None:
         (dest / store.COMPACT_FILE).unlink(missing_ok=True)
     elif (src / store.COMPACT_FILE).is_file() and not same:
         store.atomic_copy(src / store.COMPACT_FILE, dest / store.COMPACT_FILE)
@@ -119,13 +119,13 @@ def gaits(dest: pathlib.Path, ppo: dict[int, list[dict]], ac_gaits: pathlib.Path
     every seed has ``at_steps`` control steps."""
     if not ppo or any(rows[-1]["step"] < at_steps for rows in ppo.values()):
         return {}
-    from nmrl.experiments import baseline_ppo as bp
+    from nmrl.experiments import baseline_brax as bb
 
     best = max(ppo, key=lambda s: ppo[s][-1]["eval_avg_reward"])
     src, d = src_root / f"ppo_s{best}", dest / "gaits" / "ppo_best"
     old = json.loads((d / "eval.json").read_text()) if (d / "eval.json").is_file() else None
     if old is None or pathlib.Path(old["run_dir"]).name != src.name or old["step"] != ppo[best][-1]["step"]:
-        old = bp.evaluate_checkpoint(src, seconds=10.0, render=True, out_dir=d)  # from the run's parameters
+        old = bb.evaluate_checkpoint(src, seconds=10.0, render=True, out_dir=d)  # from the run's parameters
     panels = [(f"Brax PPO, seed {best}, {old['step']:,} control steps", d / "strobe.png")]
     for l in AC_LS:
         e = ac_gaits / f"l{l}_best" / "eval.json"

@@ -1,0 +1,104 @@
+"""The learner's options of ``nmrl train`` and ``nmrl sweep``, generated from its config.
+
+Every field of the learner's config (nmrl/learners/contract.py) whose declaration (nmrl/options.py)
+makes it an option is one option ``--<flag>`` of the command, spelled and explained by that
+declaration (the actor-critic's :class:`nmrl.learners.ac_config.TrainConfig`: ``--beta-theta 2e-6``,
+``--num-envs 256``, ``--actor-opt clip:10,sgd``, ...); :func:`config_from_args` builds the config
+from the options given, with the exploration process applied (nmrl/cli/exploration_options.py).
+The learner and JAX are imported only when a command asks (after nmrl.runs.devices.configure has
+set the host device count). A run given no budget takes its config's (the actor-critic's:
+nmrl.learners.ac_config.DEFAULT_STEPS).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import typing
+
+from nmrl.cli.exploration_options import with_exploration
+
+
+def field_type(cls: type, f: dataclasses.Field) -> type:
+    """The type of the config field ``f`` of ``cls`` (``X`` for ``X | None``)."""
+    hints = typing.get_type_hints(cls)
+    t = hints[f.name]
+    args = [a for a in typing.get_args(t) if a is not type(None)]
+    return args[0] if args else t
+
+
+def _bool(text: str) -> bool:
+    if text.lower() in ("1", "true", "yes", "on"):
+        return True
+    if text.lower() in ("0", "false", "no", "off"):
+        return False
+    raise argparse.ArgumentTypeError(f"{text!r} is not a boolean (true or false)")
+
+
+def get_learner(name: str | None = None):
+    """The learner ``name`` (default: the actor-critic); ValueError naming it and the allowed ones."""
+    from nmrl import learners
+
+    return learners.get(name or learners.DEFAULT)
+
+
+def learner_names() -> list[str]:
+    """The names of the learners ``--learner`` takes."""
+    from nmrl import learners
+
+    return learners.names()
+
+
+def _options(learner, skip: set[str] = frozenset(), group: str | None = None) -> list[dataclasses.Field]:
+    """The config fields that are options of the group ``group`` (None: the learner's own)."""
+    from nmrl import options
+
+    return [f for f in dataclasses.fields(learner.config) if f.name not in skip
+            and options.declaration(learner.config, f.name).cli
+            and options.declaration(learner.config, f.name).group == group]
+
+
+def add_config_options(p: argparse.ArgumentParser, skip: set[str] = frozenset(), learner=None) -> None:
+    """One option per field of the learner's config (nmrl/learners/contract.py), spelled and explained
+    by the field's declaration (nmrl/options.py), with its default unless the help names it."""
+    from nmrl import options
+
+    learner = learner or get_learner()
+    g = p.add_argument_group(f"options of the learner {learner.name!r} ({learner.doc})" if learner.doc
+                             else f"options of the learner {learner.name!r}")
+    for f in _options(learner, skip):
+        t = field_type(learner.config, f)
+        t = _bool if t is bool else t
+        doc = learner.help.get(f.name, "")
+        default = f.default if f.default is not dataclasses.MISSING else "?"
+        g.add_argument("--" + options.flag(learner.config, f.name), dest=f.name, type=t, default=None,
+                       help=doc if "(default:" in doc else f"{doc} (default: {default})".strip())
+
+
+def given_options(args: argparse.Namespace, skip: set[str] = frozenset()) -> dict:
+    """The config fields of the command's learner given on the command line (name -> value)."""
+    learner = get_learner(getattr(args, "learner", None))
+    given = {f.name: getattr(args, f.name) for f in dataclasses.fields(learner.config)
+             if f.name not in skip and getattr(args, f.name, None) is not None}
+    if getattr(args, "resume", False):  # a resumed run keeps its own control step
+        return given
+    return {**_task_control_dt(given), **given}
+
+
+def _task_control_dt(given: dict) -> dict:
+    """``{"control_dt": the task's own step}`` (frame skip x timestep, Gymnasium's ``dt``) for a
+    Gymnasium task given by ``--env`` without ``--control-dt``; nothing otherwise."""
+    env = given.get("env")
+    if env is None or "control_dt" in given:
+        return {}
+    from nmrl.tasks.gym_v5 import TASKS
+
+    return {"control_dt": TASKS[env].frame_skip * TASKS[env].timestep} if env in TASKS else {}
+
+
+def config_from_args(args: argparse.Namespace, skip: set[str] = frozenset()):
+    """The learner's config from the options given, with the exploration process (``--exploration``
+    and its parameters in seconds/Hz) applied by the learner (nmrl/cli/exploration_options.py)."""
+    learner = get_learner(getattr(args, "learner", None))
+    given = given_options(args, skip)
+    return with_exploration(args, learner, learner.config(**given), set(given))

@@ -1,0 +1,181 @@
+"""The config of the Brax PPO baseline (nmrl/experiments/baseline_ppo.py): its fields and checks,
+Brax's own Half-Cheetah setting and every departure from it, a task's config, and the config as a
+run directory stores it.
+
+**Hyperparameters.** The starting point is Brax's own PPO setting for its Half-Cheetah (the Brax
+training notebook, :data:`BRAX_HALFCHEETAH`); :data:`CHANGES` lists every change with its reason.
+:class:`BaselineConfig` is that setting with the changes, on the paper's robot at the paper's
+sample budget (2.5*10^7 control steps: 10^5 trials of ~250 steps).
+
+**The tasks** (``env`` = ``halfcheetah-v5``, ``hopper-v5``, ``walker2d-v5``; :func:`task_config`): the
+task's own control step (``control_dt``) and its time limit as Brax's episode length (``episode_cap``
+= the task's ``max_steps``: a truncation; the task's ``terminated`` a termination). ``env`` is
+stored in ``config.json`` only when it is not the paper's robot (:func:`stored`), so a run made
+before the field existed keeps its config file and resumes; :func:`load_config` reads every
+published one (results/baseline_ppo/, results/standard_tasks/brax/).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import pathlib
+from typing import Any
+
+from nmrl import tasks
+from nmrl.paper.env import EnvConfig
+from nmrl.runs import errors, store
+
+__all__ = ["BaselineConfig", "BRAX_HALFCHEETAH", "CHANGES", "RESUMABLE", "task_config", "load_config", "stored",
+           "check_resume"]
+
+#: Brax's PPO setting for its Half-Cheetah (brax/notebooks/training.ipynb, ``train_fn`` for
+#: ``halfcheetah``; networks: ``ppo_networks.make_ppo_networks``' defaults).
+BRAX_HALFCHEETAH = {
+    "num_timesteps": 50_000_000, "num_evals": 20, "reward_scaling": 1, "episode_length": 1000,
+    "normalize_observations": True, "action_repeat": 1, "unroll_length": 20, "num_minibatches": 32,
+    "num_updates_per_batch": 8, "discounting": 0.95, "learning_rate": 3e-4, "entropy_cost": 1e-3,
+    "num_envs": 2048, "batch_size": 512, "policy_hidden": (32, 32, 32, 32), "value_hidden": (256,) * 5,
+}
+
+#: (field, Brax's value, ours, why) for every departure from BRAX_HALFCHEETAH.
+CHANGES = (
+    ("num_timesteps", "5e7", "2.5e7", "the paper's sample budget: 10^5 trials x ~250 control steps"),
+    ("episode_length", "1000 (fixed)", "the paper's stop rule",
+     "a trial stops with probability 1/250 after each step (Sec. V-C), a truncation (Sec. V-D); "
+     "episode_length is only a cap, 10^4 (never reached: P = e^-40)"),
+    ("num_evals", "20 (Brax's evaluator, fixed 1000-step episodes)",
+     "one per iteration, nmrl's evaluation",
+     "a checkpoint per iteration; the deterministic policy is rolled out for 10 s like nmrl eval"),
+    ("num_envs", "2048", "64",
+     "this machine is 2 CPU cores: MJX's step cost per environment grows with the batch per "
+     "device (docs/performance.md); the samples per update (batch_size x num_minibatches x "
+     "unroll_length = 327,680) are Brax's"),
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class BaselineConfig:
+    """Brax PPO on the paper's Half-Cheetah. Defaults: BRAX_HALFCHEETAH with CHANGES."""
+
+    seed: int = 0
+    num_timesteps: int = 25_000_000
+    num_envs: int = 64
+    batch_size: int = 512
+    num_minibatches: int = 32
+    unroll_length: int = 20
+    num_updates_per_batch: int = 8
+    discounting: float = 0.95
+    learning_rate: float = 3e-4
+    entropy_cost: float = 1e-3
+    reward_scaling: float = 1.0
+    normalize_observations: bool = True
+    policy_hidden: tuple[int, ...] = (32, 32, 32, 32)
+    value_hidden: tuple[int, ...] = (256, 256, 256, 256, 256)
+    episode_cap: int = 10_000
+    control_dt: float = 0.02
+    stop_prob: float = 1 / 250
+    eval_seconds: float = 10.0
+    physics: str = "mjx"  #: the environment's physics engine (nmrl/paper/env.py PHYSICS)
+    env: str = tasks.PAPER  #: the environment (nmrl.tasks.ENVS): the paper's robot or a v5 task
+
+    @property
+    def is_task(self) -> bool:
+        return self.env != tasks.PAPER
+
+    @property
+    def steps_per_iteration(self) -> int:
+        """Control steps (over all environments) per PPO iteration."""
+        return self.batch_size * self.num_minibatches * self.unroll_length
+
+    @property
+    def iterations(self) -> int:
+        """PPO iterations of the budget (rounded up: the run ends at or after num_timesteps)."""
+        return math.ceil(self.num_timesteps / self.steps_per_iteration)
+
+    def validate(self, n_devices: int = 1) -> None:
+        for name in ("num_timesteps", "num_envs", "batch_size", "num_minibatches", "unroll_length",
+                     "num_updates_per_batch", "episode_cap"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or isinstance(v, bool) or v < 1:
+                raise ValueError(f"{name}={v!r} is invalid: must be an integer >= 1")
+        if not 0 <= self.seed < 2**31:
+            raise ValueError(f"seed={self.seed!r} is invalid: must be an integer in [0, 2^31 - 1]")
+        if (self.batch_size * self.num_minibatches) % self.num_envs:
+            raise ValueError(f"num_envs={self.num_envs} is invalid: batch_size x num_minibatches = "
+                             f"{self.batch_size * self.num_minibatches} must be a multiple of it")
+        if self.num_envs % n_devices:
+            raise ValueError(f"num_envs={self.num_envs} is invalid: must be a multiple of the {n_devices} "
+                             f"device(s) Brax splits it over")
+        if not 0 < self.discounting <= 1:
+            raise ValueError(f"discounting={self.discounting!r} is invalid: must be in (0, 1]")
+        for name in ("learning_rate", "reward_scaling", "eval_seconds", "control_dt"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(f"{name}={v!r} is invalid: must be a finite number > 0")
+        if not (math.isfinite(self.entropy_cost) and self.entropy_cost >= 0):
+            raise ValueError(f"entropy_cost={self.entropy_cost!r} is invalid: must be >= 0")
+        for name in ("policy_hidden", "value_hidden"):
+            v = getattr(self, name)
+            if not v or any(not isinstance(h, int) or h < 1 for h in v):
+                raise ValueError(f"{name}={v!r} is invalid: layer sizes must be integers >= 1")
+        env_config = EnvConfig(control_dt=self.control_dt, stop_prob=self.stop_prob, physics=self.physics)
+        env_config.validate()
+        tasks.check_env(self.env, env_config)
+        if self.is_task and self.episode_cap != _time_limit(self.env, self.control_dt):
+            raise ValueError(f"episode_cap={self.episode_cap!r} is invalid: with env={self.env!r} it is the task's "
+                             f"time limit, {_time_limit(self.env, self.control_dt)} control steps")
+
+
+def _time_limit(env: str, control_dt: float) -> int:
+    """A task's time limit in control steps of ``control_dt`` (1,000 of its own steps; nmrl/tasks/env.py)."""
+    spec = tasks.TASKS[env]
+    return int(round(spec.max_episode_steps * spec.frame_skip * spec.timestep / control_dt))
+
+
+def task_config(env: str, **fields: Any) -> BaselineConfig:
+    """The config of Brax PPO on ``env`` with ``fields`` changed: on a task, its own control step (frame
+    skip x timestep) and its time limit as the episode length unless ``fields`` give them."""
+    if env == tasks.PAPER or env not in tasks.TASKS:
+        return BaselineConfig(env=env, **fields)
+    spec = tasks.TASKS[env]
+    dt = fields.pop("control_dt", spec.frame_skip * spec.timestep)
+    return BaselineConfig(env=env, control_dt=dt, episode_cap=fields.pop("episode_cap", _time_limit(env, dt)),
+                          **fields)
+
+
+RESUMABLE = ("num_timesteps",)
+
+
+def load_config(run_dir: str | os.PathLike) -> BaselineConfig:
+    """The config a baseline run directory stores (``config.json``; a run of the paper's robot made
+    before ``env`` or ``physics`` existed takes their defaults); RunError naming a file that is not one."""
+    path = pathlib.Path(run_dir) / store.CONFIG_FILE
+    try:
+        d = json.loads(path.read_text())
+        for k in ("policy_hidden", "value_hidden"):
+            d[k] = tuple(d[k])
+        return BaselineConfig(**d)
+    except (OSError, json.JSONDecodeError, TypeError, KeyError) as e:
+        raise errors.RunError(f"{path}: not a PPO baseline config ({type(e).__name__}: {e})") from e
+
+
+def stored(cfg: BaselineConfig) -> dict:
+    """The config as stored (config.json, checkpoints): every field, ``env`` only when it is a task."""
+    d = dataclasses.asdict(cfg)
+    if not cfg.is_task:
+        del d["env"]
+    d["policy_hidden"], d["value_hidden"] = list(cfg.policy_hidden), list(cfg.value_hidden)
+    return d
+
+
+def check_resume(cfg: BaselineConfig, saved: BaselineConfig, out: pathlib.Path) -> None:
+    """RunError naming every field of ``cfg`` that differs from the run's ``saved`` config, but
+    :data:`RESUMABLE` (the budget): a resume continues the same run."""
+    a, b = dataclasses.asdict(saved), dataclasses.asdict(cfg)
+    diff = [f"{k}: run {a[k]!r} vs given {b[k]!r}" for k in a if k not in RESUMABLE and a[k] != b[k]]
+    if diff:
+        raise errors.RunError(f"{out}: --resume keeps the run's config; only {RESUMABLE} may change: "
+                              + "; ".join(diff))
