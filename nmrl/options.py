@@ -42,6 +42,9 @@ INT32_MAX = 2**31 - 1
 #: JAX's PRNG seeds are 32-bit unsigned (``jax.random.PRNGKey(2**32 - 1)`` is a key of its own;
 #: larger or negative seeds wrap around to another seed's key)
 SEED_MAX = 2**32 - 1
+#: the longest evaluation rollout, ``nmrl eval --seconds`` and ``nmrl baseline eval --seconds`` (the GIF
+#: keeps every frame in memory: 25 per simulated second)
+MAX_EVAL_SECONDS = 600.0
 #: the metadata key of a declaration in a dataclass field
 KEY = "nmrl.option"
 

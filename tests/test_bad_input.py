@@ -491,3 +491,26 @@ def test_progress_eta_after_resume_uses_this_sessions_speed(capsys):
     bar.update(row)
     line = capsys.readouterr().err.strip()
     assert line.startswith("[ 75.0%]") and line.endswith("ETA 10s"), line
+
+
+@pytest.mark.parametrize("argv,message", [
+    (["ppo", "--num-envs", "1.5"], "--num-envs='1.5' is invalid: must be an integer"),
+    (["ppo", "--learning-rate", "fast"], "--learning-rate='fast' is invalid: must be a number"),
+    (["ppo", "--trials", "5"], "unknown option(s) --trials 5"),
+    (["eval", "RUN", "--seconds", "601"], "--seconds=601.0 is invalid: must be in (0, 600]"),
+])
+def test_bad_baseline_values_are_one_line(tmp_path, argv, message):
+    """``nmrl baseline`` answers a bad option as ``nmrl train`` does: one line, status 2, nothing written."""
+    out = tmp_path / "run"
+    argv = [str(tmp_path / "RUN") if a == "RUN" else a for a in argv]
+    o, e = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(o), contextlib.redirect_stderr(e):
+        try:
+            rc = cli.main(["baseline", *argv, *(["--out", str(out)] if argv[0] == "ppo" else [])])
+        except SystemExit as exit_:  # argparse's exit, as the console script sees it
+            rc = exit_.code
+    stdout, err = o.getvalue(), e.getvalue()
+    lines = err.splitlines()
+    assert rc == 2 and stdout == "" and len(lines) == 1 and lines[0].startswith("nmrl baseline"), err
+    assert message in lines[0]
+    assert list(tmp_path.iterdir()) == []

@@ -21,14 +21,13 @@ from collections.abc import Callable
 from nmrl.cli.cluster_options import cluster_of, is_process_zero
 from nmrl.cli.config_options import config_from_args, field_type, get_learner, given_options
 from nmrl.cli.failures import exit_status, fail
+from nmrl.options import MAX_EVAL_SECONDS
 from nmrl.runs import devices as _devices
 from nmrl.runs import exits as _exits
 from nmrl.runs import launch as _launch
 from nmrl.runs import signals as _signals
 
 _SWEEP_SEED = "seed"  # ``nmrl sweep`` gives --seeds (a count) and the learner's sweep_field as a list
-#: Longest ``nmrl eval --seconds`` (the GIF keeps every frame in memory: 25 per simulated second).
-MAX_EVAL_SECONDS = 600.0
 
 T = typing.TypeVar("T")
 

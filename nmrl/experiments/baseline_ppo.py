@@ -60,7 +60,8 @@ from nmrl.adapters import brax_env
 from nmrl.experiments import baseline_brax
 from nmrl.experiments.baseline_config import BaselineConfig, check_resume, load_config, stored, task_config
 from nmrl.paper.env import PHYSICS_HELP
-from nmrl.runs import checkpoint, command, driver, store
+from nmrl.options import MAX_EVAL_SECONDS
+from nmrl.runs import checkpoint, command, driver, parser, store
 
 __all__ = ["run", "finished_step", "main"]
 
@@ -214,25 +215,23 @@ def run(cfg: BaselineConfig, out: str | os.PathLike, *, resume: bool = False, pr
 
 def main(argv: list[str] | None = None) -> int:
     """``nmrl baseline ppo ...`` (train or continue) and ``nmrl baseline eval RUN`` (evaluate)."""
-    import argparse
-
     d = BaselineConfig()
-    ap = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
+    ap = parser.OneLineParser(prog=PROG, description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
     p = sub.add_parser("ppo", help="train Brax PPO on the paper's Half-Cheetah (needs pip install -e '.[brax]')")
     p.add_argument("--out", required=True, help="run directory")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its newest checkpoint")
-    p.add_argument("--seed", type=int, default=None, help=f"default {d.seed}")
-    p.add_argument("--num-timesteps", type=int, default=None,
+    p.add_argument("--seed", type=parser.integer, default=None, help=f"default {d.seed}")
+    p.add_argument("--num-timesteps", type=parser.integer, default=None,
                    help=f"control steps over all environments (default {d.num_timesteps:.2g})")
     for name in ("num_envs", "batch_size", "num_minibatches", "unroll_length", "num_updates_per_batch"):
-        p.add_argument("--" + name.replace("_", "-"), type=int, default=None, help=f"default {getattr(d, name)}")
+        p.add_argument("--" + name.replace("_", "-"), type=parser.integer, default=None, help=f"default {getattr(d, name)}")
     for name in ("discounting", "learning_rate", "entropy_cost"):
         p.add_argument("--" + name.replace("_", "-"), type=float, default=None, help=f"default {getattr(d, name)}")
     for name in ("policy_hidden", "value_hidden"):
-        p.add_argument("--" + name.replace("_", "-"), type=int, nargs="+", default=None,
+        p.add_argument("--" + name.replace("_", "-"), type=parser.integer, nargs="+", default=None,
                        help=f"layer sizes (default {' '.join(map(str, getattr(d, name)))})")
-    p.add_argument("--max-iterations", type=int, default=None,
+    p.add_argument("--max-iterations", type=parser.integer, default=None,
                    help="stop after this many PPO iterations of this call (continue with --resume)")
     p.add_argument("--physics", default=None, help=f"{PHYSICS_HELP} (default {d.physics})")
     p.add_argument("--env", default=None, help=f"one of {', '.join(tasks.ENVS)} (default {d.env}; a task runs at "
@@ -241,15 +240,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--quiet", action="store_true")
     e = sub.add_parser("eval", help="evaluate a PPO baseline checkpoint like nmrl eval (JSON, strobe, GIF)")
     e.add_argument("run")
-    e.add_argument("--step", type=int, default=None)
+    e.add_argument("--step", type=parser.integer, default=None)
     e.add_argument("--seconds", type=float, default=10.0)
     e.add_argument("--out", default=None, metavar="DIR", help="default: RUN/eval")
     e.add_argument("--no-render", action="store_true")
     a = ap.parse_args(argv)
     try:
         if a.cmd == "eval":
-            if not (math.isfinite(a.seconds) and 0 < a.seconds <= 600):
-                raise ValueError(f"--seconds={a.seconds!r} is invalid: must be in (0, 600]")
+            if not (math.isfinite(a.seconds) and 0 < a.seconds <= MAX_EVAL_SECONDS):
+                raise ValueError(f"--seconds={a.seconds!r} is invalid: must be in (0, {MAX_EVAL_SECONDS:g}]")
             res = baseline_brax.evaluate_checkpoint(a.run, a.step, seconds=a.seconds, render=not a.no_render,
                                                     out_dir=a.out)
             print(json.dumps(res, indent=2))
