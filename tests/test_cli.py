@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 
 import pytest
 
@@ -71,3 +73,14 @@ def test_eval_a_published_policy_without_touching_it(tmp_path, capsys):
     (tmp_path / "file").write_text("x")
     assert cli.main(["eval", str(pub), "--out", str(tmp_path / "file")]) == 2
     assert "--out=" in capsys.readouterr().err
+
+
+def test_importing_the_command_loads_no_numpy_jax_or_run_store():
+    """What ``import nmrl.cli`` loads runs before main() installs the signal guard, so a signal in
+    that window prints Python's traceback: it stays the light modules (argument parsing, signals,
+    devices), and numpy, JAX, the learners and the run store load only once the command runs."""
+    code = ("import sys, nmrl.cli; print(','.join(m for m in ('numpy', 'jax', 'nmrl.learners', 'nmrl.runs.store') "
+            "if m in sys.modules))")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.strip() == ""

@@ -33,7 +33,7 @@ import argparse
 import dataclasses
 
 from nmrl.cli.cluster_options import add_distributed_options
-from nmrl.cli.commands import MAX_EVAL_SECONDS, cmd_eval, cmd_sweep, cmd_train, sweep_skip
+from nmrl.cli.commands import cmd_eval, cmd_sweep, cmd_train, sweep_skip
 from nmrl.cli.config_options import add_config_options, field_type, get_learner, learner_names
 from nmrl.cli.exploration_options import add_exploration_options
 from nmrl.runs import devices as _devices
@@ -48,6 +48,8 @@ def _learner_option(p: argparse.ArgumentParser, learner) -> None:
 
 def build_parser(learner=None) -> argparse.ArgumentParser:
     """The command line; ``train`` and ``sweep`` take the options of ``learner`` (default: ac)."""
+    from nmrl.options import MAX_EVAL_SECONDS
+
     learner = learner or get_learner()
     ap = OneLineParser(prog="nmrl", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)

@@ -21,7 +21,6 @@ from collections.abc import Callable
 from nmrl.cli.cluster_options import cluster_of, is_process_zero
 from nmrl.cli.config_options import config_from_args, field_type, get_learner, given_options
 from nmrl.cli.failures import exit_status, fail
-from nmrl.options import MAX_EVAL_SECONDS
 from nmrl.runs import devices as _devices
 from nmrl.runs import exits as _exits
 from nmrl.runs import launch as _launch
@@ -108,6 +107,8 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
+    from nmrl.options import MAX_EVAL_SECONDS
+
     s = args.seconds
     if not (math.isfinite(s) and 0 < s <= MAX_EVAL_SECONDS):
         return fail(f"--seconds={s!r} is invalid: must be a finite number of simulated seconds in "

@@ -13,7 +13,7 @@ import argparse
 import sys
 
 from nmrl.cli.cluster_options import cluster_of
-from nmrl.runs import command, exits
+from nmrl.runs import exits
 from nmrl.runs import launch as _launch
 
 PROG = "nmrl"
@@ -21,6 +21,8 @@ PROG = "nmrl"
 
 def fail(msg: str, status: int = exits.BAD_INPUT) -> int:
     """Print the one line ``nmrl: error: MSG`` and return ``status`` (command.fail)."""
+    from nmrl.runs import command  # the run store's modules (numpy) after the signal guard
+
     return command.fail(PROG, msg, status)
 
 
@@ -29,6 +31,8 @@ def exit_status(args: argparse.Namespace, e: Exception, bad_input: tuple[type[Ba
     is not a bug (another writer, the disk, memory, a damaged metrics file), bad input (one of
     ``bad_input``; command.exit_status) or, in a distributed run, a process gone
     (:func:`peer_failure`); anything else is a bug and is re-raised."""
+    from nmrl.runs import command
+
     status = command.exit_status(PROG, e, bad_input)
     if status is None:
         status = peer_failure(args, e)
