@@ -80,6 +80,26 @@ def test_arm_configs_follow_the_per_second_rules():
         assert all(c.steps * dt == pytest.approx(spec.grid_seconds) for c in cfgs)
 
 
+@pytest.mark.parametrize("spec", [TimescaleSpec(), TimescaleSpec(physics="c", num_envs=8)], ids=["default", "c"])
+def test_each_cell_is_one_points_sweep_of_the_specs_configs(spec):
+    """A grid cell (and a final cell at any chosen pairs) lists the spec's points as ``nmrl sweep
+    --points`` takes them: one program, each point's config the spec's, the budget the cell's."""
+    from nmrl.experiments import sweep, timescale_cells
+    from nmrl.experiments.timescale import arm_name
+
+    for cell, dt in zip(timescale_cells.grid_cells(spec), spec.dts):
+        names, cfgs = spec.grid_points(dt)
+        chosen = {arm_name(p): (spec.beta_theta_grid[-1], spec.beta_v_grid[0]) for p in spec.periods}
+        fnames, fcfgs = spec.final_points(dt, chosen)
+        final = timescale_cells.points_cell("final", dt, fnames, fcfgs)
+        assert (cell.name, final.name) == (f"grid/dt{dt:g}", f"final/dt{dt:g}")
+        for c, want_names, want in ((cell, names, cfgs), (final, fnames, fcfgs)):
+            steps = int(c.sweep[c.sweep.index("--steps") + 1])
+            sw = sweep.SweepSpec(ls=(None,), seeds=1, base=TrainConfig(steps=steps), field=None, overrides=c.points)
+            sw.validate()
+            assert sw.names() == want_names and sw.point_configs() == want
+
+
 @pytest.mark.parametrize("kw,needle", [
     (dict(dts=()), "dts"),
     (dict(dts=(0.02, 0.02)), "dts"),

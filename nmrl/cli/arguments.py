@@ -87,6 +87,10 @@ def build_parser(learner=None) -> argparse.ArgumentParser:
                    help=f"--vary FIELD V1 V2 ...: sweep one traced hyperparameter of the learner "
                         f"({', '.join(learner.hyper_fields)}) instead" +
                         (f" of --{field}" if field else " of the seeds alone"))
+    p.add_argument("--points", default=None, metavar="FILE",
+                   help="a JSON list of points instead: [{\"name\": ..., FIELD: VALUE, ...}, ...], each setting "
+                        "fields of the config the options give (the points differing only in traced "
+                        "hyperparameters and the seed; nmrl/cli/points_file.py)")
     p.add_argument("--seeds", type=int, default=3, help="seeds per value (seed0..seed0+seeds-1)")
     p.add_argument("--seed0", type=int, default=0, help="the first seed (default 0)")
     p.add_argument("--checkpoint-every", type=int, default=1, help="checkpoint the points every K chunks")

@@ -163,6 +163,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         if field is not None and getattr(args, "period_s", None) is not None:
             raise ValueError(f"give the swept period lengths as --{field}, not --period-s")
         base = config_from_args(args, skip=sweep_skip(learner))
+        if args.points is not None:
+            return listed_spec(args, learner, base)
         if args.vary is not None:
             return varied_spec(args, learner, base)
         values = getattr(args, field, None) if field is not None else None
@@ -203,6 +205,25 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 def sweep_skip(learner) -> set[str]:
     """The config fields that are not options of ``nmrl sweep`` (the seed, the swept field)."""
     return {_SWEEP_SEED} | ({learner.sweep_field} if learner.sweep_field else set())
+
+
+def listed_spec(args: argparse.Namespace, learner, base):
+    """The spec of ``nmrl sweep --points FILE``: the points the file lists (nmrl/cli/points_file.py),
+    each its own seed; the options that make points otherwise are refused beside it."""
+    from nmrl.cli.points_file import read_points
+    from nmrl.experiments import sweep
+
+    argv = getattr(args, "argv", None) or []
+    other = [o for o in ("--resume", "--vary", "--first", "--seeds", "--seed0",
+                         *(["--" + learner.sweep_field] if learner.sweep_field else []))
+             if any(a == o or a.startswith(o + "=") for a in argv)]
+    if other:
+        raise ValueError(f"--points lists every point (its seed among its fields): give it without {', '.join(other)}"
+                         + (" (a resume continues the saved points)" if "--resume" in other else ""))
+    spec = sweep.SweepSpec(ls=(None,), seeds=1, base=base, field=None,
+                           overrides=read_points(args.points, learner.config))
+    spec.validate()
+    return spec
 
 
 def varied_spec(args: argparse.Namespace, learner, base):

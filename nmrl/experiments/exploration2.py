@@ -68,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     if a.action == "run":
         try:
-            kit.run(STUDY, a.out, published=a.published, only=a.only)
+            kit.run(STUDY, a.out, published=a.published, only=a.only or None)
         except kit.StudyStopped as e:
             print(f"exploration2: {e}; run again to continue", file=sys.stderr)
             return e.status

@@ -2,7 +2,8 @@
 
 A :class:`Study` names its cells in run order; a :class:`Cell` is a directory under the study's
 (``screen/dt0.0025/white``) and the options of one ``nmrl sweep`` (every point of a cell is one
-compiled program: the values of one traced field x seeds). :func:`run` brings every cell to its
+compiled program: the values of one traced field x seeds, or the points the cell lists, differing in
+several traced fields and the seed: ``nmrl sweep --points``). :func:`run` brings every cell to its
 budget and scores it:
 
 * a cell with a ``sweep.json`` is continued (``nmrl sweep --resume``, its budget given again);
@@ -12,7 +13,8 @@ budget and scores it:
 * each sweep runs as its own ``nmrl sweep`` process (niced by the caller), so that its devices,
   memory and signals are its own; a signal stops the study after the sweep saves, with its status;
 * every point at its budget gets ``endpoint.json``: the deterministic policy's reward per second
-  over the study's rollouts from perturbed starts (nmrl/analysis/endpoint.py), once per step;
+  over the study's rollouts from perturbed starts (nmrl/analysis/endpoint.py), once per step (a
+  study whose endpoint is None scores its points from their metrics alone, in its measurements);
 * ``rows.csv``: one row per point with its cell, seed, the varied field's value, budget, whether it
   diverged, the exploring reward per second of its last chunk and its mean over chunks (the area
   under the learning curve), and the endpoint (a diverged point's: its last good policy's, at
@@ -22,8 +24,9 @@ budget and scores it:
 small enough to commit, with ``analysis.csv``, the study's own analysis of the rows (its
 pre-registered contrasts), its report's figures and tables, and the files of its measurements (steps
 after the cells that are not sweeps, :class:`Measurement`). A study's own modules (e.g.
-nmrl/experiments/exploration2.py and its cells, rules and analysis beside it) hold its cells as
-data and any rule that makes later cells from earlier rows.
+nmrl/experiments/exploration2.py and its cells, rules and analysis beside it; the finer-delta study,
+nmrl/experiments/study.py, with its cells and tables) hold its cells as data and any rule that makes
+later cells from earlier rows.
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ import pathlib
 import shutil
 import subprocess
 import sys
+import tempfile
 from typing import Callable, Sequence
 
 from nmrl.paper.control_step import DELTA_0
@@ -64,6 +68,9 @@ class StudyStopped(RuntimeError):
 class Cell:
     name: str  #: directory under the study's, e.g. "screen/dt0.0025/white"
     sweep: tuple[str, ...]  #: ``nmrl sweep`` options that define the points (not --out/--resume)
+    #: the points one by one (``nmrl sweep --points``: dicts of a name and the config fields it sets);
+    #: () : the options above make the points
+    points: tuple[dict, ...] = ()
 
     def budget(self) -> tuple[str, ...]:
         """The budget options among :attr:`sweep` (given again on a resume)."""
@@ -96,7 +103,8 @@ class Measurement:
 class Study:
     name: str
     cells: tuple[Cell, ...]
-    endpoint: Endpoint = Endpoint()
+    #: the deterministic endpoint every point is scored by; None: none (the study's numbers are its own)
+    endpoint: Endpoint | None = Endpoint()
     #: ``nmrl sweep`` options of how a cell runs (not what it computes)
     run_options: tuple[str, ...] = ("--checkpoint-every", "1", "--quiet")
     #: the study's rule for later cells: from the rows so far, the cells that follow (run after
@@ -149,10 +157,19 @@ def run_cell(study: Study, cell: Cell, out: pathlib.Path, published: pathlib.Pat
     if published is not None:
         seed_from(published / cell.name, d)
     if (d / "sweep.json").exists():
-        argv = ["sweep", "--resume", *cell.budget(), *study.run_options, "--out", str(d)]
+        saved = json.loads((d / "sweep.json").read_text()).get("points", [])
+        if cell.points and saved != json.loads(json.dumps(list(cell.points))):
+            raise StudyError(f"{d} holds a sweep of other points than the cell {cell.name} lists (other "
+                             f"settings chose them); move it away to run the cell's points")
+        rc = subprocess.call([*_nmrl(), "sweep", "--resume", *cell.budget(), *study.run_options, "--out", str(d)])
+    elif cell.points:
+        with tempfile.TemporaryDirectory() as tmp:  # the sweep records its points in its sweep.json
+            f = pathlib.Path(tmp) / "points.json"
+            f.write_text(json.dumps(list(cell.points)))
+            rc = subprocess.call([*_nmrl(), "sweep", *cell.sweep, "--points", str(f), *study.run_options,
+                                  "--out", str(d)])
     else:
-        argv = ["sweep", *cell.sweep, *study.run_options, "--out", str(d)]
-    rc = subprocess.call([*_nmrl(), *argv])
+        rc = subprocess.call([*_nmrl(), "sweep", *cell.sweep, *study.run_options, "--out", str(d)])
     if rc != 0:
         raise StudyStopped(cell.name, rc)
 
@@ -223,14 +240,15 @@ def write_rows(study: Study, out: pathlib.Path) -> list[dict]:
 
 
 def run(study: Study, out: str | os.PathLike, *, published: str | os.PathLike | None = None,
-        only: Sequence[str] = ()) -> list[dict]:
-    """Every cell (or those whose name starts with one of ``only``) to its budget, scored; the rows."""
+        only: Sequence[str] | None = None) -> list[dict]:
+    """Every cell (or, ``only`` given, those whose name starts with one of ``only``: none for ``()``)
+    to its budget, scored, then the measurements in order; the rows."""
     out = pathlib.Path(out)
     pub = pathlib.Path(published) if published is not None else None
     done: set[str] = set()
     while True:
         todo = [c for c in all_cells(study, out) if c.name not in done
-                and (not only or any(c.name.startswith(o) for o in only))]
+                and (only is None or any(c.name.startswith(o) for o in only))]
         if not todo:
             r = write_rows(study, out)
             for m in study.measurements:
@@ -238,7 +256,7 @@ def run(study: Study, out: str | os.PathLike, *, published: str | os.PathLike | 
             return r
         for cell in todo:
             run_cell(study, cell, out, pub)
-            for p in _points(out / cell.name):
+            for p in _points(out / cell.name) if study.endpoint is not None else ():
                 score_point(study, p)
             write_rows(study, out)
             done.add(cell.name)

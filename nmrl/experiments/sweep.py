@@ -5,7 +5,10 @@ the learner's chunk on all of them. l lives in the actor-critic's traced ``Hyper
 (nmrl/learners/ac_train.py): the in-period index is a counter compared with l, so no padding is needed
 and no point recompiles. Any learner (nmrl/learners/contract.py) sweeps the same way over one of
 its traced hyperparameters (``SweepSpec.field``, e.g. ``l``; None: over seeds only), its points
-named ``{field}{value}_s{seed}`` (``s{seed}``).
+named ``{field}{value}_s{seed}`` (``s{seed}``). A sweep may instead list its points one by one
+(``SweepSpec.overrides``, ``nmrl sweep --points FILE``): each a name and the config fields it sets on
+the base config, the points differing only in traced hyperparameters and the seed (one program; a
+study's grid over several traced fields at once, nmrl/experiments/study.py).
 
 The points run through the one driver (nmrl.runs.driver.run_points) in the layout of
 nmrl/runs/points.py, chosen by measurement in benchmarks/bench_sweep.py: the points split over the
@@ -16,11 +19,13 @@ tests/test_sweep.py).
 
 Layout of ``OUT``::
 
-    sweep.json                       the sweep's spec (learner, field, its values, seeds, base config)
+    sweep.json                       the sweep's spec (learner, field, its values, seeds, base config;
+                                     a sweep of listed points: ``points``, the list as given)
     points/l{l}_s{seed}/             a complete run directory per point (config.json,
                                      metrics.jsonl, checkpoints/, compact.npz): ``nmrl eval``
                                      and ``nmrl train --resume`` work on it
     results.csv                      l, seed, trials, steps, avg_reward, forward_speed, diverged, checkpoint
+                                     (listed points: point instead of l)
     fig3.png                         Fig. 3 and the learning curves (nmrl/analysis/plots.py)
 
 ``avg_reward`` in results.csv is the average reward per control step during learning (the
@@ -53,6 +58,8 @@ SPEC_FILE = "sweep.json"
 RESULTS_FILE = "results.csv"
 #: fig3.png is redrawn after a chunk only when this many seconds passed since the last drawing
 PLOT_EVERY_S = 120.0
+#: the config fields a listed point may not set: the sweep's budget (given again on a resume)
+BUDGET_FIELDS = ("steps", "trials")
 RESULT_COLUMNS = ("l", "seed", "trials", "steps", "avg_reward", "forward_speed", "diverged", "checkpoint")
 
 
@@ -78,6 +85,10 @@ class SweepSpec:
     #: the first seed: the points' seeds are seed0 .. seed0 + seeds - 1 (a study keeps its screen's
     #: seeds apart from its grid's)
     seed0: int = 0
+    #: the points one by one (``nmrl sweep --points FILE``): dicts of a ``name`` (the point's
+    #: directory) and the config fields it sets on ``base``; () : the points are ``ls`` x seeds.
+    #: A sweep of listed points has no ``field`` (``ls`` is ``(None,)``), seeds or ``first``.
+    overrides: tuple = ()
 
     def validate(self) -> None:
         """ValueError naming the first bad value: the field, its values, the seed count, ``first``,
@@ -85,6 +96,8 @@ class SweepSpec:
         The points are not enumerated: their count is bounded by the memory pre-flight of
         :func:`run_sweep`."""
         learner = learners.of(self.base)
+        if self.overrides:
+            return self._validate_overrides()
         f = self.field
         if f is None:
             if tuple(self.ls) != (None,):
@@ -116,6 +129,36 @@ class SweepSpec:
             cfg = self.base if f is None else dataclasses.replace(self.base, **{f: v})
             driver.check_config(dataclasses.replace(cfg, seed=0))  # the bounds of ``nmrl train``
 
+    def _validate_overrides(self) -> None:
+        """The listed points: distinct plain names, fields of the config other than the budget, the
+        bounds of ``nmrl train`` for each, and one program for all (nmrl/runs/points.py)."""
+        from nmrl.runs import points as pts
+
+        if self.field is not None or tuple(self.ls) != (None,) or self.first or self.seed0:
+            raise ValueError("a sweep of listed points has no swept field, values, first values or seed0")
+        fields = {f.name for f in dataclasses.fields(self.base)}
+        names = []
+        for i, o in enumerate(self.overrides):
+            n = o.get("name") if isinstance(o, dict) else None
+            if not isinstance(n, str) or not n or n.startswith(".") or "/" in n or "\\" in n or len(n) > 200:
+                raise ValueError(f"point {i}: name={n!r} is invalid: every point needs a \"name\", a plain "
+                                 f"directory name (not empty, no '/', not starting with '.')")
+            bad = sorted(k for k in o if k != "name" and (k not in fields or k in BUDGET_FIELDS))
+            if bad:
+                raise ValueError(f"point {n!r} sets {bad}: a point sets fields of the learner's config other "
+                                 f"than the budget ({', '.join(BUDGET_FIELDS)}: the sweep's options)")
+            names.append(n)
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueError(f"duplicate point names {dup}: each point needs its own name")
+        configs = self.point_configs()
+        for n, c in zip(names, configs):
+            try:
+                driver.check_config(c)  # the bounds of ``nmrl train``
+            except ValueError as e:
+                raise ValueError(f"point {n!r}: {e}") from None
+        pts.check_one_program(names, [c.resolved() for c in configs])
+
     def stages(self) -> list[list[int]] | None:
         """Point indices by stage: the points of ``first`` (every seed), then the rest."""
         if not self.first:
@@ -126,13 +169,29 @@ class SweepSpec:
     def points(self) -> list[tuple[int, int]]:
         return [(l, s) for l in self.ls for s in range(self.seed0, self.seed0 + self.seeds)]
 
+    def names(self) -> list[str]:
+        """The points' directory names under ``points/``."""
+        if self.overrides:
+            return [o["name"] for o in self.overrides]
+        return [point_name(l, s, self.field) for l, s in self.points()]
+
+    def count(self) -> int:
+        """The number of points (known before they are enumerated)."""
+        return len(self.overrides) if self.overrides else len(self.ls) * self.seeds
+
     def point_configs(self) -> list:
+        if self.overrides:
+            return [dataclasses.replace(self.base, **{k: v for k, v in o.items() if k != "name"})
+                    for o in self.overrides]
         if self.field is None:
             return [dataclasses.replace(self.base, seed=s) for _, s in self.points()]
         return [dataclasses.replace(self.base, **{self.field: v}, seed=s) for v, s in self.points()]
 
     def columns(self) -> tuple[str, ...]:
-        """The columns of results.csv: the swept field's (none over seeds only), then the rest."""
+        """The columns of results.csv: the swept field's (none over seeds only; listed points: ``point``),
+        then the rest."""
+        if self.overrides:
+            return ("point",) + RESULT_COLUMNS[1:]
         return (() if self.field is None else (self.field,)) + RESULT_COLUMNS[1:]
 
 
@@ -148,13 +207,14 @@ def point_dir(out: pathlib.Path, l, seed: int, field: str | None = "l") -> pathl
 def write_results(out: pathlib.Path, spec: SweepSpec) -> list[dict]:
     """(Re)write results.csv atomically from the points' metrics; returns the rows."""
     rows = []
-    for (l, s) in spec.points():
-        d = point_dir(out, l, s, spec.field)
+    keys = ([{"point": o["name"]} for o in spec.overrides] if spec.overrides else
+            [{} if spec.field is None else {spec.field: l} for l, _ in spec.points()])
+    for key, name, cfg in zip(keys, spec.names(), spec.point_configs()):
+        d = out / "points" / name
         m = store.read_metrics(d)
         last = m[-1] if m else {}
         rows.append({
-            **({} if spec.field is None else {spec.field: l}),
-            "seed": s, "trials": last.get("trials", 0), "steps": last.get("step", 0),
+            **key, "seed": cfg.seed, "trials": last.get("trials", 0), "steps": last.get("step", 0),
             "avg_reward": stats.final_avg(m, "avg_reward"), "forward_speed": stats.final_avg(m, "forward_speed"),
             "diverged": bool(any(r["diverged"] for r in m)),
             "checkpoint": os.path.relpath(d, out) if driver.existing_step(d) is not None else "",
@@ -183,7 +243,8 @@ def _write_spec(out: pathlib.Path, spec: SweepSpec) -> None:
     store.atomic_write_json(out / SPEC_FILE, {"ls": list(spec.ls), "seeds": spec.seeds,
                                               **({"seed0": spec.seed0} if spec.seed0 else {}), "first": list(spec.first),
                                               "base": dataclasses.asdict(spec.base),
-                                              learners.KEY: learners.of(spec.base).name, "field": spec.field})
+                                              learners.KEY: learners.of(spec.base).name, "field": spec.field,
+                                              **({"points": list(spec.overrides)} if spec.overrides else {})})
 
 
 def load_spec(out: str | os.PathLike) -> SweepSpec:
@@ -191,7 +252,8 @@ def load_spec(out: str | os.PathLike) -> SweepSpec:
     saved = json.loads((pathlib.Path(out) / SPEC_FILE).read_text())
     base = learners.config_from_dict(saved["base"], saved.get(learners.KEY))
     return SweepSpec(ls=tuple(saved["ls"]), seeds=saved["seeds"], base=base, first=tuple(saved.get("first", ())),
-                     field=saved.get("field", "l"), seed0=saved.get("seed0", 0))
+                     field=saved.get("field", "l"), seed0=saved.get("seed0", 0),
+                     overrides=tuple(saved.get("points", ())))
 
 
 def run_sweep(spec: SweepSpec, out: str | os.PathLike, *, resume: bool = False, progress: bool = True,
@@ -268,8 +330,8 @@ def _run_sweep(spec, out, resume, progress, keep, max_chunks, plot, checkpoint_e
             last_plot[0] = time.time()
 
     # the memory of every point before the points are enumerated (a count of billions is refused here)
-    env = driver.preflight_points(base, len(spec.ls) * spec.seeds)
-    names = [point_name(l, s, spec.field) for l, s in spec.points()]
+    env = driver.preflight_points(base, spec.count())
+    names = spec.names()
     begun: list[bool] = []
 
     def before_start() -> None:  # every check passed: the sweep's own files
