@@ -42,7 +42,7 @@ import tempfile
 from typing import Callable, Sequence
 
 from nmrl.paper.control_step import DELTA_0
-from nmrl.runs import store
+from nmrl.runs import signals, store
 
 ROWS = "rows.csv"
 ANALYSIS = "analysis.csv"
@@ -172,6 +172,9 @@ def run_cell(study: Study, cell: Cell, out: pathlib.Path, published: pathlib.Pat
         rc = subprocess.call([*_nmrl(), "sweep", *cell.sweep, *study.run_options, "--out", str(d)])
     if rc != 0:
         raise StudyStopped(cell.name, rc)
+    guard = signals.active()  # a signal to the study's process alone (under a command's guard) stops it here
+    if guard is not None and guard.signal is not None:
+        raise StudyStopped(cell.name, 128 + guard.signal)
 
 
 def _points(d: pathlib.Path) -> list[pathlib.Path]:

@@ -14,7 +14,7 @@ budget in simulated seconds) is run for every (delta, arm); the chosen pair is t
 highest average reward over the second half of its grid run (diverged runs are never chosen), among
 the pairs with beta^theta <= ``beta_theta_cap`` if that is set. A study with a cap can reuse another
 study's grid/ (copy it: finished points are never rerun); a final cell that holds other points than
-the rule now chooses is refused (move it away: the final cells run as one program each).
+the rule chooses is refused (move it away: the final cells run as one program each).
 Every arm then runs ``seeds`` seeds at its chosen pair for the same budget in simulated seconds.
 
 The study is written on the study kit (nmrl/experiments/kit.py): its cells, one ``nmrl sweep
