@@ -84,6 +84,7 @@ def test_a_points_sweep_records_its_points_and_equals_separate_train_runs(listed
     ('[{"name": "a", "num_envs": 8}, {"name": "b", "num_envs": 16}]', [], "differs from 'a' in ['num_envs']"),
     ('[{"name": "a", "l": 1}]', ["--seeds", "2"], "without --seeds"),
     ('[{"name": "a", "l": 1}]', ["--vary", "sigma", "1"], "without --vary"),
+    ('[{"name": "a", "l": 1}]', ["--checkpoint-every", "0"], "--checkpoint-every=0"),
 ])
 def test_bad_points_files_are_one_line_exit_2_nothing_written(tmp_path, capsys, content, extra, needle):
     f = tmp_path / "points.json"

@@ -159,6 +159,14 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     field = learner.sweep_field
 
     def check() -> "sweep.SweepSpec":
+        spec = points()
+        if args.checkpoint_every < 1:
+            raise ValueError(f"--checkpoint-every={args.checkpoint_every} is invalid: must be >= 1")
+        if args.group < 1:
+            raise ValueError(f"--group={args.group} is invalid: points vmapped together must be >= 1")
+        return spec
+
+    def points() -> "sweep.SweepSpec":  # the points: listed (--points), a traced field (--vary), or l x seeds
         store.out_path(args.out)
         if field is not None and getattr(args, "period_s", None) is not None:
             raise ValueError(f"give the swept period lengths as --{field}, not --period-s")
@@ -177,10 +185,6 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         spec = sweep.SweepSpec(ls=tuple(values or (1,)) if field is not None else (None,), seeds=args.seeds,
                                base=base, first=tuple(args.first or ()), field=field, seed0=args.seed0)
         spec.validate()
-        if args.checkpoint_every < 1:
-            raise ValueError(f"--checkpoint-every={args.checkpoint_every} is invalid: must be >= 1")
-        if args.group < 1:
-            raise ValueError(f"--group={args.group} is invalid: points vmapped together must be >= 1")
         return spec
 
     prologue = ready(args, check)
