@@ -265,3 +265,16 @@ def test_the_nm_periods_arms_take_the_papers_correlation_time_to_five_digits():
     for arm in ("nms", "nmp"):
         options = exploration2_cells.ARMS[arm]
         assert options[options.index("--corr-time-s") + 1] == "0.08963" == f"{-0.02 / math.log(0.8):.5f}"
+
+
+def test_a_cell_of_listed_points_refuses_a_sweep_of_other_points(tmp_path):
+    """A cell's listed points are the ones its sweep.json records; other settings' points are refused
+    before any sweep runs (the same points, as JSON gives them back, continue)."""
+    d = tmp_path / "c"
+    d.mkdir()
+    (d / "sweep.json").write_text(json.dumps({"points": [{"name": "a", "l": 1, "beta_theta": 1e-05, "seed": 0}]}))
+    study = kit.Study(name="t", cells=(), endpoint=None)
+    other = kit.Cell("c", ("--steps", "10"), points=({"name": "a", "l": 2, "beta_theta": 1e-05, "seed": 0},))
+    with pytest.raises(kit.StudyError, match="other points"):
+        kit.run_cell(study, other, tmp_path)
+    assert [p.name for p in d.iterdir()] == ["sweep.json"]
