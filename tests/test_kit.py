@@ -278,3 +278,49 @@ def test_a_cell_of_listed_points_refuses_a_sweep_of_other_points(tmp_path):
     with pytest.raises(kit.StudyError, match="other points"):
         kit.run_cell(study, other, tmp_path)
     assert [p.name for p in d.iterdir()] == ["sweep.json"]
+
+
+_CTRL_C_STUDY = r'''
+import pathlib, sys
+from nmrl.experiments import kit
+
+FAKE_SWEEP = """
+import pathlib, signal, sys, time
+out = pathlib.Path(sys.argv[sys.argv.index("--out") + 1])
+out.mkdir(parents=True, exist_ok=True)
+def save_and_stop(signum, frame):
+    time.sleep(1.0)  # the sweep saves its points
+    (out / "saved").write_text("yes")
+    sys.exit(130)
+signal.signal(signal.SIGINT, save_and_stop)
+(out / "started").write_text("yes")
+time.sleep(60)
+"""
+kit._nmrl = lambda: [sys.executable, "-c", FAKE_SWEEP]
+study = kit.Study(name="t", cells=(kit.Cell("c", ("--seeds", "1")),), endpoint=None)
+try:
+    kit.run_cell(study, study.cells[0], pathlib.Path(sys.argv[1]))
+except kit.StudyStopped as e:
+    print("stopped", e.status)
+'''
+
+
+def test_ctrl_c_lets_the_cells_sweep_save_before_the_study_stops(tmp_path):
+    """A Ctrl-C signals the study and its running sweep together (one process group): the study
+    waits while the sweep saves and exits, then stops with the sweep's status; it never kills it."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    p = subprocess.Popen([sys.executable, "-c", _CTRL_C_STUDY, str(tmp_path)], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True, start_new_session=True)
+    deadline = time.monotonic() + 60
+    while not (tmp_path / "c" / "started").exists():
+        assert p.poll() is None and time.monotonic() < deadline, p.communicate()
+        time.sleep(0.05)
+    os.killpg(p.pid, signal.SIGINT)  # what the terminal sends on Ctrl-C
+    out, err = p.communicate(timeout=60)
+    assert (tmp_path / "c" / "saved").read_text() == "yes", err
+    assert out.strip() == "stopped 130", err

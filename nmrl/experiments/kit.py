@@ -136,6 +136,18 @@ def _nmrl() -> list[str]:
     return [sys.executable, "-m", "nmrl.cli"]
 
 
+def _sweep(argv: list[str]) -> int:
+    """Run one ``nmrl sweep`` to its end and return its exit status. A Ctrl-C reaches the sweep too
+    (the terminal signals the whole process group): the sweep saves every active point and exits,
+    and the study waits for that instead of killing it while it saves (``subprocess.call`` would)."""
+    p = subprocess.Popen(argv)
+    while True:
+        try:
+            return p.wait()
+        except KeyboardInterrupt:
+            continue
+
+
 def seed_from(published: pathlib.Path, d: pathlib.Path) -> bool:
     """Copy a published cell's continuation state into ``d`` (which holds no sweep); True if done."""
     if (d / "sweep.json").exists() or not (published / "sweep.json").exists():
@@ -161,15 +173,15 @@ def run_cell(study: Study, cell: Cell, out: pathlib.Path, published: pathlib.Pat
         if cell.points and saved != json.loads(json.dumps(list(cell.points))):
             raise StudyError(f"{d} holds a sweep of other points than the cell {cell.name} lists (other "
                              f"settings chose them); move it away to run the cell's points")
-        rc = subprocess.call([*_nmrl(), "sweep", "--resume", *cell.budget(), *study.run_options, "--out", str(d)])
+        rc = _sweep([*_nmrl(), "sweep", "--resume", *cell.budget(), *study.run_options, "--out", str(d)])
     elif cell.points:
         with tempfile.TemporaryDirectory() as tmp:  # the sweep records its points in its sweep.json
             f = pathlib.Path(tmp) / "points.json"
             f.write_text(json.dumps(list(cell.points)))
-            rc = subprocess.call([*_nmrl(), "sweep", *cell.sweep, "--points", str(f), *study.run_options,
-                                  "--out", str(d)])
+            rc = _sweep([*_nmrl(), "sweep", *cell.sweep, "--points", str(f), *study.run_options,
+                        "--out", str(d)])
     else:
-        rc = subprocess.call([*_nmrl(), "sweep", *cell.sweep, *study.run_options, "--out", str(d)])
+        rc = _sweep([*_nmrl(), "sweep", *cell.sweep, *study.run_options, "--out", str(d)])
     if rc != 0:
         raise StudyStopped(cell.name, rc)
     guard = signals.active()  # a signal to the study's process alone (under a command's guard) stops it here
