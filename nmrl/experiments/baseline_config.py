@@ -25,6 +25,7 @@ import pathlib
 from typing import Any
 
 from nmrl import tasks
+from nmrl.paper.control_step import DELTA_0
 from nmrl.paper.env import EnvConfig
 from nmrl.runs import errors, store
 
@@ -58,24 +59,25 @@ CHANGES = (
 
 @dataclasses.dataclass(frozen=True)
 class BaselineConfig:
-    """Brax PPO on the paper's Half-Cheetah. Defaults: BRAX_HALFCHEETAH with CHANGES."""
+    """Brax PPO on the paper's Half-Cheetah. Defaults: BRAX_HALFCHEETAH's values (taken from it) with
+    CHANGES, and the paper's control step and stop rule."""
 
     seed: int = 0
     num_timesteps: int = 25_000_000
     num_envs: int = 64
-    batch_size: int = 512
-    num_minibatches: int = 32
-    unroll_length: int = 20
-    num_updates_per_batch: int = 8
-    discounting: float = 0.95
-    learning_rate: float = 3e-4
-    entropy_cost: float = 1e-3
-    reward_scaling: float = 1.0
-    normalize_observations: bool = True
-    policy_hidden: tuple[int, ...] = (32, 32, 32, 32)
-    value_hidden: tuple[int, ...] = (256, 256, 256, 256, 256)
+    batch_size: int = BRAX_HALFCHEETAH["batch_size"]
+    num_minibatches: int = BRAX_HALFCHEETAH["num_minibatches"]
+    unroll_length: int = BRAX_HALFCHEETAH["unroll_length"]
+    num_updates_per_batch: int = BRAX_HALFCHEETAH["num_updates_per_batch"]
+    discounting: float = BRAX_HALFCHEETAH["discounting"]
+    learning_rate: float = BRAX_HALFCHEETAH["learning_rate"]
+    entropy_cost: float = BRAX_HALFCHEETAH["entropy_cost"]
+    reward_scaling: float = float(BRAX_HALFCHEETAH["reward_scaling"])
+    normalize_observations: bool = BRAX_HALFCHEETAH["normalize_observations"]
+    policy_hidden: tuple[int, ...] = BRAX_HALFCHEETAH["policy_hidden"]
+    value_hidden: tuple[int, ...] = BRAX_HALFCHEETAH["value_hidden"]
     episode_cap: int = 10_000
-    control_dt: float = 0.02
+    control_dt: float = DELTA_0
     stop_prob: float = 1 / 250
     eval_seconds: float = 10.0
     physics: str = "mjx"  #: the environment's physics engine (nmrl/paper/env.py PHYSICS)
