@@ -497,6 +497,8 @@ def test_progress_eta_after_resume_uses_this_sessions_speed(capsys):
     (["ppo", "--num-envs", "1.5"], "--num-envs='1.5' is invalid: must be an integer"),
     (["ppo", "--learning-rate", "fast"], "--learning-rate='fast' is invalid: must be a number"),
     (["ppo", "--trials", "5"], "unknown option(s) --trials 5"),
+    (["ppo", "--seed", "4294967296"], "seed=4294967296 is invalid: must be an integer in [0, 4294967295]"),
+    (["ppo", "--seed", "-1"], "seed=-1 is invalid: must be an integer in [0, 4294967295]"),
     (["eval", "RUN", "--seconds", "601"], "--seconds=601.0 is invalid: must be in (0, 600]"),
 ])
 def test_bad_baseline_values_are_one_line(tmp_path, argv, message):

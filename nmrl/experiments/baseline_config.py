@@ -25,6 +25,7 @@ import pathlib
 from typing import Any
 
 from nmrl import tasks
+from nmrl.options import SEED_MAX
 from nmrl.paper.control_step import DELTA_0
 from nmrl.paper.env import EnvConfig
 from nmrl.runs import errors, store
@@ -103,8 +104,9 @@ class BaselineConfig:
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v < 1:
                 raise ValueError(f"{name}={v!r} is invalid: must be an integer >= 1")
-        if not 0 <= self.seed < 2**31:
-            raise ValueError(f"seed={self.seed!r} is invalid: must be an integer in [0, 2^31 - 1]")
+        if not (isinstance(self.seed, int) and not isinstance(self.seed, bool) and 0 <= self.seed <= SEED_MAX):
+            raise ValueError(f"seed={self.seed!r} is invalid: must be an integer in [0, {SEED_MAX}] (Brax's train "
+                             f"makes jax.random.PRNGKey(seed), as nmrl's learners do)")
         if (self.batch_size * self.num_minibatches) % self.num_envs:
             raise ValueError(f"num_envs={self.num_envs} is invalid: batch_size x num_minibatches = "
                              f"{self.batch_size * self.num_minibatches} must be a multiple of it")
