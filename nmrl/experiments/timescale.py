@@ -35,7 +35,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from nmrl import learners
+from nmrl import learners, tasks
 from nmrl.paper.control_step import DELTA_0
 from nmrl.paper.env import PHYSICS
 from nmrl.learners.ac_config import TrainConfig
@@ -64,7 +64,7 @@ def at_control_step(base: TrainConfig, control_dt: float, period_seconds: float 
     else:
         l, lam = _as_int(period_seconds / control_dt, "period_seconds / control_dt"), base.lam
     delta = _as_int(base.delta / k, "Delta_0 * delta_0 / control_dt") if k < 1 else max(1, math.floor(base.delta / k))
-    paper = base.env == "paper-cheetah"  # a task keeps its own end of a trial and its rates (above)
+    paper = base.env == tasks.PAPER  # a task keeps its own end of a trial and its rates (above)
     cfg = dataclasses.replace(
         base, control_dt=control_dt, l=l, lam=lam, delta=delta,
         gamma=base.gamma ** k, alpha=base.alpha ** k, stop_prob=base.stop_prob * k if paper else base.stop_prob,

@@ -26,7 +26,7 @@ import time
 import jax
 import numpy as np
 
-from nmrl import learners
+from nmrl import learners, tasks
 from nmrl.analysis import stats
 from nmrl.experiments import gradvar as gradvar_stats
 from nmrl.experiments.kit import StudyError
@@ -51,8 +51,6 @@ FINAL_COLUMNS = ("dt", "arm", "period_s", "l", "delta", "seed", "beta_theta", "b
 COLLAPSE_FACTOR = 1.5
 GRADVAR_COLUMNS = ("policy", "dt", "arm", "period_s", "l", "periods", "trcov", "trcov_ci", "mean_sq",
                    "mean_sq_ci", "snr_per_s")
-
-
 
 
 def cell_name(phase: str, dt: float) -> str:
@@ -112,7 +110,7 @@ def final_rows(out: pathlib.Path, spec: TimescaleSpec, grid_rows: list[dict]) ->
                          "l": c.l, "delta": c.delta, "seed": c.seed, "beta_theta": c.beta_theta,
                          "beta_v": c.beta_v, "steps": m[-1]["step"], "seconds": m[-1]["step"] * dt,
                          "trials": m[-1]["trials"], "avg_reward": avg,
-                         "reward_per_s": avg / (DELTA_0 if c.env == "paper-cheetah" else dt),
+                         "reward_per_s": avg / (DELTA_0 if c.env == tasks.PAPER else dt),
                          "forward_speed": stats.final_avg(m, "forward_speed"),
                          "diverged": any(store.is_diverged(r) for r in m),
                          "theta_norm_first": m[0]["theta_norm"], "theta_norm": m[-1]["theta_norm"],

@@ -72,7 +72,7 @@ class TrainConfig:
     trial_s: float | None = env_option("trial_s", None)
     physics: str = env_option("physics", "mjx")
     physics_timestep: float | None = env_option("physics_timestep", None)
-    env: str = option("paper-cheetah", f"the environment: {', '.join(tasks.ENVS)} (docs/tasks.md)")
+    env: str = option(tasks.PAPER, f"the environment: {', '.join(tasks.ENVS)} (docs/tasks.md)")
     # batching and budget
     num_envs: int = option(256, "N environments in lock-step", range=AT_LEAST_ONE)
     chunk_steps: int = option(250, "control steps per environment in one jitted chunk", range=AT_LEAST_ONE)

@@ -67,6 +67,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
+from nmrl import tasks
 from nmrl.learners.ac_config import Hyper, TrainConfig
 from nmrl.learners.optimizers import injected, opt_rule, parse_opt, with_learning_rate
 from nmrl.paper import likelihood, networks, noise
@@ -144,7 +145,7 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
     """
     check_shards(config.num_envs, num_shards, axis_name)
     cfg = config.resolved()
-    if env is None and cfg.env != "paper-cheetah":
+    if env is None and cfg.env != tasks.PAPER:
         raise ValueError(f"env={cfg.env!r}: make_train builds the paper's robot only; pass the environment")
     env = env or HalfCheetah(cfg.env_config())
     OBS_DIM, ACT_DIM = env.obs_dim, env.act_dim

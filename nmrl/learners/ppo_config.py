@@ -95,7 +95,7 @@ class PPOConfig:
     value_layers: int = option(5, "hidden layers of the value net", range=AT_LEAST_ONE)
     value_width: int = option(256, "units per value layer", range=AT_LEAST_ONE)
     # environment, batching, budget (common to every learner)
-    env: str = option("paper-cheetah", f"the environment: {', '.join(tasks.ENVS)} (docs/tasks.md)")
+    env: str = option(tasks.PAPER, f"the environment: {', '.join(tasks.ENVS)} (docs/tasks.md)")
     control_dt: float = env_option("control_dt", 0.02)
     stop_prob: float = env_option("stop_prob", 1 / 250)
     trial_s: float | None = env_option("trial_s", None)

@@ -21,7 +21,7 @@ from typing import Callable
 
 import jax
 
-from nmrl import learners
+from nmrl import learners, tasks
 from nmrl.options import SEED_MAX
 from nmrl.runs import bounds, distributed as dist, io_errors, lock, memory, store
 from nmrl.runs.errors import OutOfMemory, RunError
@@ -56,7 +56,7 @@ def check_config(cfg: Config) -> None:
                          f"(JAX's PRNG seeds are 32-bit; others wrap around to another seed)")
     ts = getattr(cfg, "physics_timestep", None) or physics_timestep()
     n = cfg.control_dt / ts
-    paper = getattr(cfg, "env", "paper-cheetah") == "paper-cheetah"  # a task checks its own (nmrl.tasks)
+    paper = getattr(cfg, "env", tasks.PAPER) == tasks.PAPER  # a task checks its own (nmrl.tasks)
     if paper and (abs(n - round(n)) > 1e-6 or round(n) < 1):
         raise ValueError(f"control_dt={cfg.control_dt!r} is invalid: must be a whole multiple of the physics "
                          f"timestep {ts:g} s (e.g. {ts:g}, {2 * ts:g}, {4 * ts:g}; --physics-timestep sets it)")
