@@ -201,8 +201,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
                   f"sweep --resume --out {args.out}", file=sys.stderr)
         return e.exit_status
     except Exception as e:  # noqa: BLE001 - bad input, the disk, another writer, memory; several processes: a peer gone
-        return exit_status(args, e, (sweep.SweepError, driver.RunError, checkpoint.CheckpointError,
-                                              ValueError))
+        return exit_status(args, e, (sweep.SweepError, driver.RunError, checkpoint.CheckpointError, ValueError))
     return 0
 
 

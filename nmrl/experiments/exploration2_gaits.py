@@ -18,6 +18,7 @@ import pathlib
 
 import numpy as np
 
+from nmrl.experiments import kit
 from nmrl.experiments.exploration2_cells import grid_name
 from nmrl.experiments.exploration2_rules import complete_cells
 from nmrl.paper.control_step import DELTA_0
@@ -62,7 +63,7 @@ def gaits(out: pathlib.Path, rows: list[dict]) -> None:
         run = out / c["cell"] / "points" / c["point"]
         d = out / GAITS / f"{c['rank']}_{c['arm']}"
         ev = json.loads((d / evaluate.EVAL_JSON).read_text()) if (d / evaluate.EVAL_JSON).exists() else None
-        step = json.loads((run / "endpoint.json").read_text())["step"]
+        step = json.loads((run / kit.ENDPOINT).read_text())["step"]
         if ev is None or ev.get("step") != step:
             ev = evaluate.evaluate(run, step, seconds=SECONDS, seed=0, out_dir=d, render=True)
             with np.load(d / evaluate.TRAJECTORY) as t:
