@@ -59,13 +59,14 @@ def test_the_report_tabulates_every_cell_at_its_budget_and_draws_the_curves(tmp_
         _point(tmp_path, "screen/sigma/dt0.02/white", f"sigma0.4_s{seed}", {"control_dt": 0.02},
                [{"step": 5120, "avg_reward": -1.0}, {"step": 10240, "avg_reward": -0.5}])
         rows.append({"cell": "screen/sigma/dt0.02/white", "point": f"sigma0.4_s{seed}", "field": "sigma",
-                     "value": 0.4, "steps": 10240, "budget": 10240, "det_reward_per_s": det})
+                     "value": 0.4, "steps": 10240, "budget": 10240, "diverged": False, "det_reward_per_s": det})
     dets = [10.0, 30.0, 20.0, 60.0]
     for seed, det in enumerate(dets):  # a grid cell of 4 seeds, one of them unfinished
         _point(tmp_path, "grid/dt0.0025/white", f"s{seed}", {"control_dt": 0.0025},
                [{"step": 40960, "avg_reward": 0.1 * seed}])
         rows.append({"cell": "grid/dt0.0025/white", "point": f"s{seed}", "field": "", "value": "",
-                     "steps": 40960 if seed < 3 else 100, "budget": 40960, "det_reward_per_s": det})
+                     "steps": 40960 if seed < 3 else 100, "budget": 40960, "diverged": False,
+                     "det_reward_per_s": det})
     exploration2_analysis.report(rows, tmp_path)
     table = {r["cell"]: r for r in csv.DictReader(open(tmp_path / exploration2_analysis.CELLS_CSV))}
     screen, grid = table["screen/sigma/dt0.02/white"], table["grid/dt0.0025/white"]
@@ -75,3 +76,80 @@ def test_the_report_tabulates_every_cell_at_its_budget_and_draws_the_curves(tmp_
     assert (tmp_path / exploration2_analysis.GRID_FIGURE).stat().st_size > 0
     t, y = exploration2_analysis._curve(tmp_path / "screen/sigma/dt0.02/white/points/sigma0.4_s100")
     assert np.allclose(t, [102.4, 204.8]) and np.allclose(y, [-50.0, -25.0])  # per second: r / 0.02 s
+
+
+@pytest.fixture
+def drawn(monkeypatch):
+    """The figures contrast_figures draws, kept before plots.save closes them."""
+    from nmrl.analysis import plots
+
+    figs, save = [], plots.save
+
+    def keep(fig, path, **kw):
+        figs.append(fig)
+        return save(fig, path, **kw)
+
+    monkeypatch.setattr(plots, "save", keep)
+    return figs
+
+
+def _bars(ax):
+    """Each errorbar of ``ax``: (its marker's x, y, the bar's two ends)."""
+    out = []
+    for c in ax.containers:
+        (x,), (y,) = c.lines[0].get_data()
+        seg = c.lines[2][0].get_segments()[0]
+        out.append((float(x), float(y), seg))
+    return out
+
+
+def test_the_contrast_figure_draws_each_welch_interval_against_the_margin(tmp_path, drawn):
+    from nmrl.analysis import contrast_figures, prereg_stats
+
+    a, b, c = [12.0, 30.0, 25.0, 41.0, 19.0], [5.0, 9.0, -3.0, 14.0, 2.0, 7.0], [40.0, 90.0, 70.0]
+    table = prereg_stats.family({"a": a, "b": b, "c": c}, (("X1", {"a": 1.0, "b": -1.0}),
+                                                          ("X2", {"c": 1.0, "b": -1.0})), 50.0)
+    table.append({"contrast": "X3", "decision": "pending"})  # no estimate: listed, not drawn
+    contrast_figures.contrasts(table, 50.0, tmp_path / "c.png", "difference")
+    assert (tmp_path / "c.png").stat().st_size > 0
+    ax = drawn[0].axes[0]
+    bars = sorted(_bars(ax), key=lambda t: -t[1])  # top row first
+    assert len(bars) == 2
+    for (x, _, seg), (p, q) in zip(bars, ((a, b), (c, b))):
+        ci = stats.ttest_ind(p, q, equal_var=False).confidence_interval(0.95)
+        assert x == pytest.approx(np.mean(p) - np.mean(q))
+        assert sorted([seg[0][0], seg[1][0]]) == [pytest.approx(ci.low), pytest.approx(ci.high)]
+    rows = [t.get_text() for _, t in sorted(zip(ax.get_yticks(), ax.get_yticklabels()), key=lambda p: -p[0])]
+    assert [r.split(":")[0] for r in rows] == ["X1", "X2", "X3"] and rows[2] == "X3: pending"  # top to bottom
+    (band,) = ax.patches  # the equivalence band, in data units along x
+    assert (band.get_x(), band.get_x() + band.get_width()) == (-50.0, 50.0)
+
+
+def test_the_endpoint_figure_draws_every_run_and_each_cells_t_interval(tmp_path, drawn):
+    from nmrl.analysis import contrast_figures
+
+    w, n = [-40.0, -55.0, -47.5, -60.0], [10.0, float("nan"), 30.0, -5.0]
+    contrast_figures.endpoints({"control step 2.5 ms": {"white": w, "nmp": n}}, tmp_path / "e.png", "reward per s")
+    ax = drawn[0].axes[0]
+    for (x, y, seg), v in zip(_bars(ax), (w, [10.0, 30.0, -5.0])):
+        ci = stats.t.interval(0.95, len(v) - 1, loc=np.mean(v), scale=stats.sem(v))
+        assert y == pytest.approx(np.mean(v))
+        assert sorted([seg[0][1], seg[1][1]]) == [pytest.approx(ci[0]), pytest.approx(ci[1])]
+    dots = [ln for ln in ax.lines if ln.get_marker() == "o" and len(ln.get_ydata()) > 1]
+    assert [sorted(ln.get_ydata()) for ln in dots] == [sorted(w), [-5.0, 10.0, 30.0]]
+    labels = [t.get_text() for t in ax.get_xticklabels()]
+    assert labels == ["white\n(n=4)", "nmp\n(n=3, 1 non-finite)"]
+
+
+def test_the_report_draws_the_endpoints_and_contrasts_once_grid_cells_exist(tmp_path):
+    rows = [{"cell": "screen/sigma/dt0.02/white", "point": f"sigma0.4_s{s}", "field": "sigma", "value": 0.4,
+             "steps": 10, "budget": 10, "diverged": False, "det_reward_per_s": -45.0 + s} for s in (100, 101)]
+    exploration2_analysis.report(rows, tmp_path)
+    assert not (tmp_path / exploration2_analysis.ENDPOINT_FIGURE).exists()
+    assert not (tmp_path / exploration2_analysis.CONTRAST_FIGURE).exists()
+    for dt, base in ((0.02, 100.0), (0.0025, 60.0)):
+        rows += [{"cell": f"grid/dt{dt:g}/white", "point": f"s{s}", "field": "", "value": "", "steps": 10,
+                  "budget": 10, "diverged": False, "det_reward_per_s": base + 7.0 * s} for s in range(3)]
+    exploration2_analysis.report(rows, tmp_path)
+    assert (tmp_path / exploration2_analysis.ENDPOINT_FIGURE).stat().st_size > 0
+    assert (tmp_path / exploration2_analysis.CONTRAST_FIGURE).stat().st_size > 0  # P1 has its estimate

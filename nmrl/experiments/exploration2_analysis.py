@@ -14,7 +14,7 @@ import pathlib
 import numpy as np
 
 from nmrl.experiments.exploration2_cells import SNR_CSV, asymptote_name, grid_name
-from nmrl.experiments.exploration2_rules import best_correlated, complete_cells
+from nmrl.experiments.exploration2_rules import best_correlated, complete_cells, ended
 from nmrl.paper.control_step import DELTA_0
 from nmrl.runs import store
 
@@ -80,6 +80,9 @@ def analysis(rows: list[dict]) -> list[dict]:
 
 CELLS_CSV = "cells.csv"
 SCREEN_FIGURE, GRID_FIGURE = "screen_curves.png", "learning_curves.png"
+ENDPOINT_FIGURE, CONTRAST_FIGURE = "endpoints.png", "contrasts.png"
+#: the arms' order in the endpoint figure: white first, the correlated arms after it
+ARM_ORDER = ("white", "ws", "ou", "colored", "nms", "nmp")
 CELL_COLUMNS = ("cell", "value", "n", "mean", "sd", "ci_lo", "ci_hi", "iqm", "iqm_lo", "iqm_hi")
 
 
@@ -92,19 +95,21 @@ def _curve(point: pathlib.Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def report(rows: list[dict], dest: pathlib.Path) -> None:
-    """``cells.csv`` (every cell's and screened value's deterministic endpoint at its budget:
-    nmrl.analysis.cell_curves.summary), the screen's learning curves (one panel per screened arm and
+    """``cells.csv`` (every cell's and screened value's deterministic endpoint over its ended runs,
+    a diverged one by its last good policy as in :func:`analysis`: nmrl.analysis.cell_curves.summary), the screen's learning curves (one panel per screened arm and
     control step, one line per value, extensions included) and, once grid cells exist, the grid's
-    (one panel per control step, one line per arm), from the published points' metrics."""
-    from nmrl.analysis import cell_curves
+    (one panel per control step, one line per arm), from the published points' metrics; with them
+    the grid's endpoints (``endpoints.png``: every run at its budget, each cell's mean and 95% t
+    interval, one panel per control step) and, once any contrast has an estimate, the families of
+    :func:`analysis` against the margin (``contrasts.png``)."""
+    from nmrl.analysis import cell_curves, contrast_figures
 
     groups: dict[tuple[str, str], list[float]] = {}
     screen: dict[str, dict[str, list]] = {}
     grid: dict[str, dict[str, list]] = {}
     for r in rows:
         key = (r["cell"], f"{float(r['value']):g}" if r["cell"].startswith("screen/") else "")
-        at_budget = int(r["steps"]) == int(r["budget"]) and r["det_reward_per_s"] != ""
-        groups.setdefault(key, []).extend([float(r["det_reward_per_s"])] if at_budget else [])
+        groups.setdefault(key, []).extend([float(r["det_reward_per_s"])] if ended(r) else [])
         point = dest / r["cell"] / "points" / r["point"]
         if not (point / "metrics.jsonl").is_file():
             continue
@@ -122,8 +127,27 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
         cell_curves.figure(screen, dest / SCREEN_FIGURE, "exploring reward per second", "the screen (seeds 100, 101)")
     if grid:
         cell_curves.figure(grid, dest / GRID_FIGURE, "exploring reward per second", "the grid")
+    by_dt: dict[float, dict[str, list[float]]] = {}
+    for (c, _), x in groups.items():
+        if c.startswith("grid/") and x:
+            _, dt, arm = c.split("/")
+            by_dt.setdefault(float(dt[2:]), {})[arm] = x
+    if by_dt:
+        panels = {f"control step {dt * 1000:g} ms": {a: by_dt[dt][a] for a in sorted(by_dt[dt], key=_arm_rank)}
+                  for dt in sorted(by_dt, reverse=True)}
+        contrast_figures.endpoints(panels, dest / ENDPOINT_FIGURE, "deterministic reward per second",
+                                   "the grid's primary endpoint (each run at its budget)")
+    table = [r for r in analysis(rows) if r.get("estimate", "") != ""]
+    if table:
+        contrast_figures.contrasts(table, MARGIN, dest / CONTRAST_FIGURE,
+                                   "difference of deterministic reward per second (95% Welch interval)",
+                                   "the pre-registered contrasts (decisions: Holm over each family)")
     if (dest / SNR_CSV).is_file():
         _snr_report(dest)
+
+
+def _arm_rank(arm: str) -> tuple[int, str]:
+    return (ARM_ORDER.index(arm) if arm in ARM_ORDER else len(ARM_ORDER), arm)
 
 
 SNR_SUMMARY_CSV, SNR_FIGURE = "snr_summary.csv", "snr.png"
