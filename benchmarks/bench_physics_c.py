@@ -16,7 +16,11 @@ interleaved round by round so that a background load touches them alike:
   points per device) and threads (``cores``, ``mujoco.batch`` with the PD law): the share of the
   limit the program reaches;
 * (d) the native PPO at the exploration study's settings (64 environments, value 2x64), one
-  iteration (rollout + update) on C against MJX, at 20 and 5 ms.
+  iteration (rollout + update) on C against MJX, at 20 and 5 ms;
+* (e) the second exploration study's grid layout at 2.5 ms: 8 seeds of that PPO on C over the
+  devices, each device's seeds vmapped together (``--group 8``) against a seed at a time, one
+  iteration with the study's minibatches of 512 unrolls of 0.4 s (fewer of them per iteration:
+  4, ``--quick`` 1; the study's 32 only change how many).
 
 Control steps per second of the whole machine; compile times apart. ``--quick`` fewer rounds and
 steps; ``smoke`` the smallest setting. ``run(quick, smoke=False) -> dict``;
@@ -178,7 +182,50 @@ def _worker(quick: bool, smoke: bool) -> dict:
         r = {k: timing(t[k], ppo[k][1]["work"])["control_steps_per_s"] for k in t}
         out["d_ppo"][f"{dt * 1000:g}ms"] = {"num_minibatches": mb, "rates": r, "c_over_mjx": r["c"] / r["mjx"],
                                             "compile_s": {k: ppo[k][1]["compile_s"] for k in ppo}}
+    out["e_ppo_group"] = _ppo_group(n_dev, cores, rounds, quick, smoke)
     return out
+
+
+def _ppo_group(n_dev: int, cores: int, rounds: int, quick: bool, smoke: bool) -> dict:
+    """(e): 8 seeds of PPO at 2.5 ms on C (trials of 5 s, the 0.0025 s timestep) over the devices,
+    ``group`` 1 against 8, interleaved; control steps per second of the whole machine."""
+    import jax
+    import jax.numpy as jnp
+
+    from benchmarks.bench_learning import interleave, timing
+    from nmrl.learners.ppo import make_ppo
+    from nmrl.learners.ppo_config import PPOConfig
+    from nmrl.paper.env import HalfCheetah
+    from nmrl.runs import points
+
+    seeds, dt = (2, 0.02) if smoke else (8, 0.0025)
+    cfg = PPOConfig(num_envs=4 if smoke else ENV_BATCH, batch_size=4 if smoke else 512,
+                    num_minibatches=1 if smoke or quick else 4, control_dt=dt, reward_scale=dt / 0.02,
+                    value_layers=2, value_width=64, physics="c", physics_timestep=0.0025, trial_s=5.0).resolved()
+    tr = make_ppo(cfg, HalfCheetah(dataclasses.replace(cfg.env_config(), threads=max(1, cores // n_dev))))
+    slots = points.slot_order(seeds, n_dev)
+    act = points.place_points(jnp.asarray([i >= 0 for i in slots]), n_dev)
+    calls, compiles = {}, {}
+    for group in (1, seeds):
+        st = jax.jit(jax.vmap(tr.init))(jnp.stack([jax.random.PRNGKey(s) for s in range(seeds)]))
+        ts = points.place_points(points.stack_trees([points.unstack(st, max(i, 0)) for i in slots]), n_dev)
+        t0 = time.perf_counter()
+        fn = jax.jit(points.points_program(tr.chunk, n_dev, group), donate_argnums=0).lower(ts, act).compile()
+        compiles[group] = time.perf_counter() - t0
+        box = {"ts": ts}
+
+        def call(fn=fn, box=box):
+            box["ts"], m = fn(box["ts"], act)
+            jax.block_until_ready(m)
+
+        call()
+        calls[group] = call
+    times = interleave(calls, max(1, rounds // 2) if not smoke else 1)
+    work = seeds * cfg.num_envs * cfg.chunk_steps
+    rates = {f"group_{g}": timing(times[g], work)["control_steps_per_s"] for g in calls}
+    return {"seeds": seeds, "control_dt": dt, "num_minibatches": cfg.num_minibatches, "rates": rates,
+            "grouped_over_one_at_a_time": statistics.median(a / b for a, b in zip(times[1], times[seeds])),
+            "compile_s": {f"group_{g}": c for g, c in compiles.items()}}
 
 
 def run(quick: bool = False, smoke: bool = False, timeout: float = 3600) -> dict:
@@ -205,7 +252,9 @@ def run(quick: bool = False, smoke: bool = False, timeout: float = 3600) -> dict
           f"C on one device {sw['rates']['c_one_device']:,.0f}, C grouped {sw['rates']['c_grouped']:,.0f}; "
           f"sweep C / MuJoCo C alone {w['c_limit']['sweep_c_over_limit']:.2f} (grouped "
           f"{w['c_limit']['sweep_c_grouped_over_limit']:.2f}); PPO C/MJX "
-          + ", ".join(f"{k} {v['c_over_mjx']:.2f}x" for k, v in w["d_ppo"].items()), file=sys.stderr, flush=True)
+          + ", ".join(f"{k} {v['c_over_mjx']:.2f}x" for k, v in w["d_ppo"].items())
+          + f"; PPO 2.5 ms, 8 seeds grouped / one at a time {w['e_ppo_group']['grouped_over_one_at_a_time']:.2f}x",
+          file=sys.stderr, flush=True)
     return res
 
 

@@ -170,6 +170,15 @@ def test_the_grid_follows_the_screen_with_the_preregistered_design():
                  "sensitivity/dt0.0025/white_sigma0.16", "sensitivity/dt0.0025/white_sigma1"):
         assert [s for _, s in _spec(cells[name].sweep).points()] == [0, 1, 2, 3], name
     assert {"screen/sigma/dt0.02/ou", "screen/sigma/dt0.02/colored", "screen/sigma/dt0.02/nms"} <= set(cells)
+    # below 20 ms each device steps its seeds vmapped together; at 20 ms (and the matched-SNR cells) a
+    # seed at a time, so that white's 20 ms runs are the SNR cells' runs iteration for iteration
+    for name, c in cells.items():
+        if not name.startswith("screen/"):
+            dt = _spec(c.sweep).base.control_dt
+            seeds = len(_spec(c.sweep).points())
+            assert c.run_options == (("--group", str(seeds)) if dt < 0.02 else ()), name
+    assert cells["grid/dt0.0025/white"].run_options == ("--group", "8")
+    assert not any(c.run_options for n, c in cells.items() if n.startswith("screen/"))
     # nothing of the grid before every primary setting is chosen
     assert not [c for c in exploration2_rules.later_cells(rows[:-4]) if not c.name.startswith("screen/")]
 
@@ -324,3 +333,29 @@ def test_ctrl_c_lets_the_cells_sweep_save_before_the_study_stops(tmp_path):
     out, err = p.communicate(timeout=60)
     assert (tmp_path / "c" / "saved").read_text() == "yes", err
     assert out.strip() == "stopped 130", err
+
+
+_RECORDING_SWEEP = """
+import json, pathlib, sys
+out = pathlib.Path(sys.argv[sys.argv.index("--out") + 1])
+out.mkdir(parents=True, exist_ok=True)
+with open(out.parent / "argv.jsonl", "a") as fh:
+    fh.write(json.dumps(sys.argv[1:]) + "\\n")
+(out / "sweep.json").write_text("{}")
+"""
+
+
+def test_a_cells_run_options_are_given_on_its_start_and_every_resume(tmp_path, monkeypatch):
+    import sys
+
+    monkeypatch.setattr(kit, "_nmrl", lambda: [sys.executable, "-c", _RECORDING_SWEEP])
+    study = kit.Study(name="t", cells=(), endpoint=None)
+    cell = kit.Cell("c", ("--seeds", "2", "--steps", "10"), run_options=("--group", "2"))
+    kit.run_cell(study, cell, tmp_path)  # starts it
+    kit.run_cell(study, cell, tmp_path)  # resumes it
+    start, resume = [json.loads(line) for line in (tmp_path / "argv.jsonl").read_text().splitlines()]
+    assert start[:4] == ["sweep", "--seeds", "2", "--steps"] and "--resume" not in start
+    assert resume[:4] == ["sweep", "--resume", "--steps", "10"]
+    for argv in (start, resume):
+        assert argv[argv.index("--group") + 1] == "2" and argv[-2] == "--out"
+        assert argv.index("--quiet") < argv.index("--group")  # after the study's own run options

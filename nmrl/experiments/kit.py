@@ -71,6 +71,9 @@ class Cell:
     #: the points one by one (``nmrl sweep --points``: dicts of a name and the config fields it sets);
     #: () : the options above make the points
     points: tuple[dict, ...] = ()
+    #: ``nmrl sweep`` options of how this cell runs, not what it computes (e.g. ``--group``), given
+    #: on its start and on every resume after the study's own (:attr:`Study.run_options`)
+    run_options: tuple[str, ...] = ()
 
     def budget(self) -> tuple[str, ...]:
         """The budget options among :attr:`sweep` (given again on a resume)."""
@@ -173,15 +176,16 @@ def run_cell(study: Study, cell: Cell, out: pathlib.Path, published: pathlib.Pat
         if cell.points and saved != json.loads(json.dumps(list(cell.points))):
             raise StudyError(f"{d} holds a sweep of other points than the cell {cell.name} lists (other "
                              f"settings chose them); move it away to run the cell's points")
-        rc = _sweep([*_nmrl(), "sweep", "--resume", *cell.budget(), *study.run_options, "--out", str(d)])
+        rc = _sweep([*_nmrl(), "sweep", "--resume", *cell.budget(), *study.run_options, *cell.run_options,
+                     "--out", str(d)])
     elif cell.points:
         with tempfile.TemporaryDirectory() as tmp:  # the sweep records its points in its sweep.json
             f = pathlib.Path(tmp) / "points.json"
             f.write_text(json.dumps(list(cell.points)))
             rc = _sweep([*_nmrl(), "sweep", *cell.sweep, "--points", str(f), *study.run_options,
-                        "--out", str(d)])
+                        *cell.run_options, "--out", str(d)])
     else:
-        rc = _sweep([*_nmrl(), "sweep", *cell.sweep, *study.run_options, "--out", str(d)])
+        rc = _sweep([*_nmrl(), "sweep", *cell.sweep, *study.run_options, *cell.run_options, "--out", str(d)])
     if rc != 0:
         raise StudyStopped(cell.name, rc)
     guard = signals.active()  # a signal to the study's process alone (under a command's guard) stops it here
