@@ -132,6 +132,30 @@ def test_white_has_no_time_constant_and_extensions_stop_after_two():
     assert exploration2_rules.choose(rows) == (0.01024, True, [0.01024, 0.0256, 0.064, 0.16, 0.4, 1.0])
 
 
+def test_the_choices_so_far_name_each_decided_setting_with_its_bracketing():
+    w, ou = exploration2_cells.SIGMA_SCREEN[0], exploration2_cells.SIGMA_SCREEN[3]
+    rows = _screen_rows(w, {0.064: 9.0, 0.16: 2.0, 0.4: 1.0, 1.0: 0.0})
+    assert exploration2_rules.choices(rows) == []  # at the edge: extending, nothing decided
+    rows += _screen_rows(exploration2_rules.later_cells(rows)[0], {0.0256: 4.0})
+    (c,) = exploration2_rules.choices(rows)  # 0.064 (mean 9) beats the extension's 0.0256 (mean 4)
+    assert c == {"arm": "white", "control_dt": 0.02, "setting": "sigma", "value": 0.064, "bracketed": True,
+                 "mean": 9.0, "lead": 5.0, "screened": "0.0256 0.064 0.16 0.4 1", "means": "4.0 9.0 2.0 1.0 0.0"}
+    # OU: sigma 0.16 decided (1.0 diverged), its time constant still screening
+    rows += _screen_rows(ou, {0.064: 1.0, 0.16: 5.0, 0.4: 3.0, 1.0: 9.0}, diverged=(1.0,))
+    got = [r for r in exploration2_rules.choices(rows) if r["arm"] == "ou"]
+    assert got == [{"arm": "ou", "control_dt": 0.0025, "setting": "sigma", "value": 0.16, "bracketed": True,
+                    "mean": 5.0, "lead": 2.0, "screened": "0.064 0.16 0.4 1", "means": "1.0 5.0 3.0 diverged"}]
+    # the time constants screened: 0.01 s (mean 6) beats the sigma cell's 0.03 s (mean 5) and 0.09 s,
+    # at the lower edge; its extension 0.00333 s (mean 2) loses: 0.01 s, bracketed
+    tc = next(c for c in exploration2_rules.later_cells(rows) if c.name == "screen/tc/dt0.0025/ou")
+    rows += _screen_rows(tc, {0.01: 6.0, 0.09: 1.0})
+    ext = next(c for c in exploration2_rules.later_cells(rows) if c.name.startswith("screen/tc/dt0.0025/ou+"))
+    rows += _screen_rows(ext, {0.00333333: 2.0})
+    got = [r for r in exploration2_rules.choices(rows) if r["arm"] == "ou"]
+    assert got[1] == {"arm": "ou", "control_dt": 0.0025, "setting": "corr_time_s", "value": 0.01, "bracketed": True,
+                      "mean": 6.0, "lead": 1.0, "screened": "0.00333333 0.01 0.03 0.09", "means": "2.0 6.0 5.0 1.0"}
+
+
 def _chosen_rows():
     """Finished screens of the primary family, each bracketed: sigma 0.4 best, then its time
     constant's middle value (the sigma screen's own) best."""

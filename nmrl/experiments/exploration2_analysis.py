@@ -14,7 +14,7 @@ import pathlib
 import numpy as np
 
 from nmrl.experiments.exploration2_cells import SNR_CSV, asymptote_name, grid_name
-from nmrl.experiments.exploration2_rules import best_correlated, complete_cells, ended
+from nmrl.experiments.exploration2_rules import CHOICE_COLUMNS, best_correlated, choices, complete_cells, ended
 from nmrl.paper.control_step import DELTA_0
 from nmrl.runs import store
 
@@ -78,7 +78,7 @@ def analysis(rows: list[dict]) -> list[dict]:
     return out
 
 
-CELLS_CSV = "cells.csv"
+CELLS_CSV, CHOICES_CSV = "cells.csv", "choices.csv"
 SCREEN_FIGURE, GRID_FIGURE = "screen_curves.png", "learning_curves.png"
 ENDPOINT_FIGURE, CONTRAST_FIGURE = "endpoints.png", "contrasts.png"
 #: the arms' order in the endpoint figure: white first, the correlated arms after it
@@ -95,11 +95,13 @@ def _curve(point: pathlib.Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def report(rows: list[dict], dest: pathlib.Path) -> None:
-    """``cells.csv`` (every cell's and screened value's deterministic endpoint over its ended runs,
-    a diverged one by its last good policy as in :func:`analysis`: nmrl.analysis.cell_curves.summary), the screen's learning curves (one panel per screened arm and
-    control step, one line per value, extensions included) and, once grid cells exist, the grid's
-    (one panel per control step, one line per arm), from the published points' metrics; with them
-    the grid's endpoints (``endpoints.png``: every run at its budget, each cell's mean and 95% t
+    """``choices.csv`` (what the screen has decided so far: exploration2_rules.choices),
+    ``cells.csv`` (every cell's and screened value's deterministic endpoint over its ended runs, a
+    diverged one by its last good policy as in :func:`analysis`: nmrl.analysis.cell_curves.summary),
+    the screen's learning curves (one panel per screened arm and control step, one line per value,
+    extensions included) and, once grid cells exist, the grid's (one panel per control step, one
+    line per arm), from the published points' metrics; with them the grid's endpoints
+    (``endpoints.png``: every ended run, each cell's mean and 95% t
     interval, one panel per control step) and, once any contrast has an estimate, the families of
     :func:`analysis` against the margin (``contrasts.png``)."""
     from nmrl.analysis import cell_curves, contrast_figures
@@ -121,6 +123,7 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
         elif r["cell"].startswith("grid/"):
             _, dt, arm = r["cell"].split("/")
             grid.setdefault(f"control step {float(dt[2:]) * 1000:g} ms", {}).setdefault(arm, []).append(_curve(point))
+    store.write_csv(dest / CHOICES_CSV, CHOICE_COLUMNS, choices(rows))
     store.write_csv(dest / CELLS_CSV, CELL_COLUMNS,
                    [{"cell": c, "value": v, **cell_curves.summary(x)} for (c, v), x in groups.items()])
     if screen:
@@ -136,7 +139,7 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
         panels = {f"control step {dt * 1000:g} ms": {a: by_dt[dt][a] for a in sorted(by_dt[dt], key=_arm_rank)}
                   for dt in sorted(by_dt, reverse=True)}
         contrast_figures.endpoints(panels, dest / ENDPOINT_FIGURE, "deterministic reward per second",
-                                   "the grid's primary endpoint (each run at its budget)")
+                                   "the grid's primary endpoint (every ended run)")
     table = [r for r in analysis(rows) if r.get("estimate", "") != ""]
     if table:
         contrast_figures.contrasts(table, MARGIN, dest / CONTRAST_FIGURE,

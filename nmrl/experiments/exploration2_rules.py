@@ -37,16 +37,22 @@ def choose(rows: list[dict]) -> tuple[float, bool, list[float]] | None:
     """``(best value, at an edge, the values screened)`` of finished screen rows: the value whose
     seeds' mean deterministic reward per second is highest; a value with a diverged run is never
     chosen (None if every value has one)."""
-    by: dict[float, list[dict]] = {}
-    for r in rows:
-        by.setdefault(float(r["value"]), []).append(r)
-    ok = {v: sum(float(r["det_reward_per_s"]) for r in rs) / len(rs) for v, rs in by.items()
-          if not any(str(r["diverged"]) == "True" for r in rs)}
+    means = screen_means(rows)
+    ok = {v: m for v, m in means.items() if m is not None}
     if not ok:
         return None
     best = max(ok, key=ok.get)
-    values = sorted(by)
+    values = sorted(means)
     return best, best in (values[0], values[-1]), values
+
+
+def screen_means(rows: list[dict]) -> dict[float, float | None]:
+    """Each screened value's mean deterministic reward per second over its seeds (None: a run diverged)."""
+    by: dict[float, list[dict]] = {}
+    for r in rows:
+        by.setdefault(float(r["value"]), []).append(r)
+    return {v: None if any(str(r["diverged"]) == "True" for r in rs)
+            else sum(float(r["det_reward_per_s"]) for r in rs) / len(rs) for v, rs in by.items()}
 
 
 def _extension(cell: kit.Cell, rows: list[dict], factor: float) -> kit.Cell | None:
@@ -68,24 +74,26 @@ def _extension(cell: kit.Cell, rows: list[dict], factor: float) -> kit.Cell | No
     return kit.Cell(f"{cell.name}+{nxt:.6g}", tuple(argv))
 
 
-def _screen(rows: list[dict], cell: kit.Cell) -> tuple[list[kit.Cell], dict | None]:
+def _screen_state(rows: list[dict], cell: kit.Cell) -> tuple[list[kit.Cell], dict]:
     """One sigma-screen cell's rule (docs/exploration-study-2.md): the cells it adds so far (a sigma
     winner at an edge adds the next sigma, x or / 2.5, at most twice; once sigma is chosen, the
     arm's time constant's other values at that sigma, with the same edge extension by the values'
-    own factor: x or / 3, beta x or / 2) and, once every one of them is finished, the choice:
-    ``{"sigma": ..., <time constant field>: ...}`` (None until then)."""
+    own factor: x or / 3, beta x or / 2) and what it has decided: ``{"sigma": choice}`` once sigma
+    is chosen, with ``{<time constant field>: choice}`` once that is, each choice as :func:`choose`
+    gives it (best, at an edge, the values screened) with the rows it was decided on."""
     arm, dt = cell.name.split("/")[-1], float(cell.name.split("/")[2].removeprefix("dt"))
     done = _finished(rows, cell.name)
     if done is None:
-        return [], None
+        return [], {}
     ext = _extension(cell, done, SIGMA_FACTOR)
     if ext is not None:
-        return [ext], None
+        return [ext], {}
     sigma = choose(done)
     if sigma is None:
-        return [], None
+        return [], {}
+    decided = {"sigma": (sigma, done)}
     if arm not in TIME_CONSTANTS:
-        return [], {"sigma": sigma[0]}
+        return [], decided
     field, vals, factor = TIME_CONSTANTS[arm]
     options = list(ARMS[arm])
     k = options.index("--" + field.replace("_", "-"))
@@ -96,13 +104,44 @@ def _screen(rows: list[dict], cell: kit.Cell) -> tuple[list[kit.Cell], dict | No
                    "--seeds", str(SCREEN_SEEDS), "--seed0", str(SCREEN_SEED0)))
     tc_rows = _finished(rows, tc.name)
     if tc_rows is None:
-        return [tc], None
+        return [tc], decided
     at_sigma = [dict(r, value=vals[1]) for r in done if float(r["value"]) == sigma[0]]
     ext = _extension(tc, tc_rows + at_sigma, factor)
     if ext is not None:
-        return [tc, ext], None
+        return [tc, ext], decided
     best = choose(tc_rows + at_sigma)
-    return [tc], None if best is None else {"sigma": sigma[0], field: best[0]}
+    return [tc], decided if best is None else {**decided, field: (best, tc_rows + at_sigma)}
+
+
+def _screen(rows: list[dict], cell: kit.Cell) -> tuple[list[kit.Cell], dict | None]:
+    """:func:`_screen_state`'s cells and, once every setting of the arm is decided, the choice
+    ``{"sigma": ..., <time constant field>: ...}`` (None until then)."""
+    add, state = _screen_state(rows, cell)
+    arm = cell.name.split("/")[-1]
+    complete = "sigma" in state and (arm not in TIME_CONSTANTS or TIME_CONSTANTS[arm][0] in state)
+    return add, {k: v[0][0] for k, v in state.items()} if complete else None
+
+
+CHOICE_COLUMNS = ("arm", "control_dt", "setting", "value", "bracketed", "mean", "lead", "screened", "means")
+
+
+def choices(rows: list[dict]) -> list[dict]:
+    """What the screen has decided so far, per screened arm, control step and setting (sigma, then
+    the time constant): the chosen value, whether it is bracketed (inside the values screened) or at
+    an edge after the extensions the rule allows, its mean deterministic reward per second, its lead
+    over the next best value, and every value screened with its mean ("diverged" for a value with a
+    diverged run); a setting still screening is left out."""
+    out = []
+    for cell in (*SIGMA_SCREEN, *SECONDARY_SCREEN):
+        arm, dt = cell.name.split("/")[-1], float(cell.name.split("/")[2].removeprefix("dt"))
+        for setting, ((best, edge, values), decided_on) in _screen_state(rows, cell)[1].items():
+            means = screen_means(decided_on)
+            others = [m for v, m in means.items() if v != best and m is not None]
+            out.append({"arm": arm, "control_dt": dt, "setting": setting, "value": best, "bracketed": not edge,
+                        "mean": means[best], "lead": means[best] - max(others) if others else "",
+                        "screened": " ".join(f"{v:g}" for v in values),
+                        "means": " ".join("diverged" if means[v] is None else f"{means[v]:.1f}" for v in values)})
+    return out
 
 
 def later_cells(rows: list[dict]) -> list[kit.Cell]:
