@@ -121,19 +121,7 @@ def _worker(quick: bool, smoke: bool) -> dict:
         tr = make_train(cfgs[0], HalfCheetah(env_cfg))
         keys = jnp.stack([jax.random.PRNGKey(c.seed) for c in cfgs])
         ts = jax.jit(jax.vmap(tr.init))(keys, points.stack_trees([Hyper.from_config(c) for c in cfgs]))
-        slots = points.slot_order(len(cfgs), n_use)
-        ts = points.place_points(points.stack_trees([points.unstack(ts, max(i, 0)) for i in slots]), n_use)
-        act = points.place_points(jnp.asarray([i >= 0 for i in slots]), n_use)
-        t0 = time.perf_counter()
-        fn = jax.jit(points.points_program(tr.chunk, n_use, group), donate_argnums=0).lower(ts, act).compile()
-        compile_s = time.perf_counter() - t0
-        b = {"ts": ts}
-
-        def call():
-            b["ts"], m = fn(b["ts"], act)
-            jax.block_until_ready(m)
-
-        call()
+        call, compile_s = _points_call(tr.chunk, ts, len(cfgs), n_use, group)
         return call, compile_s, len(cfgs) * num_envs * T
 
     calls, compiles, work = {}, {}, 0
@@ -186,6 +174,31 @@ def _worker(quick: bool, smoke: bool) -> dict:
     return out
 
 
+def _points_call(chunk, ts, n_points: int, n_use: int, group: int):
+    """``(call, compile_s)``: the points' stacked states ``ts`` laid out over ``n_use`` devices as the
+    sweep lays them (nmrl.runs.points), their program compiled apart, and ``call()`` running one
+    chunk of every point (blocking; it carries the states on), already run once."""
+    import jax
+    import jax.numpy as jnp
+
+    from nmrl.runs import points
+
+    slots = points.slot_order(n_points, n_use)
+    ts = points.place_points(points.stack_trees([points.unstack(ts, max(i, 0)) for i in slots]), n_use)
+    act = points.place_points(jnp.asarray([i >= 0 for i in slots]), n_use)
+    t0 = time.perf_counter()
+    fn = jax.jit(points.points_program(chunk, n_use, group), donate_argnums=0).lower(ts, act).compile()
+    compile_s = time.perf_counter() - t0
+    box = {"ts": ts}
+
+    def call():
+        box["ts"], m = fn(box["ts"], act)
+        jax.block_until_ready(m)
+
+    call()
+    return call, compile_s
+
+
 def _ppo_group(n_dev: int, cores: int, rounds: int, quick: bool, smoke: bool) -> dict:
     """(e): 8 seeds of PPO at 2.5 ms on C (trials of 5 s, the 0.0025 s timestep) over the devices,
     ``group`` 1 against 8, interleaved; control steps per second of the whole machine."""
@@ -196,30 +209,16 @@ def _ppo_group(n_dev: int, cores: int, rounds: int, quick: bool, smoke: bool) ->
     from nmrl.learners.ppo import make_ppo
     from nmrl.learners.ppo_config import PPOConfig
     from nmrl.paper.env import HalfCheetah
-    from nmrl.runs import points
 
     seeds, dt = (2, 0.02) if smoke else (8, 0.0025)
     cfg = PPOConfig(num_envs=4 if smoke else ENV_BATCH, batch_size=4 if smoke else 512,
                     num_minibatches=1 if smoke or quick else 4, control_dt=dt, reward_scale=dt / 0.02,
                     value_layers=2, value_width=64, physics="c", physics_timestep=0.0025, trial_s=5.0).resolved()
     tr = make_ppo(cfg, HalfCheetah(dataclasses.replace(cfg.env_config(), threads=max(1, cores // n_dev))))
-    slots = points.slot_order(seeds, n_dev)
-    act = points.place_points(jnp.asarray([i >= 0 for i in slots]), n_dev)
     calls, compiles = {}, {}
     for group in (1, seeds):
         st = jax.jit(jax.vmap(tr.init))(jnp.stack([jax.random.PRNGKey(s) for s in range(seeds)]))
-        ts = points.place_points(points.stack_trees([points.unstack(st, max(i, 0)) for i in slots]), n_dev)
-        t0 = time.perf_counter()
-        fn = jax.jit(points.points_program(tr.chunk, n_dev, group), donate_argnums=0).lower(ts, act).compile()
-        compiles[group] = time.perf_counter() - t0
-        box = {"ts": ts}
-
-        def call(fn=fn, box=box):
-            box["ts"], m = fn(box["ts"], act)
-            jax.block_until_ready(m)
-
-        call()
-        calls[group] = call
+        calls[group], compiles[group] = _points_call(tr.chunk, st, seeds, n_dev, group)
     times = interleave(calls, max(1, rounds // 2) if not smoke else 1)
     work = seeds * cfg.num_envs * cfg.chunk_steps
     rates = {f"group_{g}": timing(times[g], work)["control_steps_per_s"] for g in calls}

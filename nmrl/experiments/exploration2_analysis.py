@@ -13,7 +13,7 @@ import pathlib
 
 import numpy as np
 
-from nmrl.experiments.exploration2_cells import SNR_CSV, asymptote_name, grid_name
+from nmrl.experiments.exploration2_cells import SNR_CSV, arm_and_dt, asymptote_name, grid_name
 from nmrl.experiments.exploration2_rules import CHOICE_COLUMNS, best_correlated, choices, complete_cells, ended
 from nmrl.paper.control_step import DELTA_0
 from nmrl.runs import store
@@ -121,8 +121,8 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
             screen.setdefault(base_name.removeprefix("screen/"), {}).setdefault(f"{field} {key[1]}", []).append(
                 _curve(point))
         elif r["cell"].startswith("grid/"):
-            _, dt, arm = r["cell"].split("/")
-            grid.setdefault(f"control step {float(dt[2:]) * 1000:g} ms", {}).setdefault(arm, []).append(_curve(point))
+            arm, dt = arm_and_dt(r["cell"])
+            grid.setdefault(f"control step {dt * 1000:g} ms", {}).setdefault(arm, []).append(_curve(point))
     store.write_csv(dest / CHOICES_CSV, CHOICE_COLUMNS, choices(rows))
     store.write_csv(dest / CELLS_CSV, CELL_COLUMNS,
                    [{"cell": c, "value": v, **cell_curves.summary(x)} for (c, v), x in groups.items()])
@@ -133,8 +133,8 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
     by_dt: dict[float, dict[str, list[float]]] = {}
     for (c, _), x in groups.items():
         if c.startswith("grid/") and x:
-            _, dt, arm = c.split("/")
-            by_dt.setdefault(float(dt[2:]), {})[arm] = x
+            arm, dt = arm_and_dt(c)
+            by_dt.setdefault(dt, {})[arm] = x
     if by_dt:
         panels = {f"control step {dt * 1000:g} ms": {a: by_dt[dt][a] for a in sorted(by_dt[dt], key=_arm_rank)}
                   for dt in sorted(by_dt, reverse=True)}

@@ -108,6 +108,13 @@ CORRELATED = ("ou", "colored", "nms", "nmp")
 ASYMPTOTE_ITERATIONS = 4 * GRID_ITERATIONS  #: the asymptote's budget: 4x the grid's, at 5 ms
 
 
+def arm_and_dt(name: str) -> tuple[str, float]:
+    """The arm and control step a cell's directory names (``screen/sigma/dt0.0025/ou``,
+    ``grid/dt0.02/white``, an extension's ``.../ou+2.5``: the arm before the ``+``)."""
+    parts = name.split("/")
+    return parts[-1].split("+")[0], next(float(p.removeprefix("dt")) for p in parts if p.startswith("dt"))
+
+
 def grid_name(arm: str, dt: float) -> str:
     """The directory of ``arm``'s grid cell at control step ``dt``."""
     return f"grid/dt{dt:g}/{arm}"

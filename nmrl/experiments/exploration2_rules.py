@@ -14,8 +14,8 @@ from nmrl.experiments.exploration2_cells import (ARMS, ASYMPTOTE_ITERATIONS, COR
                                                  PRIMARY, SCREEN_ITERATIONS, SCREEN_SEED0, SCREEN_SEEDS,
                                                  SECONDARY_SCREEN, SECONDARY_SEEDS, SIGMA_FACTOR, SIGMA_MAX,
                                                  SIGMA_SCREEN, SNR_POLICY_ITERATIONS, SNR_SEEDS, TIME_CONSTANTS,
-                                                 asymptote_name, base, grid_cell, grid_name, scaled_white_sigma,
-                                                 snr_name)
+                                                 arm_and_dt, asymptote_name, base, grid_cell, grid_name,
+                                                 scaled_white_sigma, snr_name)
 
 
 def _finished(rows: list[dict], prefix: str) -> list[dict] | None:
@@ -81,7 +81,7 @@ def _screen_state(rows: list[dict], cell: kit.Cell) -> tuple[list[kit.Cell], dic
     own factor: x or / 3, beta x or / 2) and what it has decided: ``{"sigma": choice}`` once sigma
     is chosen, with ``{<time constant field>: choice}`` once that is, each choice as :func:`choose`
     gives it (best, at an edge, the values screened) with the rows it was decided on."""
-    arm, dt = cell.name.split("/")[-1], float(cell.name.split("/")[2].removeprefix("dt"))
+    arm, dt = arm_and_dt(cell.name)
     done = _finished(rows, cell.name)
     if done is None:
         return [], {}
@@ -117,7 +117,7 @@ def _screen(rows: list[dict], cell: kit.Cell) -> tuple[list[kit.Cell], dict | No
     """:func:`_screen_state`'s cells and, once every setting of the arm is decided, the choice
     ``{"sigma": ..., <time constant field>: ...}`` (None until then)."""
     add, state = _screen_state(rows, cell)
-    arm = cell.name.split("/")[-1]
+    arm, _ = arm_and_dt(cell.name)
     complete = "sigma" in state and (arm not in TIME_CONSTANTS or TIME_CONSTANTS[arm][0] in state)
     return add, {k: v[0][0] for k, v in state.items()} if complete else None
 
@@ -133,7 +133,7 @@ def choices(rows: list[dict]) -> list[dict]:
     diverged run); a setting still screening is left out."""
     out = []
     for cell in (*SIGMA_SCREEN, *SECONDARY_SCREEN):
-        arm, dt = cell.name.split("/")[-1], float(cell.name.split("/")[2].removeprefix("dt"))
+        arm, dt = arm_and_dt(cell.name)
         for setting, ((best, edge, values), decided_on) in _screen_state(rows, cell)[1].items():
             means = screen_means(decided_on)
             others = [m for v, m in means.items() if v != best and m is not None]
@@ -157,7 +157,7 @@ def later_cells(rows: list[dict]) -> list[kit.Cell]:
         add, ch = _screen(rows, cell)
         out += add
         if ch is not None:
-            chosen[(cell.name.split("/")[-1], float(cell.name.split("/")[2].removeprefix("dt")))] = ch
+            chosen[arm_and_dt(cell.name)] = ch
     if any(key not in chosen for key in PRIMARY):
         return out
     s20 = chosen[("white", 0.02)]["sigma"]
@@ -173,7 +173,7 @@ def later_cells(rows: list[dict]) -> list[kit.Cell]:
         add, ch = _screen(rows, cell)
         out += [cell, *add]
         if ch is not None:
-            out.append(grid_cell(cell.name.split("/")[-1], 0.02, ch, SECONDARY_SEEDS))
+            out.append(grid_cell(arm_and_dt(cell.name)[0], 0.02, ch, SECONDARY_SEEDS))
     sw = chosen[("white", 0.0025)]["sigma"]
     for s in (sw / SIGMA_FACTOR, sw * SIGMA_FACTOR):
         if s <= SIGMA_MAX:

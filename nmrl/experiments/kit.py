@@ -171,21 +171,20 @@ def run_cell(study: Study, cell: Cell, out: pathlib.Path, published: pathlib.Pat
     d = out / cell.name
     if published is not None:
         seed_from(published / cell.name, d)
+    how = (*study.run_options, *cell.run_options)  # how the cell runs, on its start and every resume
     if (d / "sweep.json").exists():
         saved = json.loads((d / "sweep.json").read_text()).get("points", [])
         if cell.points and saved != json.loads(json.dumps(list(cell.points))):
             raise StudyError(f"{d} holds a sweep of other points than the cell {cell.name} lists (other "
                              f"settings chose them); move it away to run the cell's points")
-        rc = _sweep([*_nmrl(), "sweep", "--resume", *cell.budget(), *study.run_options, *cell.run_options,
-                     "--out", str(d)])
+        rc = _sweep([*_nmrl(), "sweep", "--resume", *cell.budget(), *how, "--out", str(d)])
     elif cell.points:
         with tempfile.TemporaryDirectory() as tmp:  # the sweep records its points in its sweep.json
             f = pathlib.Path(tmp) / "points.json"
             f.write_text(json.dumps(list(cell.points)))
-            rc = _sweep([*_nmrl(), "sweep", *cell.sweep, "--points", str(f), *study.run_options,
-                        *cell.run_options, "--out", str(d)])
+            rc = _sweep([*_nmrl(), "sweep", *cell.sweep, "--points", str(f), *how, "--out", str(d)])
     else:
-        rc = _sweep([*_nmrl(), "sweep", *cell.sweep, *study.run_options, *cell.run_options, "--out", str(d)])
+        rc = _sweep([*_nmrl(), "sweep", *cell.sweep, *how, "--out", str(d)])
     if rc != 0:
         raise StudyStopped(cell.name, rc)
     guard = signals.active()  # a signal to the study's process alone (under a command's guard) stops it here
