@@ -238,6 +238,8 @@ def summary(res: dict) -> dict:
             s["physics_c_grouped_sweep_over_mjx"] = w["b_sweep"]["rates"]["c_grouped"] / w["b_sweep"]["rates"]["mjx"]
             s["physics_c_grouped_sweep_over_mujoco_c"] = w["c_limit"]["sweep_c_grouped_over_limit"]
         s["physics_c_ppo_over_mjx"] = {k: v["c_over_mjx"] for k, v in w["d_ppo"].items()}
+        if "e_ppo_group" in w:
+            s["physics_c_ppo_grouped_over_one_at_a_time"] = w["e_ppo_group"]["grouped_over_one_at_a_time"]
         s["physics_c_goal_met"] = pc.get("goal_met")
     li = res.get("likelihood")
     if li and "results" in li:
@@ -336,6 +338,13 @@ def table(res: dict) -> str:
             rows.append((f"native PPO ctrl steps/s, {k}", f"one iteration ({v['num_minibatches']} minibatches), "
                          "64 envs, value 2×64: C vs MJX", _f(v["rates"]["c"]), _f(v["rates"]["mjx"]),
                          _f(v["c_over_mjx"], 2, "×"), f"{v['compile_s']['c']:.1f} / {v['compile_s']['mjx']:.1f}"))
+        e = w.get("e_ppo_group")
+        if e:
+            n = e["seeds"]
+            rows.append((f"native PPO ctrl steps/s, {e['control_dt'] * 1000:g}ms", f"{n} seeds, C: --group {n} (a device's "
+                         f"seeds in one call) vs a seed at a time ({e['num_minibatches']} minibatch)",
+                         _f(e["rates"][f"group_{n}"]), _f(e["rates"]["group_1"]), _f(e["grouped_over_one_at_a_time"], 2, "×"),
+                         f"{e['compile_s'][f'group_{n}']:.1f} / {e['compile_s']['group_1']:.1f}"))
     sc = res.get("scaling")
     if sc and "two_device_process" in sc:
         two = sc["two_device_process"]
@@ -426,7 +435,8 @@ def plot(res: dict, path: pathlib.Path) -> None:
         ax.set_yscale("log")
         ax.set_xlabel("batch size (environments, all points)")
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=7)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7)
     m = res.get("machine") or {}
     la = m.get("load_avg_at_start") or [float("nan")]
     fig.suptitle(f"nmrl throughput{' (quick)' if res['meta']['quick'] else ''}: {m.get('cpu', '')}, "
