@@ -57,7 +57,7 @@ def _rows(path):
         return list(csv.DictReader(fh))
 
 
-def test_a_study_runs_scores_publishes_and_continues_from_its_published_copy(tmp_path):
+def test_a_study_runs_scores_publishes_and_continues_from_its_published_copy(tmp_path, monkeypatch):
     study = _tiny_study(tmp_path)
     out = tmp_path / "out"
     rows = kit.run(study, out)
@@ -67,10 +67,14 @@ def test_a_study_runs_scores_publishes_and_continues_from_its_published_copy(tmp
         e = json.loads((out / "screen/a/points" / r["point"] / kit.ENDPOINT).read_text())
         assert e["step"] == 20 and len(e["rollouts"]) == 2 and r["det_reward_per_s"] == e["reward_per_s"]
     assert [x["point"] for x in _rows(out / kit.ROWS)] == ["sigma0.5_s7", "sigma1_s7"]
-    # a second run has nothing to do and scores nothing again
+    # a second run has nothing to do: it starts no sweep and scores nothing again
     stamp = {p: p.stat().st_mtime_ns for p in out.rglob(kit.ENDPOINT)}
+    started = []
+    monkeypatch.setattr(kit, "_sweep", lambda argv: started.append(argv) or 0)
     kit.run(study, out)
+    assert started == []
     assert {p: p.stat().st_mtime_ns for p in out.rglob(kit.ENDPOINT)} == stamp
+    monkeypatch.undo()
     # published: no full checkpoints; a fresh directory continues from it to a larger budget
     pub = tmp_path / "pub"
     kit.publish(study, out, pub)
@@ -81,6 +85,41 @@ def test_a_study_runs_scores_publishes_and_continues_from_its_published_copy(tmp
     assert [r["steps"] for r in rows2] == [40, 40]
     first = [json.loads(line) for line in (tmp_path / "fresh/screen/a/points/sigma0.5_s7/metrics.jsonl").open()]
     assert [m["step"] for m in first] == [20, 40]  # the published chunk kept, one more trained
+
+
+def test_a_cell_is_at_its_budget_when_every_point_is_saved_there_or_diverged(tmp_path):
+    """The kit skips a cell's resume only when the sweep would have nothing to do: every point's
+    saved counter at the budget (a run of 20 steps is not at a budget of 40), or the point frozen by a
+    diverged chunk; a missing results.csv, state or point, or a damaged one, leaves it to the resume."""
+    import shutil
+
+    study = _tiny_study(tmp_path)
+    kit.run(study, tmp_path / "out")
+    d = tmp_path / "out" / "screen/a"
+    cell = study.cells[0]
+    longer = dataclasses.replace(cell, sweep=tuple("40" if x == "20" else x for x in cell.sweep))
+    assert kit.at_budget(cell, d) and not kit.at_budget(longer, d)
+    a, b = (d / "points" / n for n in ("sigma0.5_s7", "sigma1_s7"))
+    with open(a / "metrics.jsonl", "a") as fh:  # a diverged chunk after its last save: frozen at 20
+        fh.write(json.dumps({"step": 40, "trials": 0, "diverged": True}) + "\n")
+    assert not kit.at_budget(longer, d)  # b can still train to 40
+    with open(b / "metrics.jsonl", "a") as fh:
+        fh.write(json.dumps({"step": 40, "trials": 0, "diverged": False, "policy_norm": float("nan")}) + "\n")
+    assert kit.at_budget(longer, d)  # both frozen
+    assert kit.at_budget(cell, d)
+    (b / "compact.npz").write_bytes((b / "compact.npz").read_bytes()[:-100])  # truncated, but b is frozen
+    assert kit.at_budget(cell, d)
+    (b / "metrics.jsonl").write_text((b / "metrics.jsonl").read_text().splitlines()[0] + "\n")
+    assert not kit.at_budget(cell, d)  # b not frozen now, and its state unreadable
+    shutil.copy2(a / "compact.npz", b / "compact.npz")
+    assert kit.at_budget(cell, d)
+    shutil.rmtree(b)
+    assert not kit.at_budget(cell, d)  # a point of the sweep.json without files
+    shutil.copytree(a, b)
+    (d / "results.csv").unlink()
+    assert not kit.at_budget(cell, d)
+    assert not kit.at_budget(dataclasses.replace(cell, sweep=tuple(x for x in cell.sweep if x not in ("--steps", "20"))),
+                             d)
 
 
 def _screen_rows(cell, scores, budget=True, diverged=()):

@@ -6,7 +6,8 @@ compiled program: the values of one traced field x seeds, or the points the cell
 several traced fields and the seed: ``nmrl sweep --points``). :func:`run` brings every cell to its
 budget and scores it:
 
-* a cell with a ``sweep.json`` is continued (``nmrl sweep --resume``, its budget given again);
+* a cell with a ``sweep.json`` is continued (``nmrl sweep --resume``, its budget given again),
+  unless its files show that the resume has nothing to do (:func:`at_budget`);
   one missing but present in ``published`` (a committed copy made by :func:`publish`) is first
   seeded from there (sweep.json, every point's config.json, metrics.jsonl and compact.npz: the
   compact continuation states, every environment starting a new trial); any other starts fresh;
@@ -177,6 +178,8 @@ def run_cell(study: Study, cell: Cell, out: pathlib.Path, published: pathlib.Pat
         if cell.points and saved != json.loads(json.dumps(list(cell.points))):
             raise StudyError(f"{d} holds a sweep of other points than the cell {cell.name} lists (other "
                              f"settings chose them); move it away to run the cell's points")
+        if at_budget(cell, d):
+            return
         rc = _sweep([*_nmrl(), "sweep", "--resume", *cell.budget(), *how, "--out", str(d)])
     elif cell.points:
         with tempfile.TemporaryDirectory() as tmp:  # the sweep records its points in its sweep.json
@@ -190,6 +193,40 @@ def run_cell(study: Study, cell: Cell, out: pathlib.Path, published: pathlib.Pat
     guard = signals.active()  # a signal to the study's process alone (under a command's guard) stops it here
     if guard is not None and guard.signal is not None:
         raise StudyStopped(cell.name, 128 + guard.signal)
+
+
+def at_budget(cell: Cell, d: pathlib.Path) -> bool:
+    """Whether the cell's sweep in ``d`` has ended at the cell's budget: its ``results.csv`` is
+    written and every point its ``sweep.json`` names has diverged (frozen by the sweep) or holds a
+    continuation state (``compact.npz``, saved with every checkpoint) whose counter has reached the
+    budget -- the test a resume makes on the restored states (nmrl.runs.loop.budget_done), read from
+    the files, so that a finished cell costs no process, no JAX start and no restore. Anything
+    missing or unreadable answers False: the resume then decides, and reports what is wrong."""
+    from nmrl.experiments import sweep
+    from nmrl.runs import compact
+    from nmrl.runs.errors import CheckpointError
+
+    b = cell.budget()
+    budget = {b[i]: b[i + 1] for i in range(0, len(b), 2)}
+    counter, limit = (("step", budget["--steps"]) if "--steps" in budget
+                      else ("trials", budget["--trials"]) if "--trials" in budget else (None, None))
+    if counter is None or not str(limit).isdigit() or not (d / sweep.RESULTS_FILE).is_file():
+        return False
+    try:
+        names = sweep.load_spec(d).names()
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+    for name in names:
+        p = d / "points" / name
+        try:
+            if any(store.is_diverged(r) for r in store.read_metrics(p)):
+                continue
+            _, arrays = compact.load_compact(p)
+        except (ValueError, CheckpointError):  # a damaged metrics file (jsonl.Corrupt) or state
+            return False
+        if counter not in arrays or int(arrays[counter]) < int(limit):
+            return False
+    return True
 
 
 def _points(d: pathlib.Path) -> list[pathlib.Path]:
