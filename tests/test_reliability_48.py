@@ -7,8 +7,6 @@ and the files of the directories involved. A refusal writes nothing.
 
 from __future__ import annotations
 
-import contextlib
-import io
 import os
 import pathlib
 import resource
@@ -18,20 +16,12 @@ import time
 
 import pytest
 
-from nmrl import cli
+from tests.cli_in_process import run_main as _main
 from nmrl.runs import exits
 
 T = ["--preset", "fast", "--num-envs", "4", "--chunk-steps", "100", "--hidden-actor", "8", "--hidden-critic", "8"]
 
 
-def _main(argv: list[str]) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        try:
-            rc = cli.main(argv)
-        except SystemExit as e:  # argparse
-            rc = e.code
-    return rc, out.getvalue(), err.getvalue()
 
 
 def _limited_memory() -> None:

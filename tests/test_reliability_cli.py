@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
-import io
 import json
 import os
 import pathlib
@@ -23,20 +22,12 @@ import time
 
 import pytest
 
-from nmrl import cli
+from tests.cli_in_process import run_main as _main
 from nmrl.runs import exits, lock, store
 
 T = ["--preset", "fast", "--num-envs", "8", "--chunk-steps", "100", "--hidden-actor", "8", "--hidden-critic", "8"]
 
 
-def _main(argv: list[str]) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        try:
-            rc = cli.main(argv)
-        except SystemExit as e:  # argparse
-            rc = e.code
-    return rc, out.getvalue(), err.getvalue()
 
 
 def _proc(argv: list[str], **kw) -> subprocess.Popen:
