@@ -158,6 +158,28 @@ def test_the_screen_rule_brackets_sigma_then_screens_the_time_constant():
     assert [c.name for c in exploration2_rules.later_cells(rows) if "ou" in c.name] == ["screen/tc/dt0.0025/ou"]
 
 
+def test_a_period_extension_stops_at_one_control_step():
+    """nm-periods' period is l = round(period_s / dt) >= 1 control steps: an extension below one
+    step is the one-step period, and a winner at one step (20 ms: 0.02 s) adds nothing."""
+    nmp = next(c for c in exploration2_cells.SIGMA_SCREEN if c.name == "screen/sigma/dt0.0025/nmp")
+    rows = _screen_rows(nmp, {0.064: 1.0, 0.16: 2.0, 0.4: 3.0, 1.0: 9.0, 2.5: 4.0})
+    rows = [dict(r, cell=nmp.name + "+2.5") if r["value"] == 2.5 else r for r in rows]
+    (tc,) = [c for c in exploration2_rules.later_cells(rows) if "nmp" in c.name and "dt0.0025" in c.name]
+    rows += _screen_rows(tc, {0.02: 12.0, 0.18: 1.0})
+    e1 = [c for c in exploration2_rules.later_cells(rows) if c.name.startswith(tc.name + "+")]
+    assert [c.name for c in e1] == [tc.name + "+0.00666667"]  # l = 3 steps
+    rows += _screen_rows(e1[0], {0.00666667: 13.0})
+    e2 = [c for c in exploration2_rules.later_cells(rows) if c.name.startswith(tc.name + "+") and c not in e1]
+    assert [c.name for c in e2] == [tc.name + "+0.0025"] and _spec(e2[0].sweep).ls == (0.0025,)
+    nms20 = next(c for c in exploration2_cells.SECONDARY_SCREEN if c.name == "screen/sigma/dt0.02/nms")
+    rows = _screen_rows(nms20, {0.064: 1.0, 0.16: 9.0, 0.4: 3.0, 1.0: 2.0})
+    (tc20,) = [c for c in exploration2_rules._screen_state(rows, nms20)[0]]
+    assert _spec(tc20.sweep).ls == (0.02, 0.18)
+    rows += _screen_rows(tc20, {0.02: 12.0, 0.18: 1.0})
+    add, state = exploration2_rules._screen_state(rows, nms20)
+    assert [c.name for c in add] == [tc20.name] and state["period_s"][0] == (0.02, True, [0.02, 0.06, 0.18])
+
+
 def test_white_has_no_time_constant_and_extensions_stop_after_two():
     w = exploration2_cells.SIGMA_SCREEN[0]
     rows = _screen_rows(w, {0.064: 9.0, 0.16: 2.0, 0.4: 1.0, 1.0: 0.0})

@@ -56,7 +56,11 @@ def screen_means(rows: list[dict]) -> dict[float, float | None]:
 
 
 def _extension(cell: kit.Cell, rows: list[dict], factor: float) -> kit.Cell | None:
-    """The next value beyond the edge the winner sits at (``cell`` with that one value), if allowed."""
+    """The next value beyond the edge the winner sits at (``cell`` with that one value), if allowed.
+
+    A period is at least one control step (l = round(period_s / dt) >= 1): an extension below that
+    is the one-step period itself, and a winner at one step has nothing beyond it (it is used, at
+    the edge of what exists)."""
     got = choose(rows)
     if got is None:
         return None
@@ -67,6 +71,11 @@ def _extension(cell: kit.Cell, rows: list[dict], factor: float) -> kit.Cell | No
     nxt = best * factor if best == values[-1] else best / factor
     argv = list(cell.sweep)
     i = argv.index("--vary")
+    if argv[i + 1] == "period_s":
+        _, dt = arm_and_dt(cell.name)
+        if round(best / dt) <= 1:
+            return None
+        nxt = max(nxt, dt)
     j = i + 2
     while j < len(argv) and not argv[j].startswith("--"):
         j += 1
