@@ -122,6 +122,34 @@ def test_a_cell_is_at_its_budget_when_every_point_is_saved_there_or_diverged(tmp
                              d)
 
 
+def test_progress_reads_each_cells_chunks_and_time_left_from_its_files(tmp_path):
+    """The least advanced point sets a cell's steps; its chunks' mean wall time prices the chunks
+    left (rounded up to whole chunks); a diverged point counts as done; a cell without saved chunks
+    has only its budget."""
+    def point(cell, name, walls, chunk=10, diverged_at=None):
+        d = tmp_path / cell / "points" / name
+        d.mkdir(parents=True)
+        (d / "config.json").write_text("{}")
+        rows = [{"step": chunk * (i + 1), "trials": 0, "diverged": i == diverged_at, "wall_s": w}
+                for i, w in enumerate(walls)]
+        (d / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+
+    point("a", "p0", [5.0, 7.0])
+    point("a", "p1", [5.0, 7.0])
+    point("b", "p0", [4.0, 8.0, 6.0])  # 30 of 45 steps: 2 chunks left (the last one partial)
+    point("b", "p1", [4.0, 8.0, 6.0, 9.0])
+    point("c", "p0", [3.0], diverged_at=0)
+    point("c", "p1", [3.0, 5.0, 7.0])
+    (tmp_path / "d").mkdir()
+    cells = tuple(kit.Cell(n, ("--seeds", "2", "--steps", str(b))) for n, b in (("a", 20), ("b", 45), ("c", 40), ("d", 20)))
+    got = {r["cell"]: r for r in kit.progress(kit.Study("t", cells, endpoint=None), tmp_path)}
+    assert [got["a"][k] for k in ("points", "steps", "budget", "chunks", "s_per_chunk", "remaining_s")] == \
+        [2, 20, 20, 2, 6.0, 0]
+    assert [got["b"][k] for k in ("steps", "chunks", "s_per_chunk", "remaining_s")] == [30, 3, 6.0, 12]
+    assert [got["c"][k] for k in ("steps", "chunks", "s_per_chunk", "remaining_s")] == [30, 3, 5.0, 5]
+    assert got["d"]["budget"] == 20 and all(got["d"][k] == "" for k in ("points", "steps", "remaining_s"))
+
+
 def _screen_rows(cell, scores, budget=True, diverged=()):
     """Finished rows of ``cell`` with a mean det score per value (2 seeds: score - 1, score + 1)."""
     spec = _spec(cell.sweep)

@@ -6,6 +6,7 @@ analysis and report (nmrl/experiments/exploration2_analysis.py), and its command
 
     python -m nmrl.experiments.exploration2 run --out runs/exploration2 [--published results/exploration2/runs]
     python -m nmrl.experiments.exploration2 publish --out runs/exploration2 --dest results/exploration2/runs
+    python -m nmrl.experiments.exploration2 progress --out runs/exploration2   # each cell's chunks and time left
 """
 
 from __future__ import annotations
@@ -60,7 +61,7 @@ STUDY = kit.Study(name="exploration2", cells=SIGMA_SCREEN, endpoint=kit.Endpoint
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m nmrl.experiments.exploration2", description=__doc__.split("\n\n")[0])
-    ap.add_argument("action", choices=("run", "publish", "rows"))
+    ap.add_argument("action", choices=("run", "publish", "rows", "progress"))
     ap.add_argument("--out", required=True, help="the study's run directory")
     ap.add_argument("--published", default=None, help="a published copy: cells missing in --out start from it")
     ap.add_argument("--dest", default=None, help="publish: where the copy goes")
@@ -76,6 +77,16 @@ def main(argv: list[str] | None = None) -> int:
         if not a.dest:
             ap.error("publish needs --dest")
         kit.publish(STUDY, a.out, a.dest)
+    elif a.action == "progress":
+        rows = kit.progress(STUDY, pathlib.Path(a.out))
+        table = [kit.PROGRESS_COLUMNS, *([str(r[c]) for c in kit.PROGRESS_COLUMNS] for r in rows)]
+        widths = [max(len(t[i]) for t in table) for i in range(len(kit.PROGRESS_COLUMNS))]
+        for t in table:
+            print("  ".join(x.ljust(w) for x, w in zip(t, widths)).rstrip())
+        left = sum(r["remaining_s"] for r in rows if r["remaining_s"] != "")
+        waiting = sum(r["steps"] == "" for r in rows)
+        print(f"{left / 3600:.1f} h of wall time left in the started cells at their mean chunk times; "
+              f"{waiting} cell(s) known but not started")
     else:
         kit.write_rows(STUDY, pathlib.Path(a.out))
     return 0

@@ -287,6 +287,35 @@ def rows(study: Study, out: pathlib.Path, cells: Sequence[Cell] | None = None) -
     return res
 
 
+PROGRESS_COLUMNS = ("cell", "points", "steps", "budget", "chunks", "s_per_chunk", "remaining_s")
+
+
+def progress(study: Study, out: pathlib.Path) -> list[dict]:
+    """Where each cell known so far stands, read from its files alone (safe beside a running study):
+    its points, the steps its least advanced point has saved (a diverged point counts as done), the
+    budget, the chunks run, the mean wall seconds of a chunk (``wall_s`` in metrics.jsonl, compiles
+    apart) and the wall seconds its remaining chunks take at that mean. A cell not started has only
+    its budget; none of its numbers is guessed."""
+    res = []
+    for cell in all_cells(study, out):
+        b = cell.budget()
+        budget = int(b[b.index("--steps") + 1]) if "--steps" in b else None
+        row = dict.fromkeys(PROGRESS_COLUMNS, "")
+        row.update(cell=cell.name, budget=budget if budget is not None else "")
+        ms = [store.read_metrics(p) for p in _points(out / cell.name)]
+        if ms and all(ms):
+            open_ = [m for m in ms if not any(store.is_diverged(r) for r in m)]
+            slowest = min(open_, key=lambda m: m[-1]["step"]) if open_ else ms[0]
+            steps = slowest[-1]["step"] if open_ else budget
+            per_chunk = slowest[0]["step"]
+            wall = sum(r["wall_s"] for r in slowest) / len(slowest)
+            row.update(points=len(ms), steps=steps, chunks=len(slowest), s_per_chunk=round(wall, 1))
+            if budget is not None and per_chunk > 0:
+                row["remaining_s"] = round(max(0, -(-(budget - steps) // per_chunk)) * wall)
+        res.append(row)
+    return res
+
+
 def write_rows(study: Study, out: pathlib.Path) -> list[dict]:
     r = rows(study, out)
     out.mkdir(parents=True, exist_ok=True)

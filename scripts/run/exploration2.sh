@@ -3,7 +3,7 @@
 # the background, resumable on any machine.
 #
 #   scripts/run/exploration2.sh start    # start or resume (a fresh clone seeds from results/exploration2/runs)
-#   scripts/run/exploration2.sh status   # what runs, the log's last lines, the rows so far
+#   scripts/run/exploration2.sh status   # what runs, the log's last lines, each cell's progress and time left
 #   scripts/run/exploration2.sh stop     # SIGTERM, wait for the sweep in flight to save, publish
 #
 # start runs `python -m nmrl.experiments.exploration2 run` in its own session at the lowest CPU
@@ -29,7 +29,7 @@ case "${1:-}" in
   status)
     pgrep -af "$PAT|nmrl.cli sweep" || echo "not running"
     tail -n 5 runs/exploration2.log 2>/dev/null || true
-    [ -f "$OUT/rows.csv" ] && column -s, -t < "$OUT/rows.csv" | cut -c1-160 || true
+    [ -d "$OUT" ] && "$PY" -m nmrl.experiments.exploration2 progress --out "$OUT" || true
     ;;
   stop)
     pids=$(pgrep -f "$PAT" || true)
