@@ -21,7 +21,8 @@ budget and scores it:
   under the learning curve), and the endpoint (a diverged point's: its last good policy's, at
   which the sweep froze it).
 
-:func:`publish` copies what continues and re-scores a study (no full checkpoints) into a folder
+:func:`progress` reads where each cell stands and its time left from the files, beside a running
+study. :func:`publish` copies what continues and re-scores a study (no full checkpoints) into a folder
 small enough to commit, with ``analysis.csv``, the study's own analysis of the rows (its
 pre-registered contrasts), its report's figures and tables, and the files of its measurements (steps
 after the cells that are not sweeps, :class:`Measurement`). A study's own modules (e.g.
