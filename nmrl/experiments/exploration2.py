@@ -78,15 +78,7 @@ def main(argv: list[str] | None = None) -> int:
             ap.error("publish needs --dest")
         kit.publish(STUDY, a.out, a.dest)
     elif a.action == "progress":
-        rows = kit.progress(STUDY, pathlib.Path(a.out))
-        table = [kit.PROGRESS_COLUMNS, *([str(r[c]) for c in kit.PROGRESS_COLUMNS] for r in rows)]
-        widths = [max(len(t[i]) for t in table) for i in range(len(kit.PROGRESS_COLUMNS))]
-        for t in table:
-            print("  ".join(x.ljust(w) for x, w in zip(t, widths)).rstrip())
-        left = sum(r["remaining_s"] for r in rows if r["remaining_s"] != "")
-        waiting = sum(r["steps"] == "" for r in rows)
-        print(f"{left / 3600:.1f} h of wall time left in the started cells at their mean chunk times; "
-              f"{waiting} cell(s) known but not started")
+        print(kit.progress_text(kit.progress(STUDY, pathlib.Path(a.out))))
     else:
         kit.write_rows(STUDY, pathlib.Path(a.out))
     return 0

@@ -85,6 +85,16 @@ class Cell:
                 out += [x, a[i + 1]]
         return tuple(out)
 
+    def budget_limit(self) -> tuple[str, int] | None:
+        """The state counter the budget bounds and its limit: ``("step", N)`` for ``--steps N``,
+        ``("trials", N)`` for ``--trials N``; None without a budget or with one that is no count."""
+        b = self.budget()
+        for option, counter in (("--steps", "step"), ("--trials", "trials")):
+            if option in b:
+                limit = b[b.index(option) + 1]
+                return (counter, int(limit)) if limit.isdigit() else None
+        return None
+
 
 @dataclasses.dataclass(frozen=True)
 class Endpoint:
@@ -207,12 +217,10 @@ def at_budget(cell: Cell, d: pathlib.Path) -> bool:
     from nmrl.runs import compact
     from nmrl.runs.errors import CheckpointError
 
-    b = cell.budget()
-    budget = {b[i]: b[i + 1] for i in range(0, len(b), 2)}
-    counter, limit = (("step", budget["--steps"]) if "--steps" in budget
-                      else ("trials", budget["--trials"]) if "--trials" in budget else (None, None))
-    if counter is None or not str(limit).isdigit() or not (d / sweep.RESULTS_FILE).is_file():
+    budget = cell.budget_limit()
+    if budget is None or not (d / sweep.RESULTS_FILE).is_file():
         return False
+    counter, limit = budget
     try:
         names = sweep.load_spec(d).names()
     except (OSError, ValueError, KeyError, TypeError):
@@ -225,7 +233,7 @@ def at_budget(cell: Cell, d: pathlib.Path) -> bool:
             _, arrays = compact.load_compact(p)
         except (ValueError, CheckpointError):  # a damaged metrics file (jsonl.Corrupt) or state
             return False
-        if counter not in arrays or int(arrays[counter]) < int(limit):
+        if counter not in arrays or int(arrays[counter]) < limit:
             return False
     return True
 
@@ -299,8 +307,8 @@ def progress(study: Study, out: pathlib.Path) -> list[dict]:
     its budget; none of its numbers is guessed."""
     res = []
     for cell in all_cells(study, out):
-        b = cell.budget()
-        budget = int(b[b.index("--steps") + 1]) if "--steps" in b else None
+        limit = cell.budget_limit()
+        budget = limit[1] if limit is not None and limit[0] == "step" else None
         row = dict.fromkeys(PROGRESS_COLUMNS, "")
         row.update(cell=cell.name, budget=budget if budget is not None else "")
         ms = [store.read_metrics(p) for p in _points(out / cell.name)]
@@ -315,6 +323,19 @@ def progress(study: Study, out: pathlib.Path) -> list[dict]:
                 row["remaining_s"] = round(max(0, -(-(budget - steps) // per_chunk)) * wall)
         res.append(row)
     return res
+
+
+def progress_text(rows: list[dict]) -> str:
+    """:func:`progress`'s rows as an aligned table, with the wall time left in the started cells and
+    the count of cells not started below it."""
+    table = [PROGRESS_COLUMNS, *([str(r[c]) for c in PROGRESS_COLUMNS] for r in rows)]
+    widths = [max(len(t[i]) for t in table) for i in range(len(PROGRESS_COLUMNS))]
+    lines = ["  ".join(x.ljust(w) for x, w in zip(t, widths)).rstrip() for t in table]
+    left = sum(r["remaining_s"] for r in rows if r["remaining_s"] != "")
+    waiting = sum(r["steps"] == "" for r in rows)
+    lines.append(f"{left / 3600:.1f} h of wall time left in the started cells at their mean chunk times; "
+                 f"{waiting} cell(s) known but not started")
+    return "\n".join(lines)
 
 
 def write_rows(study: Study, out: pathlib.Path) -> list[dict]:
