@@ -124,15 +124,17 @@ def test_a_cell_is_at_its_budget_when_every_point_is_saved_there_or_diverged(tmp
 
 def test_progress_reads_each_cells_chunks_and_time_left_from_its_files(tmp_path):
     """The least advanced point sets a cell's steps; its chunks' mean wall time prices the chunks
-    left (rounded up to whole chunks); a diverged point counts as done; a cell without saved chunks
-    has only its budget."""
+    left (rounded up to whole chunks); a diverged point counts as done; a point before its first
+    saved chunk is at step 0, priced by another point's chunks if one has saved any; a cell without
+    points has only its budget."""
     def point(cell, name, walls, chunk=10, diverged_at=None):
         d = tmp_path / cell / "points" / name
         d.mkdir(parents=True)
         (d / "config.json").write_text("{}")
         rows = [{"step": chunk * (i + 1), "trials": 0, "diverged": i == diverged_at, "wall_s": w}
                 for i, w in enumerate(walls)]
-        (d / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+        if rows:
+            (d / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
 
     point("a", "p0", [5.0, 7.0])
     point("a", "p1", [5.0, 7.0])
@@ -141,13 +143,23 @@ def test_progress_reads_each_cells_chunks_and_time_left_from_its_files(tmp_path)
     point("c", "p0", [3.0], diverged_at=0)
     point("c", "p1", [3.0, 5.0, 7.0])
     (tmp_path / "d").mkdir()
-    cells = tuple(kit.Cell(n, ("--seeds", "2", "--steps", str(b))) for n, b in (("a", 20), ("b", 45), ("c", 40), ("d", 20)))
-    got = {r["cell"]: r for r in kit.progress(kit.Study("t", cells, endpoint=None), tmp_path)}
+    point("e", "p0", [4.0, 6.0])
+    point("e", "p1", [])  # 0 of 40 steps, priced by p0's chunks: 4 chunks of 5 s
+    point("f", "p0", [])
+    cells = tuple(kit.Cell(n, ("--seeds", "2", "--steps", str(b)))
+                  for n, b in (("a", 20), ("b", 45), ("c", 40), ("d", 20), ("e", 40), ("f", 40)))
+    rows = kit.progress(kit.Study("t", cells, endpoint=None), tmp_path)
+    got = {r["cell"]: r for r in rows}
     assert [got["a"][k] for k in ("points", "steps", "budget", "chunks", "s_per_chunk", "remaining_s")] == \
         [2, 20, 20, 2, 6.0, 0]
     assert [got["b"][k] for k in ("steps", "chunks", "s_per_chunk", "remaining_s")] == [30, 3, 6.0, 12]
     assert [got["c"][k] for k in ("steps", "chunks", "s_per_chunk", "remaining_s")] == [30, 3, 5.0, 5]
     assert got["d"]["budget"] == 20 and all(got["d"][k] == "" for k in ("points", "steps", "remaining_s"))
+    assert [got["e"][k] for k in ("points", "steps", "chunks", "s_per_chunk", "remaining_s")] == [2, 0, 0, 5.0, 20]
+    assert [got["f"][k] for k in ("points", "steps", "chunks", "s_per_chunk", "remaining_s")] == [1, 0, 0, "", ""]
+    assert kit.progress_text(rows).splitlines()[-1] == (
+        "0.0 h of wall time left in the started cells at their mean chunk times (1 started without a timed "
+        "chunk, not counted); 1 cell(s) known but not started")
 
 
 def _screen_rows(cell, scores, budget=True, diverged=()):

@@ -301,10 +301,11 @@ PROGRESS_COLUMNS = ("cell", "points", "steps", "budget", "chunks", "s_per_chunk"
 
 def progress(study: Study, out: pathlib.Path) -> list[dict]:
     """Where each cell known so far stands, read from its files alone (safe beside a running study):
-    its points, the steps its least advanced point has saved (a diverged point counts as done), the
-    budget, the chunks run, the mean wall seconds of a chunk (``wall_s`` in metrics.jsonl, compiles
-    apart) and the wall seconds its remaining chunks take at that mean. A cell not started has only
-    its budget; none of its numbers is guessed."""
+    its points, the steps its least advanced point has saved (0 before its first saved chunk; a
+    diverged point counts as done), the budget, the chunks run, the mean wall seconds of a chunk
+    (``wall_s`` in metrics.jsonl, compiles apart; from a point that has saved one) and the wall
+    seconds its remaining chunks take at that mean. A cell without points has only its budget; none
+    of its numbers is guessed."""
     res = []
     for cell in all_cells(study, out):
         limit = cell.budget_limit()
@@ -312,17 +313,24 @@ def progress(study: Study, out: pathlib.Path) -> list[dict]:
         row = dict.fromkeys(PROGRESS_COLUMNS, "")
         row.update(cell=cell.name, budget=budget if budget is not None else "")
         ms = [store.read_metrics(p) for p in _points(out / cell.name)]
-        if ms and all(ms):
+        if ms:
             open_ = [m for m in ms if not any(store.is_diverged(r) for r in m)]
-            slowest = min(open_, key=lambda m: m[-1]["step"]) if open_ else ms[0]
-            steps = slowest[-1]["step"] if open_ else budget
-            per_chunk = slowest[0]["step"]
-            wall = sum(r["wall_s"] for r in slowest) / len(slowest)
-            row.update(points=len(ms), steps=steps, chunks=len(slowest), s_per_chunk=round(wall, 1))
-            if budget is not None and per_chunk > 0:
-                row["remaining_s"] = round(max(0, -(-(budget - steps) // per_chunk)) * wall)
+            slowest = min(open_, key=_saved_step) if open_ else ms[0]
+            steps = _saved_step(slowest) if open_ else budget
+            row.update(points=len(ms), steps=steps, chunks=len(slowest))
+            timed = slowest or next((m for m in ms if m), [])
+            if timed:
+                per_chunk = timed[0]["step"]
+                wall = sum(r["wall_s"] for r in timed) / len(timed)
+                row["s_per_chunk"] = round(wall, 1)
+                if budget is not None and per_chunk > 0:
+                    row["remaining_s"] = round(max(0, -(-(budget - steps) // per_chunk)) * wall)
         res.append(row)
     return res
+
+
+def _saved_step(metrics: list[dict]) -> int:
+    return metrics[-1]["step"] if metrics else 0
 
 
 def progress_text(rows: list[dict]) -> str:
@@ -333,8 +341,10 @@ def progress_text(rows: list[dict]) -> str:
     lines = ["  ".join(x.ljust(w) for x, w in zip(t, widths)).rstrip() for t in table]
     left = sum(r["remaining_s"] for r in rows if r["remaining_s"] != "")
     waiting = sum(r["steps"] == "" for r in rows)
-    lines.append(f"{left / 3600:.1f} h of wall time left in the started cells at their mean chunk times; "
-                 f"{waiting} cell(s) known but not started")
+    untimed = sum(r["steps"] != "" and r["s_per_chunk"] == "" for r in rows)
+    lines.append(f"{left / 3600:.1f} h of wall time left in the started cells at their mean chunk times"
+                 + (f" ({untimed} started without a timed chunk, not counted)" if untimed else "")
+                 + f"; {waiting} cell(s) known but not started")
     return "\n".join(lines)
 
 
