@@ -67,11 +67,17 @@ def test_the_report_tabulates_every_cell_at_its_budget_and_draws_the_curves(tmp_
         rows.append({"cell": "grid/dt0.0025/white", "point": f"s{seed}", "field": "", "value": "",
                      "steps": 40960 if seed < 3 else 100, "budget": 40960, "diverged": False,
                      "det_reward_per_s": det})
+    # a run that diverged has ended: it counts, scored by its last good policy, and is counted as diverged
+    _point(tmp_path, "grid/dt0.0025/white", "s4", {"control_dt": 0.0025}, [{"step": 40960, "avg_reward": 0.0}])
+    rows.append({"cell": "grid/dt0.0025/white", "point": "s4", "field": "", "value": "", "steps": 200,
+                 "budget": 40960, "diverged": "True", "det_reward_per_s": 0.0})
     exploration2_analysis.report(rows, tmp_path)
     table = {r["cell"]: r for r in csv.DictReader(open(tmp_path / exploration2_analysis.CELLS_CSV))}
     screen, grid = table["screen/sigma/dt0.02/white"], table["grid/dt0.0025/white"]
     assert screen["value"] == "0.4" and screen["n"] == "2" and float(screen["mean"]) == pytest.approx(-45.0)
-    assert grid["n"] == "3" and float(grid["mean"]) == pytest.approx(20.0) and grid["iqm"] == ""
+    assert grid["n"] == "4" and float(grid["mean"]) == pytest.approx(15.0)
+    assert float(grid["iqm"]) == pytest.approx(15.0)  # 0, 10, 20, 30 less one from each end
+    assert (screen["diverged"], grid["diverged"]) == ("0", "1")
     assert (tmp_path / exploration2_analysis.SCREEN_FIGURE).stat().st_size > 0
     assert (tmp_path / exploration2_analysis.GRID_FIGURE).stat().st_size > 0
     t, y = exploration2_analysis._curve(tmp_path / "screen/sigma/dt0.02/white/points/sigma0.4_s100")

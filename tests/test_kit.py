@@ -374,6 +374,39 @@ def test_the_secondary_family_and_the_checks_are_apart_from_the_primary():
     assert "+1*asymptote/dt0.005/nmp" in checks["asymptote"]["cells"]
 
 
+def test_the_secondary_endpoints_are_the_families_contrasts_reported_without_decisions():
+    import numpy as np
+    from scipy import stats as sps
+
+    rng = np.random.default_rng(7)
+    cells = ("grid/dt0.02/white", "grid/dt0.0025/white", "grid/dt0.0025/ws", "grid/dt0.0025/ou",
+             "grid/dt0.0025/colored", "grid/dt0.0025/nms", "grid/dt0.0025/nmp", "grid/dt0.02/nmp")
+    rows = [{"cell": c, "steps": 10, "budget": 10, "diverged": "False", "det_reward_per_s": str(rng.normal()),
+             "avg_reward_per_s": str(rng.normal(50 * i, 5)), "auc_reward_per_s": str(rng.normal(-i, 1)),
+             "det_forward_speed": str(rng.normal(1, 0.3))} for i, c in enumerate(cells) for _ in range(8)]
+    # a run that diverged before its first save: no exploring reward; it stays out of that endpoint only
+    rows.append({**rows[0], "diverged": "True", "steps": 3, "avg_reward_per_s": "", "auc_reward_per_s": "nan"})
+    res = exploration2_analysis.secondary_endpoints(rows)
+    assert [r["endpoint"] for r in res] == [e for e in exploration2_analysis.SECONDARY_ENDPOINTS for _ in range(14)]
+    assert [r["contrast"] for r in res[:14]] == [f"P{i}" for i in range(1, 8)] + [f"S{i}" for i in range(1, 8)]
+    got = {(r["endpoint"], r["contrast"]): r for r in res}
+    x = {c: [float(r["avg_reward_per_s"]) for r in rows if r["cell"] == c and r["avg_reward_per_s"] != ""]
+         for c in cells}
+    t = sps.ttest_ind(x["grid/dt0.0025/white"], x["grid/dt0.02/white"], equal_var=False)
+    p1 = got["avg_reward_per_s", "P1"]
+    assert p1["n"] == "8 8" and p1["decision"] == "reported" and p1["p"] == pytest.approx(t.pvalue)
+    assert p1["estimate"] == pytest.approx(np.mean(x["grid/dt0.0025/white"]) - np.mean(x["grid/dt0.02/white"]))
+    half = sps.t.ppf(0.975, t.df) * (p1["estimate"] / t.statistic)
+    assert (p1["lo"], p1["hi"]) == pytest.approx((p1["estimate"] - half, p1["estimate"] + half))
+    assert got["auc_reward_per_s", "P1"]["n"] == "8 8" and got["det_forward_speed", "P1"]["n"] == "8 9"
+    assert not any("p_holm" in r or "tost_p" in r for r in res)
+    # the 5 ms column and the 20 ms cells of OU, CN, NMs do not exist yet: their contrasts wait
+    assert {got["avg_reward_per_s", f"S{i}"]["decision"] for i in range(1, 8)} == {"pending"}
+    # a run still going holds its cell's contrasts
+    going = rows + [{**rows[8], "steps": 5}]
+    assert exploration2_analysis.secondary_endpoints(going)[0]["decision"] == "pending"
+
+
 def test_the_asymptote_runs_white_against_the_best_correlated_arm_at_4x_the_budget():
     rows = _chosen_rows()
     assert not [c for c in exploration2_rules.later_cells(rows) if c.name.startswith("asymptote/")]

@@ -2,8 +2,9 @@
 
 :func:`analysis`: the pre-registered families on the deterministic endpoint of the complete grid
 cells (Welch contrasts, Holm, TOST; nmrl/analysis/prereg_stats.py) and the checks that decide
-nothing. :func:`report`: ``cells.csv``, the screen's and the grid's learning curves and the SNR's
-summary, from the published points.
+nothing; :func:`secondary_endpoints`: the same contrasts on the secondary endpoints, reported.
+:func:`report`: ``cells.csv``, the secondary endpoints, the screen's and the grid's learning
+curves and the SNR's summary, from the published points.
 """
 
 from __future__ import annotations
@@ -59,6 +60,25 @@ def _reported(name: str, weights: dict[str, float], cells: dict[str, list[float]
             "hi": r.hi, "p": r.p, "decision": "reported"}
 
 
+#: the secondary endpoints (docs/exploration-study-2.md, "Endpoints"), in rows.csv's columns
+SECONDARY_ENDPOINTS = ("avg_reward_per_s", "auc_reward_per_s", "det_forward_speed")
+SECONDARY_COLUMNS = ("endpoint", "contrast", "cells", "n", "estimate", "lo", "hi", "p", "decision")
+
+
+def secondary_endpoints(rows: list[dict]) -> list[dict]:
+    """Every contrast of the primary and the secondary family on each secondary endpoint — the
+    exploring policy's reward per second over the last iteration, its mean over the run (the area
+    under the learning curve) and the deterministic forward speed [m/s] — with its estimate, 95%
+    Welch interval and raw p: reported, deciding nothing (no Holm, no TOST), "pending" while one of
+    its cells has a run still going. A value a run lacks (a non-finite one) is left out of its cell."""
+    out = []
+    for key in SECONDARY_ENDPOINTS:
+        cells = {c: [v for v in x if np.isfinite(v)] for c, x in complete_cells(rows, key).items()}
+        out += [{"endpoint": key, **{k: v for k, v in _reported(name, w, cells).items() if k != "family"}}
+                for name, w in (*CONTRASTS, *SECONDARY)]
+    return out
+
+
 def analysis(rows: list[dict]) -> list[dict]:
     """The primary family P1-P7 on the deterministic endpoint (reward per second) of the complete
     grid cells: Welch contrasts, Holm over P1-P7, TOST at +-50 (nmrl.analysis.prereg_stats.family);
@@ -78,12 +98,13 @@ def analysis(rows: list[dict]) -> list[dict]:
     return out
 
 
-CELLS_CSV, CHOICES_CSV = "cells.csv", "choices.csv"
+CELLS_CSV, CHOICES_CSV, SECONDARY_CSV = "cells.csv", "choices.csv", "secondary_endpoints.csv"
 SCREEN_FIGURE, GRID_FIGURE = "screen_curves.png", "learning_curves.png"
 ENDPOINT_FIGURE, CONTRAST_FIGURE = "endpoints.png", "contrasts.png"
 #: the arms' order in the endpoint figure: white first, the correlated arms after it
 ARM_ORDER = ("white", "ws", "ou", "colored", "nms", "nmp")
-CELL_COLUMNS = ("cell", "value", "n", "mean", "sd", "ci_lo", "ci_hi", "iqm", "iqm_lo", "iqm_hi")
+SUMMARY_COLUMNS = ("n", "mean", "sd", "ci_lo", "ci_hi", "iqm", "iqm_lo", "iqm_hi")  #: cell_curves.summary's
+CELL_COLUMNS = ("cell", "value", *SUMMARY_COLUMNS, "diverged")
 
 
 def _curve(point: pathlib.Path) -> tuple[np.ndarray, np.ndarray]:
@@ -97,7 +118,8 @@ def _curve(point: pathlib.Path) -> tuple[np.ndarray, np.ndarray]:
 def report(rows: list[dict], dest: pathlib.Path) -> None:
     """``choices.csv`` (what the screen has decided so far: exploration2_rules.choices),
     ``cells.csv`` (every cell's and screened value's deterministic endpoint over its ended runs, a
-    diverged one by its last good policy as in :func:`analysis`: nmrl.analysis.cell_curves.summary),
+    diverged one by its last good policy as in :func:`analysis`: nmrl.analysis.cell_curves.summary;
+    with the count of its diverged runs), ``secondary_endpoints.csv`` (:func:`secondary_endpoints`),
     the screen's learning curves (one panel per screened arm and control step, one line per value,
     extensions included) and, once grid cells exist, the grid's (one panel per control step, one
     line per arm), from the published points' metrics; with them the grid's endpoints
@@ -107,11 +129,13 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
     from nmrl.analysis import cell_curves, contrast_figures
 
     groups: dict[tuple[str, str], list[float]] = {}
+    diverged: dict[tuple[str, str], int] = {}
     screen: dict[str, dict[str, list]] = {}
     grid: dict[str, dict[str, list]] = {}
     for r in rows:
         key = (r["cell"], f"{float(r['value']):g}" if r["cell"].startswith("screen/") else "")
         groups.setdefault(key, []).extend([float(r["det_reward_per_s"])] if ended(r) else [])
+        diverged[key] = diverged.get(key, 0) + (str(r["diverged"]) == "True")
         point = dest / r["cell"] / "points" / r["point"]
         if not (point / "metrics.jsonl").is_file():
             continue
@@ -125,7 +149,9 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
             grid.setdefault(f"control step {dt * 1000:g} ms", {}).setdefault(arm, []).append(_curve(point))
     store.write_csv(dest / CHOICES_CSV, CHOICE_COLUMNS, choices(rows))
     store.write_csv(dest / CELLS_CSV, CELL_COLUMNS,
-                   [{"cell": c, "value": v, **cell_curves.summary(x)} for (c, v), x in groups.items()])
+                   [{"cell": c, "value": v, **cell_curves.summary(x), "diverged": diverged[c, v]}
+                    for (c, v), x in groups.items()])
+    store.write_csv(dest / SECONDARY_CSV, SECONDARY_COLUMNS, secondary_endpoints(rows))
     if screen:
         cell_curves.figure(screen, dest / SCREEN_FIGURE, "exploring reward per second", "the screen (seeds 100, 101)")
     if grid:
@@ -168,7 +194,7 @@ def _snr_report(dest: pathlib.Path) -> None:
         groups.setdefault((r["arm"], int(r["iteration"]), float(r["control_dt"])), []).append(float(r["snr_per_s"]))
     table = [{"arm": a, "iteration": it, "control_dt": dt, **cell_curves.summary(x)}
              for (a, it, dt), x in sorted(groups.items())]
-    store.write_csv(dest / SNR_SUMMARY_CSV, ("arm", "iteration", "control_dt", *CELL_COLUMNS[2:]), table)
+    store.write_csv(dest / SNR_SUMMARY_CSV, ("arm", "iteration", "control_dt", *SUMMARY_COLUMNS), table)
     arms = sorted({a for a, _, _ in groups})
     fig, axes = plots.plt.subplots(1, len(arms), figsize=(4.6 * len(arms), 3.6), sharey=True, squeeze=False,
                                    layout="constrained")

@@ -198,15 +198,16 @@ def later_cells(rows: list[dict]) -> list[kit.Cell]:
     return out
 
 
-def complete_cells(rows: list[dict]) -> dict[str, list[float]]:
-    """The deterministic endpoints of every cell whose runs all ended (at the budget, or diverged
-    and scored by their last good policy) and were scored; a cell with a run still going is left
-    out (its contrasts stay pending)."""
+def complete_cells(rows: list[dict], key: str = "det_reward_per_s") -> dict[str, list[float]]:
+    """The endpoint ``key`` (default the deterministic reward per second; NaN where a row has none)
+    of every cell whose runs all ended (at the budget, or diverged and scored by their last good
+    policy) and were scored; a cell with a run still going is left out (its contrasts stay pending)."""
     by: dict[str, list[dict]] = {}
     for r in rows:
         if not r["cell"].startswith("screen/"):
             by.setdefault(r["cell"], []).append(r)
-    return {c: [float(r["det_reward_per_s"]) for r in rs] for c, rs in by.items() if all(ended(r) for r in rs)}
+    return {c: [float(r[key]) if r.get(key, "") != "" else float("nan") for r in rs] for c, rs in by.items()
+            if all(ended(r) for r in rs)}
 
 
 def best_correlated(rows: list[dict]) -> str | None:
