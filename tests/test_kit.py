@@ -407,6 +407,33 @@ def test_the_secondary_endpoints_are_the_families_contrasts_reported_without_dec
     assert exploration2_analysis.secondary_endpoints(going)[0]["decision"] == "pending"
 
 
+def test_each_arms_iqm_pools_its_grid_cells_over_the_control_steps_resampled_within_each():
+    import numpy as np
+    from scipy import stats as sps
+
+    def cell(name, values, **kw):
+        return [{"cell": name, "steps": 1, "budget": 1, "diverged": "False", "det_reward_per_s": str(v), **kw}
+                for v in values]
+
+    rng = np.random.default_rng(3)
+    nmp = {0.02: rng.normal(80, 30, 8), 0.005: rng.normal(60, 30, 4), 0.0025: rng.normal(40, 30, 8)}
+    rows = [r for dt, x in nmp.items() for r in cell(f"grid/dt{dt:g}/nmp", x)]
+    # white: each cell's runs alike, so resampling within cells never changes the pooled IQM
+    rows += cell("grid/dt0.02/white", [100.0] * 8) + cell("grid/dt0.0025/white", [10.0] * 8)
+    rows += cell("asymptote/dt0.005/white", [1e6] * 4) + cell("sensitivity/dt0.0025/white_sigma1", [1e6] * 4)
+    rows += cell("grid/dt0.0025/ou", [5.0] * 7) + [{**cell("grid/dt0.0025/ou", [0.0])[0], "steps": 0}]  # going
+    got = {r["arm"]: r for r in exploration2_analysis.arm_iqms(rows)}
+    assert list(got) == ["white", "nmp"]
+    w = got["white"]
+    assert (w["control_dts"], w["n"]) == ("0.02 0.0025", "8 8")
+    assert w["iqm"] == pytest.approx(sps.trim_mean([100.0] * 8 + [10.0] * 8, 0.25)) == pytest.approx(55.0)
+    assert (w["iqm_lo"], w["iqm_hi"]) == pytest.approx((55.0, 55.0))  # a pooled resample would vary
+    m = got["nmp"]
+    assert (m["control_dts"], m["n"]) == ("0.02 0.005 0.0025", "8 4 8")
+    assert m["iqm"] == pytest.approx(sps.trim_mean(np.concatenate(list(nmp.values())), 0.25))
+    assert m["iqm_lo"] < m["iqm"] < m["iqm_hi"]
+
+
 def test_the_asymptote_runs_white_against_the_best_correlated_arm_at_4x_the_budget():
     rows = _chosen_rows()
     assert not [c for c in exploration2_rules.later_cells(rows) if c.name.startswith("asymptote/")]

@@ -2,9 +2,10 @@
 
 :func:`analysis`: the pre-registered families on the deterministic endpoint of the complete grid
 cells (Welch contrasts, Holm, TOST; nmrl/analysis/prereg_stats.py) and the checks that decide
-nothing; :func:`secondary_endpoints`: the same contrasts on the secondary endpoints, reported.
-:func:`report`: ``cells.csv``, the secondary endpoints, the screen's and the grid's learning
-curves and the SNR's summary, from the published points.
+nothing; :func:`secondary_endpoints`: the same contrasts on the secondary endpoints, reported;
+:func:`arm_iqms`: each arm's IQM across its control steps. :func:`report`: ``cells.csv``, those
+tables, the screen's and the grid's learning curves and the SNR's summary, from the published
+points.
 """
 
 from __future__ import annotations
@@ -79,6 +80,33 @@ def secondary_endpoints(rows: list[dict]) -> list[dict]:
     return out
 
 
+ARM_COLUMNS = ("arm", "control_dts", "n", "iqm", "iqm_lo", "iqm_hi")
+
+
+def arm_iqms(rows: list[dict]) -> list[dict]:
+    """Per arm, the IQM of its runs' deterministic endpoints pooled over its complete grid cells at
+    every control step (rliable's aggregate IQM, each cell a stratum) with the stratified percentile
+    bootstrap interval (50,000 replicates, seed 0; prereg_stats.stratified_bootstrap_ci): the
+    registered aggregate per arm across delta, reported, deciding nothing. ``control_dts`` and ``n``
+    name the cells pooled and their finite runs, coarsest step first."""
+    from nmrl.analysis import cell_curves, prereg_stats
+
+    by: dict[str, dict[float, list[float]]] = {}
+    for c, x in complete_cells(rows).items():
+        finite = [v for v in x if np.isfinite(v)]
+        if c.startswith("grid/") and finite:
+            arm, dt = arm_and_dt(c)
+            by.setdefault(arm, {})[dt] = finite
+    out = []
+    for arm in sorted(by, key=_arm_rank):
+        dts = sorted(by[arm], reverse=True)
+        strata = [by[arm][dt] for dt in dts]
+        point, lo, hi = prereg_stats.stratified_bootstrap_ci(strata, reps=cell_curves.BOOTSTRAP_REPS, seed=0)
+        out.append({"arm": arm, "control_dts": " ".join(f"{dt:g}" for dt in dts),
+                    "n": " ".join(str(len(x)) for x in strata), "iqm": point, "iqm_lo": lo, "iqm_hi": hi})
+    return out
+
+
 def analysis(rows: list[dict]) -> list[dict]:
     """The primary family P1-P7 on the deterministic endpoint (reward per second) of the complete
     grid cells: Welch contrasts, Holm over P1-P7, TOST at +-50 (nmrl.analysis.prereg_stats.family);
@@ -98,7 +126,7 @@ def analysis(rows: list[dict]) -> list[dict]:
     return out
 
 
-CELLS_CSV, CHOICES_CSV, SECONDARY_CSV = "cells.csv", "choices.csv", "secondary_endpoints.csv"
+CELLS_CSV, CHOICES_CSV, SECONDARY_CSV, ARMS_CSV = "cells.csv", "choices.csv", "secondary_endpoints.csv", "arms.csv"
 SCREEN_FIGURE, GRID_FIGURE = "screen_curves.png", "learning_curves.png"
 ENDPOINT_FIGURE, CONTRAST_FIGURE = "endpoints.png", "contrasts.png"
 #: the arms' order in the endpoint figure: white first, the correlated arms after it
@@ -120,6 +148,7 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
     ``cells.csv`` (every cell's and screened value's deterministic endpoint over its ended runs, a
     diverged one by its last good policy as in :func:`analysis`: nmrl.analysis.cell_curves.summary;
     with the count of its diverged runs), ``secondary_endpoints.csv`` (:func:`secondary_endpoints`),
+    ``arms.csv`` (:func:`arm_iqms`),
     the screen's learning curves (one panel per screened arm and control step, one line per value,
     extensions included) and, once grid cells exist, the grid's (one panel per control step, one
     line per arm), from the published points' metrics; with them the grid's endpoints
@@ -152,6 +181,7 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
                    [{"cell": c, "value": v, **cell_curves.summary(x), "diverged": diverged[c, v]}
                     for (c, v), x in groups.items()])
     store.write_csv(dest / SECONDARY_CSV, SECONDARY_COLUMNS, secondary_endpoints(rows))
+    store.write_csv(dest / ARMS_CSV, ARM_COLUMNS, arm_iqms(rows))
     if screen:
         cell_curves.figure(screen, dest / SCREEN_FIGURE, "exploring reward per second", "the screen (seeds 100, 101)")
     if grid:
