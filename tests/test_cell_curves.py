@@ -147,6 +147,20 @@ def test_the_endpoint_figure_draws_every_run_and_each_cells_t_interval(tmp_path,
     assert labels == ["white\n(n=4)", "nmp\n(n=3, 1 non-finite)"]
 
 
+def test_the_paired_figure_draws_every_runs_pair_and_the_diagonal(tmp_path, drawn):
+    from nmrl.analysis import contrast_figures
+
+    w, n = [(1.9, 2.0), (0.5, 0.6)], [(0.9, 0.02), (float("nan"), 0.1), (0.8, 0.05)]
+    contrast_figures.paired({"control step 20 ms": {"white": w, "nmp": n}}, tmp_path / "s.png", "noisy", "det")
+    ax = drawn[0].axes[0]
+    diag, *series = ax.lines
+    assert np.allclose(diag.get_xdata(), diag.get_ydata())  # y = x
+    assert min(diag.get_xdata()) < 0.02 and max(diag.get_xdata()) > 2.0  # spans every pair
+    assert [list(zip(ln.get_xdata(), ln.get_ydata())) for ln in series] == [w, [(0.9, 0.02), (0.8, 0.05)]]
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["y = x", "white (n=2)", "nmp (n=2)"]
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("noisy", "det")
+
+
 def test_the_report_draws_the_endpoints_and_contrasts_once_grid_cells_exist(tmp_path):
     rows = [{"cell": "screen/sigma/dt0.02/white", "point": f"sigma0.4_s{s}", "field": "sigma", "value": 0.4,
              "steps": 10, "budget": 10, "diverged": False, "det_reward_per_s": -45.0 + s} for s in (100, 101)]
@@ -159,3 +173,7 @@ def test_the_report_draws_the_endpoints_and_contrasts_once_grid_cells_exist(tmp_
     exploration2_analysis.report(rows, tmp_path)
     assert (tmp_path / exploration2_analysis.ENDPOINT_FIGURE).stat().st_size > 0
     assert (tmp_path / exploration2_analysis.CONTRAST_FIGURE).stat().st_size > 0  # P1 has its estimate
+    assert not (tmp_path / exploration2_analysis.SPEED_FIGURE).exists()  # no run has both speeds
+    rows = [dict(r, forward_speed=0.5, det_forward_speed=0.4) for r in rows]
+    exploration2_analysis.report(rows, tmp_path)
+    assert (tmp_path / exploration2_analysis.SPEED_FIGURE).stat().st_size > 0

@@ -162,6 +162,36 @@ def test_progress_reads_each_cells_chunks_and_time_left_from_its_files(tmp_path)
         "chunk, not counted); 1 cell(s) known but not started")
 
 
+def test_a_row_holds_the_runs_endpoints_from_its_files(tmp_path):
+    """Each row from the point's files, computed here by hand: the exploring reward and forward speed
+    of the last chunk, the reward's mean over the chunks, the deterministic endpoint only where it
+    scored the newest (or, diverged, the last good) policy."""
+    cell = tmp_path / "c"
+    (cell / "points").mkdir(parents=True)
+    (cell / "sweep.json").write_text(json.dumps({"field": "sigma"}))
+
+    def point(name, metrics, endpoint=None):
+        d = cell / "points" / name
+        d.mkdir()
+        (d / "config.json").write_text(json.dumps({"seed": 3, "sigma": 0.4, "control_dt": 0.0025, "steps": 20}))
+        (d / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in metrics))
+        if endpoint is not None:
+            (d / "endpoint.json").write_text(json.dumps(endpoint))
+
+    point("fresh", [{"step": 10, "avg_reward": -1.0, "forward_speed": 0.5},
+                    {"step": 20, "avg_reward": 0.6, "forward_speed": 1.25}],
+          {"step": 20, "reward_per_s": 42.0, "forward_speed": [1.0, 2.0, 3.0]})
+    point("stale", [{"step": 10, "avg_reward": 0.2, "forward_speed": 0.1}],
+          {"step": 5, "reward_per_s": 1.0, "forward_speed": [9.0]})
+    rows = {r["point"]: r for r in kit.rows(kit.Study("t", (kit.Cell("c", ()),), endpoint=None), tmp_path)}
+    f = rows["fresh"]
+    assert (f["seed"], f["field"], f["value"], f["steps"], f["budget"], f["diverged"]) == (3, "sigma", 0.4, 20, 20, False)
+    assert f["avg_reward_per_s"] == pytest.approx(0.6 / 0.02) and f["auc_reward_per_s"] == pytest.approx(-0.2 / 0.02)
+    assert (f["det_reward_per_s"], f["forward_speed"], f["det_forward_speed"]) == (42.0, 1.25, 2.0)
+    st = rows["stale"]
+    assert (st["forward_speed"], st["det_reward_per_s"], st["det_forward_speed"]) == (0.1, "", "")
+
+
 def _screen_rows(cell, scores, budget=True, diverged=()):
     """Finished rows of ``cell`` with a mean det score per value (2 seeds: score - 1, score + 1)."""
     spec = _spec(cell.sweep)

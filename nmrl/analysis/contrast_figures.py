@@ -3,7 +3,9 @@ with its interval against the equivalence margin.
 
 :func:`endpoints`: one panel per group (a control step), one column per cell (an arm): every run's
 value as a dot, the cell's mean with its 95% Student-t interval (nmrl/analysis/stats.py, what the
-Welch contrasts decide on) as a bar. :func:`contrasts`: one row per contrast of a family table
+Welch contrasts decide on) as a bar. :func:`paired`: two measures of every run against each other
+(e.g. a policy's forward speed with and without its exploration noise), the line y = x drawn.
+:func:`contrasts`: one row per contrast of a family table
 (nmrl/analysis/prereg_stats.py ``family``): the estimate with its 95% Welch interval, the
 equivalence band ``±margin`` shaded, and the decision written beside it; a contrast without an
 estimate is listed as pending. Linear axes in the endpoint's own unit, no transforms.
@@ -52,6 +54,35 @@ def endpoints(panels: Mapping[str, Mapping[str, Sequence[float]]], path: str | o
     axes[0][0].set_ylabel(ylabel)
     if title:
         fig.suptitle(title)
+    return plots.save(fig, path, dpi=110, bbox_inches="tight")
+
+
+def paired(panels: Mapping[str, Mapping[str, Sequence[tuple[float, float]]]], path: str | os.PathLike,
+           xlabel: str, ylabel: str, title: str = "") -> pathlib.Path:
+    """One panel per key of ``panels`` (its title), one marker series per cell in it: each run's
+    ``(x, y)`` pair (finite pairs only), with the line y = x across the panel: runs below it score
+    less on y than on x."""
+    plt = plots.plt
+    n = max(1, len(panels))
+    fig, axes = plt.subplots(1, n, figsize=(1.4 + 3.6 * n, 3.9), sharex=True, sharey=True, squeeze=False,
+                             layout="constrained")
+    pairs = np.asarray([p for cells in panels.values() for v in cells.values() for p in v] or [(0.0, 1.0)], float)
+    pairs = pairs[np.all(np.isfinite(pairs), axis=1)]
+    lo, hi = (float(pairs.min()), float(pairs.max())) if pairs.size else (0.0, 1.0)
+    pad = 0.05 * (hi - lo or 1.0)
+    for ax, (name, cells) in zip(axes[0], panels.items()):
+        ax.plot([lo - pad, hi + pad], [lo - pad, hi + pad], color="black", lw=0.8, label="y = x")
+        for cell, v in cells.items():
+            xy = np.asarray(v, float).reshape(-1, 2)
+            xy = xy[np.all(np.isfinite(xy), axis=1)]
+            ax.plot(xy[:, 0], xy[:, 1], "o", ms=5, alpha=0.7, label=f"{cell} (n={len(xy)})")
+        ax.set_title(name)
+        ax.set_xlabel(xlabel)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    axes[0][0].set_ylabel(ylabel)
+    if title:
+        fig.suptitle(title, fontsize=10)
     return plots.save(fig, path, dpi=110, bbox_inches="tight")
 
 

@@ -128,7 +128,7 @@ def analysis(rows: list[dict]) -> list[dict]:
 
 CELLS_CSV, CHOICES_CSV, SECONDARY_CSV, ARMS_CSV = "cells.csv", "choices.csv", "secondary_endpoints.csv", "arms.csv"
 SCREEN_FIGURE, GRID_FIGURE = "screen_curves.png", "learning_curves.png"
-ENDPOINT_FIGURE, CONTRAST_FIGURE = "endpoints.png", "contrasts.png"
+ENDPOINT_FIGURE, CONTRAST_FIGURE, SPEED_FIGURE = "endpoints.png", "contrasts.png", "speeds.png"
 #: the arms' order in the endpoint figure: white first, the correlated arms after it
 ARM_ORDER = ("white", "ws", "ou", "colored", "nms", "nmp")
 SUMMARY_COLUMNS = ("n", "mean", "sd", "ci_lo", "ci_hi", "iqm", "iqm_lo", "iqm_hi")  #: cell_curves.summary's
@@ -153,8 +153,10 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
     extensions included) and, once grid cells exist, the grid's (one panel per control step, one
     line per arm), from the published points' metrics; with them the grid's endpoints
     (``endpoints.png``: every ended run, each cell's mean and 95% t
-    interval, one panel per control step) and, once any contrast has an estimate, the families of
-    :func:`analysis` against the margin (``contrasts.png``)."""
+    interval, one panel per control step), every ended grid run's forward speed with its
+    exploration noise (the last iteration) against its deterministic policy's (``speeds.png``) and,
+    once any contrast has an estimate, the families of :func:`analysis` against the margin
+    (``contrasts.png``)."""
     from nmrl.analysis import cell_curves, contrast_figures
 
     groups: dict[tuple[str, str], list[float]] = {}
@@ -191,6 +193,19 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
         if c.startswith("grid/") and x:
             arm, dt = arm_and_dt(c)
             by_dt.setdefault(dt, {})[arm] = x
+    speeds: dict[float, dict[str, list[tuple[float, float]]]] = {}
+    for r in rows:
+        if r["cell"].startswith("grid/") and ended(r) and r.get("forward_speed", "") != "" \
+                and r.get("det_forward_speed", "") != "":
+            arm, dt = arm_and_dt(r["cell"])
+            speeds.setdefault(dt, {}).setdefault(arm, []).append((float(r["forward_speed"]),
+                                                                  float(r["det_forward_speed"])))
+    if speeds:
+        contrast_figures.paired(
+            {f"control step {dt * 1000:g} ms": {a: speeds[dt][a] for a in sorted(speeds[dt], key=_arm_rank)}
+             for dt in sorted(speeds, reverse=True)}, dest / SPEED_FIGURE,
+            "forward speed with the noise, last iteration [m/s]", "deterministic forward speed, 10 s [m/s]",
+            "every ended grid run, with and without its noise")
     if by_dt:
         panels = {f"control step {dt * 1000:g} ms": {a: by_dt[dt][a] for a in sorted(by_dt[dt], key=_arm_rank)}
                   for dt in sorted(by_dt, reverse=True)}

@@ -50,7 +50,7 @@ ROWS = "rows.csv"
 ANALYSIS = "analysis.csv"
 ENDPOINT = "endpoint.json"
 COLUMNS = ("cell", "point", "seed", "field", "value", "control_dt", "steps", "budget", "diverged",
-           "avg_reward_per_s", "auc_reward_per_s", "det_reward_per_s", "det_forward_speed")
+           "avg_reward_per_s", "auc_reward_per_s", "det_reward_per_s", "forward_speed", "det_forward_speed")
 _PUBLISHED_POINT_FILES = ("config.json", "metrics.jsonl", "compact.npz", ENDPOINT)
 
 
@@ -290,6 +290,7 @@ def rows(study: Study, out: pathlib.Path, cells: Sequence[Cell] | None = None) -
                 "avg_reward_per_s": m[-1]["avg_reward"] / DELTA_0 if m else "",
                 "auc_reward_per_s": sum(r["avg_reward"] for r in m) / len(m) / DELTA_0 if m else "",
                 "det_reward_per_s": e.get("reward_per_s", ""),
+                "forward_speed": m[-1].get("forward_speed", "") if m else "",
                 "det_forward_speed": sum(e["forward_speed"]) / len(e["forward_speed"]) if e.get("forward_speed")
                 else "",
             })
