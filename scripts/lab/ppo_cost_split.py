@@ -12,6 +12,10 @@ Then, for the rollout's physics, one callback's cost at the device's batch: the 
 ``jax.pure_callback``, and a callback of the same shapes that does no physics.
 
     .venv/bin/python scripts/lab/ppo_cost_split.py [--seeds 4] [--minibatches 8] [--repeats 2]
+        [--set exploration=ou corr_time_s=0.01 ...]
+
+``--set`` changes PPOConfig fields (an arm's exploration settings, e.g. the study's colored arm:
+``exploration=colored beta=0.5 sigma=0.4``); ``--no-callback`` skips the physics callback's part.
 
 It uses one XLA device (the update's kernels may still use every core through XLA's thread pool:
 compare its wall and CPU seconds). Timings depend on the load: run it on a quiet machine for
@@ -54,10 +58,20 @@ def main() -> None:
     ap.add_argument("--minibatches", type=int, default=8, help="minibatches per epoch (the study: 32)")
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--callback-steps", type=int, default=1000, help="control steps timed per callback variant")
+    ap.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE", help="PPOConfig fields to change")
+    ap.add_argument("--no-callback", action="store_true", help="time the rollout and the update only")
     a = ap.parse_args()
-    cfg = PPOConfig(num_envs=64, batch_size=512, num_minibatches=a.minibatches, epochs=8, control_dt=0.0025,
-                    reward_scale=0.125, value_layers=2, value_width=64, physics="c", physics_timestep=0.0025,
-                    trial_s=5.0).resolved()
+    fields = {f.name: f for f in dataclasses.fields(PPOConfig)}
+    changes = {}
+    for item in a.set:
+        key, _, value = item.partition("=")
+        if key not in fields or not value:
+            ap.error(f"--set {item!r}: expected FIELD=VALUE with FIELD one of PPOConfig's fields")
+        kind = str(fields[key].type).split("|")[0].strip()  # the annotation: "float | None", "bool", ...
+        changes[key] = {"bool": lambda v: v.lower() in ("1", "true"), "int": int, "float": float}.get(kind, str)(value)
+    cfg = PPOConfig(**{**dict(num_envs=64, batch_size=512, num_minibatches=a.minibatches, epochs=8,
+                                 control_dt=0.0025, reward_scale=0.125, value_layers=2, value_width=64,
+                                 physics="c", physics_timestep=0.0025, trial_s=5.0), **changes}).resolved()
     env = HalfCheetah(dataclasses.replace(cfg.env_config(), threads=1))
     tr = make_ppo(cfg, env)
     st = jax.jit(jax.vmap(tr.init))(jax.random.split(jax.random.PRNGKey(0), a.seeds))
@@ -68,11 +82,14 @@ def main() -> None:
     n = a.seeds * cfg.num_envs * cfg.iteration_steps
     rw, rc = _best(lambda: roll(st, keys), a.repeats)
     lw, lc = _best(lambda: learn(st, data, keys), a.repeats)
+    print(f"{cfg.spec()}:")
     print(f"{a.seeds} seeds x {cfg.num_envs} environments, {cfg.iteration_steps} control steps each "
           f"({n:,} environment steps), {cfg.epochs} epochs x {cfg.num_minibatches} minibatches:")
     for name, w, c in (("rollout", rw, rc), ("update", lw, lc)):
         print(f"  {name:8s} {w:7.1f} s wall {c:7.1f} s CPU   {1e6 * w / n:6.2f} us wall, "
               f"{1e6 * c / n:6.2f} us CPU per environment step")
+    if a.no_callback:
+        return
 
     c = env.c
     b = a.seeds * cfg.num_envs
