@@ -2,20 +2,20 @@
 
 A grid cell at 2.5 ms runs each device's seeds vmapped together (``nmrl sweep --group``): per
 iteration a device rolls out ``--seeds`` x 64 environments for U T = 256 x 160 control steps and
-then takes 8 epochs x 32 minibatches of Adam steps. This script builds that program for white
-exploration (the study's settings: value net 2x64, trials of 5 s, the 0.0025 s timestep, C
+then takes 8 epochs x 32 minibatches of Adam steps. This script builds that program (by default
+white exploration at the study's settings: value net 2x64, trials of 5 s, the 0.0025 s timestep, C
 physics), compiles the vmapped ``rollout`` and ``learn`` of nmrl/learners/ppo.py apart and times
-each (wall and process CPU seconds, best of ``--repeats``). ``--minibatches`` shortens the iteration
-(U = 512 x minibatches / 64 unrolls per environment) without changing the work per control step.
-Then, for the rollout's physics, one callback's cost at the device's batch: the host step alone
-(``CPhysics._callback`` called from Python), the same inside a jitted ``lax.scan`` through
-``jax.pure_callback``, and a callback of the same shapes that does no physics.
+each (wall and process CPU seconds, best of ``--repeats``). It takes the options of ``nmrl train
+--learner ppo`` (generated from PPOConfig's declarations), so an arm is its exploration options,
+e.g. the study's colored arm ``--exploration colored --beta 0.5 --sigma 0.4``; its default
+``--num-minibatches 8`` shortens the iteration (U = 512 x 8 / 64 unrolls per environment) without
+changing the work per control step. Then, for the rollout's physics, one callback's cost at the
+device's batch: the host step alone (``CPhysics._callback`` called from Python), the same inside a
+jitted ``lax.scan`` through ``jax.pure_callback``, and a callback of the same shapes that does no
+physics (``--no-callback`` skips this part).
 
-    .venv/bin/python scripts/lab/ppo_cost_split.py [--seeds 4] [--minibatches 8] [--repeats 2]
-        [--set exploration=ou corr_time_s=0.01 ...]
-
-``--set`` changes PPOConfig fields (an arm's exploration settings, e.g. the study's colored arm:
-``exploration=colored beta=0.5 sigma=0.4``); ``--no-callback`` skips the physics callback's part.
+    .venv/bin/python scripts/lab/ppo_cost_split.py [--seeds 4] [--repeats 2] [--no-callback]
+        [nmrl train's PPO options, e.g. --num-minibatches 4 --exploration ou --corr-time-s 0.01]
 
 It uses one XLA device (the update's kernels may still use every core through XLA's thread pool:
 compare its wall and CPU seconds). Timings depend on the load: run it on a quiet machine for
@@ -36,10 +36,18 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
+from nmrl.cli.config_options import add_config_options, get_learner, given_options  # noqa: E402
+from nmrl.cli.exploration_options import add_exploration_options  # noqa: E402
 from nmrl.learners.ppo import make_ppo  # noqa: E402
 from nmrl.learners.ppo_config import PPOConfig  # noqa: E402
 from nmrl.paper.env import HalfCheetah  # noqa: E402
 from nmrl.physics import mujoco_c  # noqa: E402
+
+
+#: the second exploration study's 2.5 ms grid settings (nmrl/experiments/exploration2_cells.py), but
+#: 8 of its 32 minibatches per epoch
+STUDY = dict(num_envs=64, batch_size=512, num_minibatches=8, epochs=8, control_dt=0.0025, reward_scale=0.125,
+             value_layers=2, value_width=64, physics="c", physics_timestep=0.0025, trial_s=5.0)
 
 
 def _best(fn, repeats: int) -> tuple[float, float]:
@@ -55,23 +63,15 @@ def _best(fn, repeats: int) -> tuple[float, float]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", type=int, default=4, help="seeds vmapped together on the device (a grid cell: 4)")
-    ap.add_argument("--minibatches", type=int, default=8, help="minibatches per epoch (the study: 32)")
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--callback-steps", type=int, default=1000, help="control steps timed per callback variant")
-    ap.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE", help="PPOConfig fields to change")
     ap.add_argument("--no-callback", action="store_true", help="time the rollout and the update only")
+    learner = get_learner("ppo")
+    add_config_options(ap, learner=learner)
+    add_exploration_options(ap, learner)
+    ap.set_defaults(learner="ppo")
     a = ap.parse_args()
-    fields = {f.name: f for f in dataclasses.fields(PPOConfig)}
-    changes = {}
-    for item in a.set:
-        key, _, value = item.partition("=")
-        if key not in fields or not value:
-            ap.error(f"--set {item!r}: expected FIELD=VALUE with FIELD one of PPOConfig's fields")
-        kind = str(fields[key].type).split("|")[0].strip()  # the annotation: "float | None", "bool", ...
-        changes[key] = {"bool": lambda v: v.lower() in ("1", "true"), "int": int, "float": float}.get(kind, str)(value)
-    cfg = PPOConfig(**{**dict(num_envs=64, batch_size=512, num_minibatches=a.minibatches, epochs=8,
-                                 control_dt=0.0025, reward_scale=0.125, value_layers=2, value_width=64,
-                                 physics="c", physics_timestep=0.0025, trial_s=5.0), **changes}).resolved()
+    cfg = PPOConfig(**{**STUDY, **given_options(a)}).resolved()
     env = HalfCheetah(dataclasses.replace(cfg.env_config(), threads=1))
     tr = make_ppo(cfg, env)
     st = jax.jit(jax.vmap(tr.init))(jax.random.split(jax.random.PRNGKey(0), a.seeds))
