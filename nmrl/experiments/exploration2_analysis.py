@@ -202,14 +202,11 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
                                                                   float(r["det_forward_speed"])))
     if speeds:
         contrast_figures.paired(
-            {f"control step {dt * 1000:g} ms": {a: speeds[dt][a] for a in sorted(speeds[dt], key=_arm_rank)}
-             for dt in sorted(speeds, reverse=True)}, dest / SPEED_FIGURE,
+            _panels(speeds), dest / SPEED_FIGURE,
             "forward speed with the noise, last iteration [m/s]", "deterministic forward speed, 10 s [m/s]",
             "every ended grid run, with and without its noise")
     if by_dt:
-        panels = {f"control step {dt * 1000:g} ms": {a: by_dt[dt][a] for a in sorted(by_dt[dt], key=_arm_rank)}
-                  for dt in sorted(by_dt, reverse=True)}
-        contrast_figures.endpoints(panels, dest / ENDPOINT_FIGURE, "deterministic reward per second",
+        contrast_figures.endpoints(_panels(by_dt), dest / ENDPOINT_FIGURE, "deterministic reward per second",
                                    "the grid's primary endpoint (every ended run)")
     table = [r for r in analysis(rows) if r.get("estimate", "") != ""]
     if table:
@@ -218,6 +215,13 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
                                    "the pre-registered contrasts (decisions: Holm over each family)")
     if (dest / SNR_CSV).is_file():
         _snr_report(dest)
+
+
+def _panels(by_dt: dict[float, dict[str, list]]) -> dict[str, dict[str, list]]:
+    """A figure's panels from ``{control step: {arm: values}}``: one per control step, coarsest
+    first, titled by it, each with its arms in :data:`ARM_ORDER`."""
+    return {f"control step {dt * 1000:g} ms": {a: by_dt[dt][a] for a in sorted(by_dt[dt], key=_arm_rank)}
+            for dt in sorted(by_dt, reverse=True)}
 
 
 def _arm_rank(arm: str) -> tuple[int, str]:
