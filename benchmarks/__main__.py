@@ -24,6 +24,8 @@ Benchmarks (each a module ``benchmarks/bench_<name>.py`` with ``run(quick, smoke
                  native iteration's profile (bench_ppo.py; the Brax half needs Brax).
 * ``physics_c``  ``--physics c``: the C env in the program vs ``mujoco.batch`` alone, the 24-point sweep
                  with learning on C vs MJX vs MuJoCo C alone, native PPO on C vs MJX (bench_physics_c.py).
+* ``grad_chunks`` PPO at 2.5 ms in the second exploration study's grid layout, each minibatch's gradient
+                 in parts (``--grad-chunks``) vs at once (bench_grad_chunks.py).
 
 Every comparison is a ratio measured within one run, the contenders interleaved, so that a
 background load affects both alike; absolute numbers are reported beside the machine description
@@ -62,7 +64,7 @@ ROOT = HERE.parent
 OUT = ROOT / "results" / "benchmarks"
 
 SECTIONS = ("env", "learning", "likelihood", "sweep", "scaling", "distributed", "baseline", "explore", "ppo",
-            "physics_c")
+            "physics_c", "grad_chunks")
 SIZES = ("full", "quick", "smoke")
 TOP_KEYS = ("meta", "machine", *SECTIONS, "summary")
 
@@ -241,6 +243,9 @@ def summary(res: dict) -> dict:
         if "e_ppo_group" in w:
             s["physics_c_ppo_grouped_over_one_at_a_time"] = w["e_ppo_group"]["grouped_over_one_at_a_time"]
         s["physics_c_goal_met"] = pc.get("goal_met")
+    gc = res.get("grad_chunks")
+    if gc and "worker" in gc:
+        s["grad_chunks_over_whole"] = gc["worker"]["speedup_over_whole"]
     li = res.get("likelihood")
     if li and "results" in li:
         by = {(r["method"], r["l"]): r["median_s"] for r in li["results"]}
@@ -345,6 +350,14 @@ def table(res: dict) -> str:
                          f"seeds in one call) vs a seed at a time ({e['num_minibatches']} minibatch)",
                          _f(e["rates"][f"group_{n}"]), _f(e["rates"]["group_1"]), _f(e["grouped_over_one_at_a_time"], 2, "×"),
                          f"{e['compile_s'][f'group_{n}']:.1f} / {e['compile_s']['group_1']:.1f}"))
+    gc = res.get("grad_chunks")
+    if gc and "worker" in gc:
+        w = gc["worker"]
+        for k, v in w["speedup_over_whole"].items():
+            rows.append((f"native PPO ctrl steps/s, {w['control_dt'] * 1000:g}ms", f"{w['seeds']} seeds grouped, C: each "
+                         f"minibatch's gradient in {k.split('_')[1]} parts vs at once ({w['num_minibatches']} "
+                         "minibatches)", _f(w["rates"][k]), _f(w["rates"]["chunks_1"]), _f(v, 2, "×"),
+                         f"{w['compile_s'][k]:.1f} / {w['compile_s']['chunks_1']:.1f}"))
     sc = res.get("scaling")
     if sc and "two_device_process" in sc:
         two = sc["two_device_process"]

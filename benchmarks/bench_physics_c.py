@@ -121,7 +121,7 @@ def _worker(quick: bool, smoke: bool) -> dict:
         tr = make_train(cfgs[0], HalfCheetah(env_cfg))
         keys = jnp.stack([jax.random.PRNGKey(c.seed) for c in cfgs])
         ts = jax.jit(jax.vmap(tr.init))(keys, points.stack_trees([Hyper.from_config(c) for c in cfgs]))
-        call, compile_s = _points_call(tr.chunk, ts, len(cfgs), n_use, group)
+        call, compile_s = points_call(tr.chunk, ts, len(cfgs), n_use, group)
         return call, compile_s, len(cfgs) * num_envs * T
 
     calls, compiles, work = {}, {}, 0
@@ -174,7 +174,7 @@ def _worker(quick: bool, smoke: bool) -> dict:
     return out
 
 
-def _points_call(chunk, ts, n_points: int, n_use: int, group: int):
+def points_call(chunk, ts, n_points: int, n_use: int, group: int):
     """``(call, compile_s)``: the points' stacked states ``ts`` laid out over ``n_use`` devices as the
     sweep lays them (nmrl.runs.points), their program compiled apart, and ``call()`` running one
     chunk of every point (blocking; it carries the states on), already run once."""
@@ -218,7 +218,7 @@ def _ppo_group(n_dev: int, cores: int, rounds: int, quick: bool, smoke: bool) ->
     calls, compiles = {}, {}
     for group in (1, seeds):
         st = jax.jit(jax.vmap(tr.init))(jnp.stack([jax.random.PRNGKey(s) for s in range(seeds)]))
-        calls[group], compiles[group] = _points_call(tr.chunk, st, seeds, n_dev, group)
+        calls[group], compiles[group] = points_call(tr.chunk, st, seeds, n_dev, group)
     times = interleave(calls, max(1, rounds // 2) if not smoke else 1)
     work = seeds * cfg.num_envs * cfg.chunk_steps
     rates = {f"group_{g}": timing(times[g], work)["control_steps_per_s"] for g in calls}

@@ -333,6 +333,12 @@ def test_the_grid_follows_the_screen_with_the_preregistered_design():
             seeds = len(_spec(c.sweep).points())
             assert c.run_options == (("--group", str(seeds)) if dt < 0.02 else ()), name
     assert cells["grid/dt0.0025/white"].run_options == ("--group", "8")
+    # below 20 ms each minibatch's gradient in 8 parts of 64 unrolls, but in white's 2.5 ms grid cell
+    for name, c in cells.items():
+        cfg = _spec(c.sweep).base.resolved()
+        want = 1 if name.startswith("screen/") or cfg.control_dt >= 0.02 or name == "grid/dt0.0025/white" else 8
+        assert cfg.grad_chunks == want, name
+        assert cfg.batch_size // cfg.num_envs // cfg.grad_chunks * cfg.num_envs in (64, 512), name
     assert not any(c.run_options for n, c in cells.items() if n.startswith("screen/"))
     # nothing of the grid before every primary setting is chosen
     assert not [c for c in exploration2_rules.later_cells(rows[:-4]) if not c.name.startswith("screen/")]

@@ -444,3 +444,44 @@ def test_max_grad_norm_clips_the_gradient_before_adam(max_grad_norm):
         assert moved.max() <= lr * max_grad_norm / 1e-8 * 1.01
     else:
         assert np.quantile(moved, 0.5) == pytest.approx(lr, rel=1e-3)  # most elements: a full step lr
+
+
+@pytest.mark.parametrize("period_wise", [False, True])
+def test_a_minibatch_gradient_taken_in_parts_is_the_whole_minibatchs(period_wise):
+    """``grad_chunks``: each minibatch's gradient summed over parts of its unrolls, the advantages
+    normalised over the whole minibatch, gives the whole minibatch's Adam steps up to float rounding
+    (one iteration's ``learn``: 2 epochs x 2 minibatches of 8 unrolls, in 1, 2 and 4 parts). The
+    parts' gradients with each part's advantages normalised on their own (what a plain gradient
+    accumulation would take) differ from the whole's by far more than that rounding."""
+    kw = dict(TINY, batch_size=8, num_envs=2, unroll_s=0.2)
+    if period_wise:
+        kw.update(exploration="nm-periods", sigma=0.7, period_s=0.06, corr_time_s=0.05, period_wise=True)
+    env = TinyEnv(stop_prob=0.1)
+    whole = ppo.make_ppo(ppo_config.PPOConfig(**kw), env)
+    st = whole.init(jax.random.PRNGKey(3))
+    _, data = whole.rollout(st, jax.random.PRNGKey(4))
+    assert float(jnp.std(data.reward)) > 0
+    ref = whole.learn(st, data, jax.random.PRNGKey(5))[0]
+    moved = max(float(jnp.max(jnp.abs(a - b))) for a, b in
+                zip(jax.tree.leaves(ref), jax.tree.leaves({"policy": st.policy, "value": st.value})))
+    assert moved > 1e-4  # 4 Adam steps of lr 3e-4 moved the parameters
+    for chunks in (2, 4):
+        tr = ppo.make_ppo(ppo_config.PPOConfig(**kw, grad_chunks=chunks), env)
+        got = tr.learn(st, data, jax.random.PRNGKey(5))[0]
+        for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(ref)):
+            np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=0, atol=1e-6)
+    # the control: one minibatch's gradient from its 4 parts each normalised alone
+    mb = jax.tree.map(lambda a: a[0], whole.minibatches(data, jax.random.PRNGKey(6)))
+    params, eps = {"policy": st.policy, "value": st.value}, jnp.zeros(mb.x.shape, jnp.float32)
+    g_whole = jax.grad(whole.loss, has_aux=True)(params, st.obs_stats, mb, st.hyper, eps)[0]
+    parts = [jax.grad(whole.loss, has_aux=True)(params, st.obs_stats, jax.tree.map(lambda a: a[i::4], mb),
+                                                 st.hyper, eps[i::4], float(8 * whole.config.unroll_length))[0]
+             for i in range(4)]
+    g_alone = jax.tree.map(lambda *g: sum(g), *parts)
+    gap = max(float(jnp.max(jnp.abs(a - b))) for a, b in zip(jax.tree.leaves(g_alone), jax.tree.leaves(g_whole)))
+    assert gap > 1e-3 * max(float(jnp.max(jnp.abs(a))) for a in jax.tree.leaves(g_whole))
+
+
+def test_grad_chunks_must_divide_each_environments_unrolls_of_a_minibatch():
+    with pytest.raises(ValueError, match=r"grad_chunks=3 is invalid: must divide the 4 unrolls"):
+        ppo_config.PPOConfig(**dict(TINY, batch_size=8), grad_chunks=3).validate()

@@ -82,13 +82,22 @@ def scaled_white_sigma(sigma_w20: float, dt: float) -> float:
     return sigma_w20 * (0.02 / dt) ** 0.5
 
 
+#: below 20 ms each minibatch's gradient is taken in this many parts of 64 unrolls (``--grad-chunks``:
+#: the same Adam steps up to float rounding, a working set that fits the caches; benchmarks/
+#: bench_grad_chunks.py), except in :data:`WHOLE_GRADIENT`'s cells, whose runs took it at once
+GRAD_CHUNKS = 8
+WHOLE_GRADIENT = ("grid/dt0.0025/white",)
+
+
 def grid_cell(arm: str, dt: float, choice: dict, seeds: int, name: str | None = None,
               iterations: int = GRID_ITERATIONS) -> kit.Cell:
     """``arm`` at ``dt`` with its chosen sigma and time constant, seeds 0.. at the full budget
     (``iterations``: the grid's 16 unless given). Below 20 ms each device steps its seeds vmapped
     together (``--group``: one physics callback and one update for all of them per step, 1.2x a seed at
-    a time at 2.5 ms); the 20 ms cells step a seed at a time, so that white's runs there are the same
-    runs, iteration for iteration, as the matched-SNR cells of fewer seeds and iterations."""
+    a time at 2.5 ms) and takes each minibatch's gradient in :data:`GRAD_CHUNKS` parts; the 20 ms
+    cells step a seed at a time, so that white's runs there are the same runs, iteration for
+    iteration, as the matched-SNR cells of fewer seeds and iterations."""
+    name = name or f"grid/dt{dt:g}/{arm}"
     options = list(ARMS["white" if arm == "ws" else arm])
     for field, value in choice.items():
         flag = "--" + field.replace("_", "-")
@@ -96,8 +105,9 @@ def grid_cell(arm: str, dt: float, choice: dict, seeds: int, name: str | None = 
             options[options.index(flag) + 1] = f"{value:.6g}"
         else:
             options += [flag, f"{value:.6g}"]
-    return kit.Cell(name or f"grid/dt{dt:g}/{arm}",
-                    (*base(dt, iterations), *options, "--seeds", str(seeds), "--seed0", "0"),
+    if dt < 0.02 and name not in WHOLE_GRADIENT:
+        options += ["--grad-chunks", str(GRAD_CHUNKS)]
+    return kit.Cell(name, (*base(dt, iterations), *options, "--seeds", str(seeds), "--seed0", "0"),
                     run_options=("--group", str(seeds)) if dt < 0.02 else ())
 
 

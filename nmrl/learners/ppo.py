@@ -48,7 +48,8 @@ from flax import struct
 from nmrl import explore, options, tasks
 from nmrl.learners import ppo_losses as L
 from nmrl.learners import ppo_networks as nn_
-from nmrl.learners.contract import Learner, Policy, register
+from nmrl.learners.contract import Learner, register
+from nmrl.learners.ppo_policy import policy
 from nmrl.learners.ppo_config import Hyper, PPOConfig
 from nmrl.pytrees import check_shards, global_norm, tree_where
 
@@ -174,31 +175,47 @@ def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None
         mu, std = nn_.mean_std(nets, policy, norm(stats, b.obs), cfg.min_std)
         return logp_of(mu, std, b, proc)
 
-    def loss(params, stats, b: Batch, h: Hyper, eps: jax.Array, count: float = COUNT):
+    def targets(values, boot, b: Batch, h: Hyper):
+        """Time-major ``(w, vs, adv, start)`` of a batch (leading axes (B, T)) under its values: GAE at
+        every step (weights 1), or at the starts of nm-periods when period-wise (weights 1 there, 0
+        elsewhere; ``start`` the period starts, else None)."""
+        tm = lambda a: jnp.swapaxes(a, 0, 1)  # noqa: E731  (B, T) -> (T, B)
+        if cfg.period_wise:  # one sample per period (segment) of the unroll, at its start
+            start = tm(b.fresh).at[0].set(True)
+            vs, adv = L.period_gae(tm(b.reward * h.reward_scale), tm(values), boot, tm(b.termination),
+                                   tm(b.truncation), start, h.gamma, h.lam)
+            return tm(start.astype(values.dtype)), tm(vs), tm(adv), start
+        vs, adv = L.gae(tm(b.reward * h.reward_scale), tm(values), boot, tm(b.termination), tm(b.truncation),
+                        h.gamma, h.lam)
+        return jnp.ones_like(values), tm(vs), tm(adv), None
+
+    def loss(params, stats, b: Batch, h: Hyper, eps: jax.Array, count: float = COUNT, whole=None):
         """This shard's part of one minibatch's loss (its sums / the minibatch's ``count`` samples)
-        and the sums behind the diagnostics; ``b`` has leading axes (B, T)."""
+        and the sums behind the diagnostics; ``b`` has leading axes (B, T). ``whole``: the
+        minibatch's ``(n, sum w adv, sum w adv^2)`` when ``b`` is a part of it (:func:`minibatch_grad`),
+        else they are ``b``'s own."""
         obs_n = norm(stats, b.obs)
         mu, std = nn_.mean_std(nets, params["policy"], obs_n, cfg.min_std)
         logp = logp_of(mu, std, b, h.process)
         values = nn_.value(nets, params["value"], obs_n)
         boot = nn_.value(nets, params["value"], norm(stats, b.next_obs))
-        tm = lambda a: jnp.swapaxes(a, 0, 1)  # noqa: E731  (B, T) -> (T, B)
         std_x = h.process.sigma * std  # marginal std of x
         ent = nn_.entropy(std_x, mu + std_x * eps, cfg.squash)
-        if cfg.period_wise:  # one sample per period (segment) of the unroll, at its start
-            start = tm(b.fresh).at[0].set(True)
-            vs, adv = L.period_gae(tm(b.reward * h.reward_scale), tm(values), boot, tm(b.termination),
-                                   tm(b.truncation), start, h.gamma, h.lam)
-            log_ratio = L.segment_sums(tm(logp - b.logp), start)
-            w, vs, adv, log_ratio = tm(start.astype(values.dtype)), tm(vs), tm(adv), tm(log_ratio)
-            logp_new, logp_old = log_ratio, jnp.zeros_like(log_ratio)
+        w, vs, adv, start = targets(values, boot, b, h)
+        if cfg.period_wise:
+            tm = lambda a: jnp.swapaxes(a, 0, 1)  # noqa: E731
+            logp_new = tm(L.segment_sums(tm(logp - b.logp), start))
+            logp_old = jnp.zeros_like(logp_new)
         else:
-            vs, adv = L.gae(tm(b.reward * h.reward_scale), tm(values), boot, tm(b.termination), tm(b.truncation),
-                            h.gamma, h.lam)
-            w, vs, adv, logp_new, logp_old = jnp.ones_like(values), tm(vs), tm(adv), logp, b.logp
-        n = psum(jnp.sum(w)) if cfg.period_wise else count  # the samples of the minibatch (all shards)
-        if cfg.normalize_advantage:
-            adv = L.normalize_advantages(adv, psum(jnp.sum(adv * w)), n, psum(jnp.sum(adv * adv * w)))
+            logp_new, logp_old = logp, b.logp
+        if whole is None:
+            n = psum(jnp.sum(w)) if cfg.period_wise else count  # the samples of the minibatch (all shards)
+            if cfg.normalize_advantage:
+                adv = L.normalize_advantages(adv, psum(jnp.sum(adv * w)), n, psum(jnp.sum(adv * adv * w)))
+        else:
+            n = whole[0]
+            if cfg.normalize_advantage:
+                adv = L.normalize_advantages(adv, whole[1], n, whole[2])
         pl, diag = L.clipped_surrogate(logp_new, logp_old, adv, h.clip_eps)
         vl = L.value_loss(values, vs, h.vf_coef)
         if cfg.period_wise:
@@ -214,6 +231,36 @@ def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None
         return total, jax.lax.stop_gradient(sums)
 
     grad_fn = jax.grad(loss, has_aux=True)
+    C = cfg.grad_chunks
+
+    def whole_sums(value_params, stats, parts: Batch, h: Hyper) -> tuple:
+        """The minibatch's ``(n, sum w adv, sum w adv^2)`` (all shards) from its ``parts`` (leading
+        axes (C, B / C, T)), each part's advantages under the value net as :func:`loss` computes them."""
+        def one(b):
+            w, _, adv, _ = targets(nn_.value(nets, value_params, norm(stats, b.obs)),
+                                   nn_.value(nets, value_params, norm(stats, b.next_obs)), b, h)
+            return jnp.stack([jnp.sum(w), jnp.sum(adv * w), jnp.sum(adv * adv * w)])
+        s = psum(jnp.sum(jax.lax.map(one, parts), axis=0))
+        return (s[0] if cfg.period_wise else COUNT), s[1], s[2]
+
+    def minibatch_grad(params, stats, mb: Batch, h: Hyper, eps: jax.Array):
+        """The gradient of one minibatch's loss and its sums: at once, or (``grad_chunks`` C > 1) summed
+        over C parts of its unrolls taken in turn, the advantages normalised over the whole minibatch
+        first -- the same gradient up to float rounding, with a C times smaller working set."""
+        if C == 1:
+            return grad_fn(params, stats, mb, h, eps)
+        split = lambda a: a.reshape((C, a.shape[0] // C) + a.shape[1:])  # noqa: E731
+        parts, eps_parts = jax.tree.map(split, mb), split(eps)
+        whole = whole_sums(params["value"], stats, parts, h)
+
+        def part_grad(b, e):
+            return grad_fn(params, stats, b, h, e, COUNT, whole)
+
+        def add(acc, part):
+            return jax.tree.map(jnp.add, acc, part_grad(*part)), None
+        shapes = jax.eval_shape(part_grad, jax.tree.map(lambda a: a[0], parts), eps_parts[0])
+        zero = jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), shapes)
+        return jax.lax.scan(add, zero, (parts, eps_parts))[0]
 
     # ------------------------------------------------------------------------------- rollout
     def rollout_step(carry, key):
@@ -251,7 +298,7 @@ def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None
         idx, key = inp  # idx (NL, UM): the unrolls of each of this shard's environments
         mb = take(data, idx)
         eps = local(jax.random.normal(key, (N, UM, T, ACT), jnp.float32)).reshape(NL * UM, T, ACT)
-        grads, sums = grad_fn(params, stats, mb, h, eps)
+        grads, sums = minibatch_grad(params, stats, mb, h, eps)
         grads = jax.tree.map(psum, grads)
         upd, opt = tx.update(grads, opt, params)
         params = jax.tree.map(lambda p, u: p + (-h.learning_rate) * u, params, upd)
@@ -332,40 +379,6 @@ def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None
 
     return PPOTrainer(config=cfg, env=env, init=init, chunk=chunk, nets=nets, seq_logp=seq_logp, loss=loss,
                       rollout=rollout, learn=learn, minibatches=minibatches)
-
-
-# ----------------------------------------------------------------------------- evaluation policy
-
-
-def policy(cfg: PPOConfig, env: Any) -> Policy:
-    """``act(params, obs, xi) = squash(mu_theta(s) + std_theta(s) xi)`` onto the environment's action
-    range (the paper's robot: 20 tanh(.); ``ppo_networks.action_range``) with ``s`` the
-    observation through the run's normaliser (``params``: ``policy``, ``obs_stats``); xi = 0 is the
-    deterministic policy (Brax's mode: tanh of the mean). The exploring policy's noise is the run's
-    process, drawn by nmrl.explore.sample from a key made of the per-step ``eps``'s bits."""
-    cfg = cfg.resolved()
-    nets = nn_.make_networks(cfg.policy_layers, cfg.policy_width, cfg.value_layers, cfg.value_width, env.act_dim,
-                             cfg.learn_std)
-    proc = cfg.spec().process(cfg.control_dt)
-    scale = nn_.action_range(env)
-
-    def act(params, obs, xi):
-        mu, std = nn_.mean_std(nets, params["policy"], nn_.normalize(params["obs_stats"], obs, cfg.normalize_obs),
-                               cfg.min_std)
-        return nn_.squash(mu + std * xi, cfg.squash, *scale)
-
-    def noise_init(act_dim):
-        return explore.init(proc, jax.random.PRNGKey(0), 1, act_dim)
-
-    def noise_step(p, state, eps):
-        bits = jax.lax.bitcast_convert_type(jnp.asarray(eps, jnp.float32), jnp.uint32)
-        key = jax.random.PRNGKey(0)
-        for j in range(bits.shape[0]):
-            key = jax.random.fold_in(key, bits[j])
-        xi, _, _, state = explore.sample(p, state, key)
-        return state, xi[0]
-
-    return Policy(act=act, noise_init=noise_init, noise_step=noise_step, noise_args=proc)
 
 
 LEARNER = register(Learner(

@@ -80,6 +80,9 @@ class PPOConfig:
     batch_size: int = option(512, "unrolls per minibatch (a multiple of --num-envs)", range=AT_LEAST_ONE)
     num_minibatches: int = option(32, "minibatches per epoch", range=AT_LEAST_ONE)
     epochs: int = option(8, "passes over an iteration's data (Brax: num_updates_per_batch)", range=AT_LEAST_ONE)
+    grad_chunks: int = option(1, "take each minibatch's gradient in this many parts of its unrolls, summed (the same "
+                                 "Adam step up to float rounding, a smaller working set; must divide batch_size / "
+                                 "num_envs)", range=AT_LEAST_ONE)
     learning_rate: float = option(3e-4, "Adam's step size", traced=True, range=_LEARNING_RATE)
     entropy_cost: float = option(1e-3, "weight of the entropy bonus", traced=True, range=NON_NEGATIVE)
     clip_eps: float = option(0.3, "PPO's clip epsilon of the ratio", traced=True, range=POSITIVE)
@@ -149,6 +152,10 @@ class PPOConfig:
         if self.batch_size % self.num_envs:
             raise options.invalid("num_envs", self.num_envs, f"must divide batch_size={self.batch_size} (every minibatch "
                                                   f"holds batch_size / num_envs unrolls of each environment)")
+        if (self.batch_size // self.num_envs) % self.grad_chunks:
+            raise options.invalid("grad_chunks", self.grad_chunks, f"must divide the {self.batch_size // self.num_envs} "
+                                                        f"unrolls of each environment in a minibatch "
+                                                        f"(batch_size / num_envs)")
         if self.chunk_steps is not None and self.chunk_steps % self.iteration_steps:
             raise options.invalid("chunk_steps", self.chunk_steps, f"must be a multiple of one iteration's "
                                                         f"{self.iteration_steps} control steps per environment")

@@ -83,10 +83,12 @@ def _check_config(meta: dict, config: Config) -> None:
 
 #: Identity fields that runs with an older identity digest do not record, with the value those runs
 #: had: a field at that value is left out of the identity, so their digests (and identity
-#: comparisons) stay what they are (such runs used the paper's rule, plain sgd, and the actor-critic).
+#: comparisons) stay what they are (such runs used the paper's rule, plain sgd, the actor-critic,
+#: and PPO's gradient of a whole minibatch at once).
 LATER_FIELDS: dict[str, object] = {"actor_opt": "sgd", "critic_opt": "sgd", learners.KEY: learners.DEFAULT,
                                    "physics": "mjx", "trial_s": None,
-                                   "physics_timestep": None, "env": "paper-cheetah"}
+                                   "physics_timestep": None, "env": "paper-cheetah",
+                                   "grad_chunks": 1}
 
 
 def identity_config(config: Config) -> dict:
