@@ -16,7 +16,8 @@ import pathlib
 import numpy as np
 
 from nmrl.experiments.exploration2_cells import SNR_CSV, arm_and_dt, asymptote_name, grid_name
-from nmrl.experiments.exploration2_rules import CHOICE_COLUMNS, best_correlated, choices, complete_cells, ended
+from nmrl.experiments.exploration2_rules import (CHOICE_COLUMNS, best_correlated, choices, complete_cells, diverged,
+                                                ended)
 from nmrl.paper.control_step import DELTA_0
 from nmrl.runs import store
 
@@ -160,13 +161,13 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
     from nmrl.analysis import cell_curves, contrast_figures
 
     groups: dict[tuple[str, str], list[float]] = {}
-    diverged: dict[tuple[str, str], int] = {}
+    n_diverged: dict[tuple[str, str], int] = {}
     screen: dict[str, dict[str, list]] = {}
     grid: dict[str, dict[str, list]] = {}
     for r in rows:
         key = (r["cell"], f"{float(r['value']):g}" if r["cell"].startswith("screen/") else "")
         groups.setdefault(key, []).extend([float(r["det_reward_per_s"])] if ended(r) else [])
-        diverged[key] = diverged.get(key, 0) + (str(r["diverged"]) == "True")
+        n_diverged[key] = n_diverged.get(key, 0) + diverged(r)
         point = dest / r["cell"] / "points" / r["point"]
         if not (point / "metrics.jsonl").is_file():
             continue
@@ -180,7 +181,7 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
             grid.setdefault(f"control step {dt * 1000:g} ms", {}).setdefault(arm, []).append(_curve(point))
     store.write_csv(dest / CHOICES_CSV, CHOICE_COLUMNS, choices(rows))
     store.write_csv(dest / CELLS_CSV, CELL_COLUMNS,
-                   [{"cell": c, "value": v, **cell_curves.summary(x), "diverged": diverged[c, v]}
+                   [{"cell": c, "value": v, **cell_curves.summary(x), "diverged": n_diverged[c, v]}
                     for (c, v), x in groups.items()])
     store.write_csv(dest / SECONDARY_CSV, SECONDARY_COLUMNS, secondary_endpoints(rows))
     store.write_csv(dest / ARMS_CSV, ARM_COLUMNS, arm_iqms(rows))

@@ -27,10 +27,15 @@ def _finished(rows: list[dict], prefix: str) -> list[dict] | None:
     return mine
 
 
+def diverged(r: dict) -> bool:
+    """Whether a run's row says it diverged (``True`` as built by the kit or as read back from its CSV)."""
+    return str(r["diverged"]) == "True"
+
+
 def ended(r: dict) -> bool:
     """Whether a run's row is final: at its budget, or diverged (frozen at its last good policy),
     and scored."""
-    return (int(r["steps"]) == int(r["budget"]) or str(r["diverged"]) == "True") and r["det_reward_per_s"] != ""
+    return (int(r["steps"]) == int(r["budget"]) or diverged(r)) and r["det_reward_per_s"] != ""
 
 
 def choose(rows: list[dict]) -> tuple[float, bool, list[float]] | None:
@@ -51,7 +56,7 @@ def screen_means(rows: list[dict]) -> dict[float, float | None]:
     by: dict[float, list[dict]] = {}
     for r in rows:
         by.setdefault(float(r["value"]), []).append(r)
-    return {v: None if any(str(r["diverged"]) == "True" for r in rs)
+    return {v: None if any(diverged(r) for r in rs)
             else sum(float(r["det_reward_per_s"]) for r in rs) / len(rs) for v, rs in by.items()}
 
 
