@@ -79,6 +79,11 @@ def test_a_study_runs_scores_publishes_and_continues_from_its_published_copy(tmp
     pub = tmp_path / "pub"
     kit.publish(study, out, pub)
     assert not list(pub.rglob("checkpoints")) and (pub / kit.ROWS).exists()
+    # a fresh directory seeded from it at the same budget has nothing to do: no sweep starts
+    monkeypatch.setattr(kit, "_sweep", lambda argv: started.append(argv) or 0)
+    assert [r["steps"] for r in kit.run(study, tmp_path / "same", published=pub)] == [20, 20]
+    assert started == []
+    monkeypatch.undo()
     longer = dataclasses.replace(study, cells=(dataclasses.replace(
         study.cells[0], sweep=tuple("40" if x == "20" else x for x in study.cells[0].sweep)),))
     rows2 = kit.run(longer, tmp_path / "fresh", published=pub)

@@ -51,6 +51,8 @@ ANALYSIS = "analysis.csv"
 ENDPOINT = "endpoint.json"
 COLUMNS = ("cell", "point", "seed", "field", "value", "control_dt", "steps", "budget", "diverged",
            "avg_reward_per_s", "auc_reward_per_s", "det_reward_per_s", "forward_speed", "det_forward_speed")
+#: a cell's files beside its points: nmrl sweep's spec and its results table (nmrl/experiments/sweep.py)
+_CELL_FILES = ("sweep.json", "results.csv")
 _PUBLISHED_POINT_FILES = ("config.json", "metrics.jsonl", "compact.npz", ENDPOINT)
 
 
@@ -164,11 +166,15 @@ def _sweep(argv: list[str]) -> int:
 
 
 def seed_from(published: pathlib.Path, d: pathlib.Path) -> bool:
-    """Copy a published cell's continuation state into ``d`` (which holds no sweep); True if done."""
+    """Copy a published cell's continuation state into ``d`` (which holds no sweep); True if done.
+    Its ``results.csv`` comes along, so that a cell published at its budget is :func:`at_budget`
+    here too and costs no resume."""
     if (d / "sweep.json").exists() or not (published / "sweep.json").exists():
         return False
     d.mkdir(parents=True, exist_ok=True)
-    shutil.copy2(published / "sweep.json", d / "sweep.json")
+    for f in _CELL_FILES:
+        if (published / f).is_file():
+            shutil.copy2(published / f, d / f)
     for p in sorted((published / "points").glob("*/")):
         q = d / "points" / p.name
         q.mkdir(parents=True, exist_ok=True)
@@ -388,7 +394,7 @@ def publish(study: Study, out: str | os.PathLike, dest: str | os.PathLike) -> No
             continue
         t = dest / cell.name
         t.mkdir(parents=True, exist_ok=True)
-        for f in ("sweep.json", "results.csv"):
+        for f in _CELL_FILES:
             if (d / f).is_file():
                 shutil.copy2(d / f, t / f)
         for p in _points(d):
