@@ -42,3 +42,17 @@ def main(run) -> None:
     size.add_argument("--smoke", action="store_true")
     a = ap.parse_args()
     print(json.dumps(run(a.quick or a.smoke, smoke=a.smoke), indent=1))
+
+
+def worker_main(worker: Callable[[bool, bool], dict], run: Callable[..., dict]) -> None:
+    """The command line of a benchmark measured in a worker subprocess: with ``--worker``, print
+    ``worker(quick, smoke)`` as one JSON line (what ``bench_learning.run_worker`` reads back), else
+    ``run(quick, smoke)`` indented; ``--quick`` and ``--smoke`` as given."""
+    import json
+    import sys
+
+    quick, smoke = "--quick" in sys.argv, "--smoke" in sys.argv
+    if "--worker" in sys.argv:
+        print(json.dumps(worker(quick, smoke)))
+    else:
+        print(json.dumps(run(quick, smoke), indent=1))

@@ -18,10 +18,11 @@ per-round ratio against the whole-minibatch gradient; compile times apart.
 from __future__ import annotations
 
 import dataclasses
-import json
 import statistics
 import sys
 import time
+
+from benchmarks import worker_main
 
 SMOKE = {"seeds": 2, "num_envs": 4, "batch_size": 8, "control_dt": 0.02, "chunks": (1, 2)}
 
@@ -80,7 +81,4 @@ def run(quick: bool = False, smoke: bool = False, timeout: float = 3600) -> dict
 
 
 if __name__ == "__main__":
-    if "--worker" in sys.argv:
-        print(json.dumps(_worker("--quick" in sys.argv, "--smoke" in sys.argv)))
-    else:
-        print(json.dumps(run("--quick" in sys.argv, "--smoke" in sys.argv), indent=1))
+    worker_main(_worker, run)

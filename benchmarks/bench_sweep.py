@@ -18,10 +18,11 @@ paths only). ``run(quick, smoke=False) -> dict``; ``python -m benchmarks --only 
 
 from __future__ import annotations
 
-import json
 import statistics
 import sys
 import time
+
+from benchmarks import worker_main
 
 LS = (1, 2, 3, 5, 10, 15, 20, 30)
 SEEDS = 3
@@ -133,7 +134,4 @@ def run(quick: bool = False, smoke: bool = False, timeout: float = 1800) -> dict
 
 
 if __name__ == "__main__":
-    if "--worker" in sys.argv:
-        print(json.dumps(_worker("--quick" in sys.argv, "--smoke" in sys.argv)))
-    else:
-        print(json.dumps(run("--quick" in sys.argv, "--smoke" in sys.argv), indent=1))
+    worker_main(_worker, run)
