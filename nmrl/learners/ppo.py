@@ -175,11 +175,14 @@ def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None
         mu, std = nn_.mean_std(nets, policy, norm(stats, b.obs), cfg.min_std)
         return logp_of(mu, std, b, proc)
 
+    def tm(a):
+        """The first two axes swapped: (B, T, ...) <-> (T, B, ...)."""
+        return jnp.swapaxes(a, 0, 1)
+
     def targets(values, boot, b: Batch, h: Hyper):
         """Time-major ``(w, vs, adv, start)`` of a batch (leading axes (B, T)) under its values: GAE at
         every step (weights 1), or at the starts of nm-periods when period-wise (weights 1 there, 0
         elsewhere; ``start`` the period starts, else None)."""
-        tm = lambda a: jnp.swapaxes(a, 0, 1)  # noqa: E731  (B, T) -> (T, B)
         if cfg.period_wise:  # one sample per period (segment) of the unroll, at its start
             start = tm(b.fresh).at[0].set(True)
             vs, adv = L.period_gae(tm(b.reward * h.reward_scale), tm(values), boot, tm(b.termination),
@@ -188,6 +191,10 @@ def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None
         vs, adv = L.gae(tm(b.reward * h.reward_scale), tm(values), boot, tm(b.termination), tm(b.truncation),
                         h.gamma, h.lam)
         return jnp.ones_like(values), tm(vs), tm(adv), None
+
+    def moments(w, adv):
+        """This shard's ``(sum w, sum w adv, sum w adv^2)`` of a batch's advantages."""
+        return jnp.sum(w), jnp.sum(adv * w), jnp.sum(adv * adv * w)
 
     def loss(params, stats, b: Batch, h: Hyper, eps: jax.Array, count: float = COUNT, whole=None):
         """This shard's part of one minibatch's loss (its sums / the minibatch's ``count`` samples)
@@ -203,19 +210,16 @@ def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None
         ent = nn_.entropy(std_x, mu + std_x * eps, cfg.squash)
         w, vs, adv, start = targets(values, boot, b, h)
         if cfg.period_wise:
-            tm = lambda a: jnp.swapaxes(a, 0, 1)  # noqa: E731
             logp_new = tm(L.segment_sums(tm(logp - b.logp), start))
             logp_old = jnp.zeros_like(logp_new)
         else:
             logp_new, logp_old = logp, b.logp
         if whole is None:
-            n = psum(jnp.sum(w)) if cfg.period_wise else count  # the samples of the minibatch (all shards)
-            if cfg.normalize_advantage:
-                adv = L.normalize_advantages(adv, psum(jnp.sum(adv * w)), n, psum(jnp.sum(adv * adv * w)))
-        else:
-            n = whole[0]
-            if cfg.normalize_advantage:
-                adv = L.normalize_advantages(adv, whole[1], n, whole[2])
+            sw, sa, saa = moments(w, adv)
+            whole = (psum(sw) if cfg.period_wise else count, psum(sa), psum(saa))
+        n = whole[0]  # the samples of the minibatch (all shards)
+        if cfg.normalize_advantage:
+            adv = L.normalize_advantages(adv, whole[1], n, whole[2])
         pl, diag = L.clipped_surrogate(logp_new, logp_old, adv, h.clip_eps)
         vl = L.value_loss(values, vs, h.vf_coef)
         if cfg.period_wise:
@@ -239,7 +243,7 @@ def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None
         def one(b):
             w, _, adv, _ = targets(nn_.value(nets, value_params, norm(stats, b.obs)),
                                    nn_.value(nets, value_params, norm(stats, b.next_obs)), b, h)
-            return jnp.stack([jnp.sum(w), jnp.sum(adv * w), jnp.sum(adv * adv * w)])
+            return jnp.stack(moments(w, adv))
         s = psum(jnp.sum(jax.lax.map(one, parts), axis=0))
         return (s[0] if cfg.period_wise else COUNT), s[1], s[2]
 
@@ -289,7 +293,7 @@ def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None
         mean0, cov0, _ = explore.belief(ns)
         carry, tr = jax.lax.scan(rollout_step, carry, jax.random.split(key, T))
         # (T, NL, ...) -> (NL, T, ...)
-        tr = jax.tree.map(lambda a: jnp.swapaxes(a, 0, 1), tr)
+        tr = jax.tree.map(tm, tr)
         return carry, Batch(*tr, next_obs=carry[0].obs, mean0=mean0, cov0=cov0)
 
     # ------------------------------------------------------------------------------- update
@@ -330,7 +334,7 @@ def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None
         acc0.update(trials=jnp.zeros((), jnp.int32), nonfinite=jnp.zeros((), jnp.int32))
         (es, ns, _, _, _, acc), data = jax.lax.scan(
             unroll, (st.env, st.noise, st.policy, st.obs_stats, st.hyper, acc0), jax.random.split(key, U))
-        return (es, ns, acc), jax.tree.map(lambda a: jnp.swapaxes(a, 0, 1), data)  # (U, NL) -> (NL, U)
+        return (es, ns, acc), jax.tree.map(tm, data)  # (U, NL) -> (NL, U)
 
     def learn(st: PPOState, data: Batch, key: jax.Array):
         """The observation statistics and ``epochs`` x ``num_minibatches`` Adam steps on ``data``:
