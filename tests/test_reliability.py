@@ -261,6 +261,28 @@ def test_a_partial_save_still_being_written_is_removed_once_its_writer_stops(tmp
     assert list((tmp_path / "checkpoints").iterdir()) == []
 
 
+def test_a_partial_save_its_writer_creates_again_is_removed_again(tmp_path):
+    import threading
+
+    part = tmp_path / "checkpoints" / "200.orbax-checkpoint-tmp" / "state"
+    part.mkdir(parents=True)
+    removed = threading.Event()
+
+    def writer():  # tensorstore's file store: it creates the parents of what it writes, after the removal
+        while part.exists():
+            time.sleep(0.005)
+        removed.set()
+        time.sleep(0.2)
+        part.mkdir(parents=True, exist_ok=True)
+        (part / "d0").write_bytes(b"x" * 4096)
+
+    t = threading.Thread(target=writer)
+    t.start()
+    io_errors.remove_partial_saves(tmp_path / "checkpoints")
+    t.join()
+    assert removed.is_set() and list((tmp_path / "checkpoints").iterdir()) == []
+
+
 # ----------------------------------------------------------------------------- JSON lines after a crash
 
 

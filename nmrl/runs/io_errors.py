@@ -191,25 +191,33 @@ def check_writable(directory: str | os.PathLike) -> None:
                 m.rmdir()
 
 
-def remove_partial_saves(checkpoints: str | os.PathLike, settle_s: float = 10.0) -> list[pathlib.Path]:
+def remove_partial_saves(checkpoints: str | os.PathLike, settle_s: float = 10.0,
+                         quiet_s: float = 1.0) -> list[pathlib.Path]:
     """Remove the unfinished step directories a failed save left (orbax's
     ``<step>.orbax-checkpoint-tmp*``; readers ignore them, but they take disk space); returns them.
 
     tensorstore's writer threads of the failed save (not Python threads: nothing to join) may still
-    put a file into a directory while it is being removed, which leaves it behind; each is removed
-    again until it is gone, for at most ``settle_s`` seconds in all."""
+    put a file into a directory while it is being removed, and its file store creates the parent
+    directories of what it writes, so a removed directory can come back. The directory is scanned and
+    cleared until none has been seen for ``quiet_s`` seconds, for at most ``settle_s`` seconds in all."""
     import shutil
     import time
 
     d = pathlib.Path(checkpoints)
-    gone = []
+    gone: dict[str, pathlib.Path] = {}
     deadline = time.monotonic() + settle_s
-    with contextlib.suppress(OSError):
-        for p in d.iterdir():
-            if ".orbax-checkpoint-tmp" in p.name:
-                shutil.rmtree(p, ignore_errors=True)
-                while p.exists() and time.monotonic() < deadline:
-                    time.sleep(0.05)
-                    shutil.rmtree(p, ignore_errors=True)
-                gone.append(p)
-    return gone
+    last_seen = time.monotonic()
+    while True:
+        try:
+            partial = [p for p in d.iterdir() if ".orbax-checkpoint-tmp" in p.name]
+        except OSError:  # the directory is gone or unreadable: nothing left to remove
+            return sorted(gone.values())
+        for p in partial:
+            shutil.rmtree(p, ignore_errors=True)
+            gone.setdefault(p.name, p)
+        now = time.monotonic()
+        if partial:
+            last_seen = now
+        if now - last_seen >= quiet_s or now >= deadline:
+            return sorted(gone.values())
+        time.sleep(0.02)
