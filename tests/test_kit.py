@@ -82,6 +82,10 @@ def test_a_study_runs_scores_publishes_and_continues_from_its_published_copy(tmp
     # a fresh directory seeded from it at the same budget has nothing to do: no sweep starts
     monkeypatch.setattr(kit, "_sweep", lambda argv: started.append(argv) or 0)
     assert [r["steps"] for r in kit.run(study, tmp_path / "same", published=pub)] == [20, 20]
+    assert (tmp_path / "same/screen/a/results.csv").is_file()
+    # nor where the cell's results.csv is gone (a resume would have nothing to do and not write it)
+    (tmp_path / "same/screen/a/results.csv").unlink()
+    assert [r["steps"] for r in kit.run(study, tmp_path / "same", published=pub)] == [20, 20]
     assert started == []
     monkeypatch.undo()
     longer = dataclasses.replace(study, cells=(dataclasses.replace(
@@ -95,7 +99,8 @@ def test_a_study_runs_scores_publishes_and_continues_from_its_published_copy(tmp
 def test_a_cell_is_at_its_budget_when_every_point_is_saved_there_or_diverged(tmp_path):
     """The kit skips a cell's resume only when the sweep would have nothing to do: every point's
     saved counter at the budget (a run of 20 steps is not at a budget of 40), or the point frozen by a
-    diverged chunk; a missing results.csv, state or point, or a damaged one, leaves it to the resume."""
+    diverged chunk; a missing state or point, or a damaged one, leaves it to the resume. A missing
+    results.csv does not: the resume would have nothing to do and would not write it."""
     import shutil
 
     study = _tiny_study(tmp_path)
@@ -122,7 +127,7 @@ def test_a_cell_is_at_its_budget_when_every_point_is_saved_there_or_diverged(tmp
     assert not kit.at_budget(cell, d)  # a point of the sweep.json without files
     shutil.copytree(a, b)
     (d / "results.csv").unlink()
-    assert not kit.at_budget(cell, d)
+    assert kit.at_budget(cell, d)
     assert not kit.at_budget(dataclasses.replace(cell, sweep=tuple(x for x in cell.sweep if x not in ("--steps", "20"))),
                              d)
 

@@ -166,9 +166,8 @@ def _sweep(argv: list[str]) -> int:
 
 
 def seed_from(published: pathlib.Path, d: pathlib.Path) -> bool:
-    """Copy a published cell's continuation state into ``d`` (which holds no sweep); True if done.
-    Its ``results.csv`` comes along, so that a cell published at its budget is :func:`at_budget`
-    here too and costs no resume."""
+    """Copy a published cell's continuation state and its ``results.csv`` into ``d`` (which holds no
+    sweep); True if done."""
     if (d / "sweep.json").exists() or not (published / "sweep.json").exists():
         return False
     d.mkdir(parents=True, exist_ok=True)
@@ -213,18 +212,20 @@ def run_cell(study: Study, cell: Cell, out: pathlib.Path, published: pathlib.Pat
 
 
 def at_budget(cell: Cell, d: pathlib.Path) -> bool:
-    """Whether the cell's sweep in ``d`` has ended at the cell's budget: its ``results.csv`` is
-    written and every point its ``sweep.json`` names has diverged (frozen by the sweep) or holds a
-    continuation state (``compact.npz``, saved with every checkpoint) whose counter has reached the
-    budget -- the test a resume makes on the restored states (nmrl.runs.loop.budget_done), read from
-    the files, so that a finished cell costs no process, no JAX start and no restore. Anything
-    missing or unreadable answers False: the resume then decides, and reports what is wrong."""
+    """Whether the cell's sweep in ``d`` has ended at the cell's budget: every point its
+    ``sweep.json`` names has diverged (frozen by the sweep) or holds a continuation state
+    (``compact.npz``, saved with every checkpoint) whose counter has reached the budget -- the test a
+    resume makes on the restored states (nmrl.runs.loop.budget_done), read from the files, so that a
+    finished cell costs no process, no JAX start and no restore. Its ``results.csv`` is not asked
+    for: a resume with nothing to do writes nothing, so a cell without one would be resumed at every
+    start and never gain it. Anything missing or unreadable answers False: the resume then decides,
+    and reports what is wrong."""
     from nmrl.experiments import sweep
     from nmrl.runs import compact
     from nmrl.runs.errors import CheckpointError
 
     budget = cell.budget_limit()
-    if budget is None or not (d / sweep.RESULTS_FILE).is_file():
+    if budget is None:
         return False
     counter, limit = budget
     try:
