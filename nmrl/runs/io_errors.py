@@ -204,20 +204,20 @@ def remove_partial_saves(checkpoints: str | os.PathLike, settle_s: float = 10.0,
     import time
 
     d = pathlib.Path(checkpoints)
-    gone: dict[str, pathlib.Path] = {}
-    deadline = time.monotonic() + settle_s
-    last_seen = time.monotonic()
+    gone: set[pathlib.Path] = set()
+    start = last_seen = time.monotonic()
     while True:
         try:
             partial = [p for p in d.iterdir() if ".orbax-checkpoint-tmp" in p.name]
         except OSError:  # the directory is gone or unreadable: nothing left to remove
-            return sorted(gone.values())
+            break
         for p in partial:
             shutil.rmtree(p, ignore_errors=True)
-            gone.setdefault(p.name, p)
+            gone.add(p)
         now = time.monotonic()
         if partial:
             last_seen = now
-        if now - last_seen >= quiet_s or now >= deadline:
-            return sorted(gone.values())
+        if now - last_seen >= quiet_s or now - start >= settle_s:
+            break
         time.sleep(0.02)
+    return sorted(gone)
