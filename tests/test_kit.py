@@ -10,7 +10,7 @@ import json
 import pytest
 
 from nmrl.cli import arguments, commands, config_options
-from nmrl.experiments import exploration2_analysis, exploration2_cells, exploration2_rules, kit
+from nmrl.experiments import exploration2_analysis, exploration2_cells, exploration2_rules, kit, kit_progress
 
 TINY = ("--learner", "ppo", "--num-envs", "4", "--batch-size", "4", "--num-minibatches", "1", "--epochs", "1",
         "--value-layers", "1", "--value-width", "8", "--policy-layers", "1", "--policy-width", "8",
@@ -158,7 +158,7 @@ def test_progress_reads_each_cells_chunks_and_time_left_from_its_files(tmp_path)
     point("f", "p0", [])
     cells = tuple(kit.Cell(n, ("--seeds", "2", "--steps", str(b)))
                   for n, b in (("a", 20), ("b", 45), ("c", 40), ("d", 20), ("e", 40), ("f", 40)))
-    rows = kit.progress(kit.Study("t", cells, endpoint=None), tmp_path)
+    rows = kit_progress.progress(kit.Study("t", cells, endpoint=None), tmp_path)
     got = {r["cell"]: r for r in rows}
     assert [got["a"][k] for k in ("points", "steps", "budget", "chunks", "s_per_chunk", "remaining_s")] == \
         [2, 20, 20, 2, 6.0, 0]
@@ -167,7 +167,7 @@ def test_progress_reads_each_cells_chunks_and_time_left_from_its_files(tmp_path)
     assert got["d"]["budget"] == 20 and all(got["d"][k] == "" for k in ("points", "steps", "remaining_s"))
     assert [got["e"][k] for k in ("points", "steps", "chunks", "s_per_chunk", "remaining_s")] == [2, 0, 0, 5.0, 20]
     assert [got["f"][k] for k in ("points", "steps", "chunks", "s_per_chunk", "remaining_s")] == [1, 0, 0, "", ""]
-    assert kit.progress_text(rows).splitlines()[-1] == (
+    assert kit_progress.progress_text(rows).splitlines()[-1] == (
         "0.0 h of wall time left in the started cells at their mean chunk times (1 started without a timed "
         "chunk, not counted); 1 cell(s) known but not started")
 

@@ -16,7 +16,7 @@ import json
 import pathlib
 import sys
 
-from nmrl.experiments import kit
+from nmrl.experiments import kit, kit_progress
 from nmrl.experiments.exploration2_analysis import analysis, report
 from nmrl.experiments.exploration2_cells import (SIGMA_SCREEN, SNR_CSV, SNR_POLICY_ITERATIONS, SNR_SEEDS, grid_name,
                                                  snr_name)
@@ -78,7 +78,7 @@ def main(argv: list[str] | None = None) -> int:
             ap.error("publish needs --dest")
         kit.publish(STUDY, a.out, a.dest)
     elif a.action == "progress":
-        print(kit.progress_text(kit.progress(STUDY, pathlib.Path(a.out))))
+        print(kit_progress.progress_text(kit_progress.progress(STUDY, pathlib.Path(a.out))))
     else:
         kit.write_rows(STUDY, pathlib.Path(a.out))
     return 0

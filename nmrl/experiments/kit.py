@@ -21,9 +21,9 @@ budget and scores it:
   under the learning curve), and the endpoint (a diverged point's: its last good policy's, at
   which the sweep froze it).
 
-:func:`progress` reads where each cell stands and its time left from the files, beside a running
-study. :func:`publish` copies what continues and re-scores a study (no full checkpoints) into a folder
-small enough to commit, with ``analysis.csv``, the study's own analysis of the rows (its
+nmrl/experiments/kit_progress.py reads where each cell stands and its time left from the files, beside
+a running study. :func:`publish` copies what continues and re-scores a study (no full checkpoints)
+into a folder small enough to commit, with ``analysis.csv``, the study's own analysis of the rows (its
 pre-registered contrasts), its report's figures and tables, and the files of its measurements (steps
 after the cells that are not sweeps, :class:`Measurement`). A study's own modules (e.g.
 nmrl/experiments/exploration2.py and its cells, rules and analysis beside it; the finer-delta study,
@@ -245,7 +245,8 @@ def at_budget(cell: Cell, d: pathlib.Path) -> bool:
     return True
 
 
-def _points(d: pathlib.Path) -> list[pathlib.Path]:
+def point_dirs(d: pathlib.Path) -> list[pathlib.Path]:
+    """The point directories of the cell at ``d`` that have a config.json, in name order."""
     return sorted(p for p in (d / "points").glob("*/") if (p / "config.json").exists())
 
 
@@ -281,7 +282,7 @@ def rows(study: Study, out: pathlib.Path, cells: Sequence[Cell] | None = None) -
             continue
         spec = json.loads((d / "sweep.json").read_text())
         field = spec.get("field")
-        for p in _points(d):
+        for p in point_dirs(d):
             cfg = json.loads((p / "config.json").read_text())
             m = store.read_metrics(p)
             e = json.loads((p / ENDPOINT).read_text()) if (p / ENDPOINT).exists() else {}
@@ -302,58 +303,6 @@ def rows(study: Study, out: pathlib.Path, cells: Sequence[Cell] | None = None) -
                 else "",
             })
     return res
-
-
-PROGRESS_COLUMNS = ("cell", "points", "steps", "budget", "chunks", "s_per_chunk", "remaining_s")
-
-
-def progress(study: Study, out: pathlib.Path) -> list[dict]:
-    """Where each cell known so far stands, read from its files alone (safe beside a running study):
-    its points, the steps its least advanced point has saved (0 before its first saved chunk; a
-    diverged point counts as done), the budget, the chunks run, the mean wall seconds of a chunk
-    (``wall_s`` in metrics.jsonl, compiles apart; from a point that has saved one) and the wall
-    seconds its remaining chunks take at that mean. A cell without points has only its budget; none
-    of its numbers is guessed."""
-    res = []
-    for cell in all_cells(study, out):
-        limit = cell.budget_limit()
-        budget = limit[1] if limit is not None and limit[0] == "step" else None
-        row = dict.fromkeys(PROGRESS_COLUMNS, "")
-        row.update(cell=cell.name, budget=budget if budget is not None else "")
-        ms = [store.read_metrics(p) for p in _points(out / cell.name)]
-        if ms:
-            open_ = [m for m in ms if not any(store.is_diverged(r) for r in m)]
-            slowest = min(open_, key=_saved_step) if open_ else ms[0]
-            steps = _saved_step(slowest) if open_ else budget
-            row.update(points=len(ms), steps=steps, chunks=len(slowest))
-            timed = slowest or next((m for m in ms if m), [])
-            if timed:
-                per_chunk = timed[0]["step"]
-                wall = sum(r["wall_s"] for r in timed) / len(timed)
-                row["s_per_chunk"] = round(wall, 1)
-                if budget is not None and per_chunk > 0:
-                    row["remaining_s"] = round(max(0, -(-(budget - steps) // per_chunk)) * wall)
-        res.append(row)
-    return res
-
-
-def _saved_step(metrics: list[dict]) -> int:
-    return metrics[-1]["step"] if metrics else 0
-
-
-def progress_text(rows: list[dict]) -> str:
-    """:func:`progress`'s rows as an aligned table, with the wall time left in the started cells and
-    the count of cells not started below it."""
-    table = [PROGRESS_COLUMNS, *([str(r[c]) for c in PROGRESS_COLUMNS] for r in rows)]
-    widths = [max(len(t[i]) for t in table) for i in range(len(PROGRESS_COLUMNS))]
-    lines = ["  ".join(x.ljust(w) for x, w in zip(t, widths)).rstrip() for t in table]
-    left = sum(r["remaining_s"] for r in rows if r["remaining_s"] != "")
-    waiting = sum(r["steps"] == "" for r in rows)
-    untimed = sum(r["steps"] != "" and r["s_per_chunk"] == "" for r in rows)
-    lines.append(f"{left / 3600:.1f} h of wall time left in the started cells at their mean chunk times"
-                 + (f" ({untimed} started without a timed chunk, not counted)" if untimed else "")
-                 + f"; {waiting} cell(s) known but not started")
-    return "\n".join(lines)
 
 
 def write_rows(study: Study, out: pathlib.Path) -> list[dict]:
@@ -380,7 +329,7 @@ def run(study: Study, out: str | os.PathLike, *, published: str | os.PathLike | 
             return r
         for cell in todo:
             run_cell(study, cell, out, pub)
-            for p in _points(out / cell.name) if study.endpoint is not None else ():
+            for p in point_dirs(out / cell.name) if study.endpoint is not None else ():
                 score_point(study, p)
             write_rows(study, out)
             done.add(cell.name)
@@ -398,7 +347,7 @@ def publish(study: Study, out: str | os.PathLike, dest: str | os.PathLike) -> No
         for f in _CELL_FILES:
             if (d / f).is_file():
                 shutil.copy2(d / f, t / f)
-        for p in _points(d):
+        for p in point_dirs(d):
             q = t / "points" / p.name
             q.mkdir(parents=True, exist_ok=True)
             for f in _PUBLISHED_POINT_FILES:
