@@ -20,7 +20,6 @@ from __future__ import annotations
 import dataclasses
 import statistics
 import sys
-import time
 
 from benchmarks import worker_main
 
@@ -64,17 +63,12 @@ def _worker(quick: bool, smoke: bool) -> dict:
 
 
 def run(quick: bool = False, smoke: bool = False, timeout: float = 3600) -> dict:
-    from benchmarks.bench_learning import load_avg, run_worker
-    from nmrl.runs.devices import cpu_cores
+    from benchmarks.bench_learning import worker_section
 
-    t0 = time.perf_counter()
-    load = [load_avg()]
-    size = ["--smoke"] if smoke else ["--quick"] if quick else []
-    w = run_worker("benchmarks.bench_grad_chunks", size, cpu_cores(), timeout)
-    load.append(load_avg())
     res = {"benchmark": "PPO at 2.5 ms in the grid layout, one iteration: each minibatch's gradient in parts "
                         "(--grad-chunks) vs at once",
-           "quick": quick, "smoke": smoke, "worker": w, "load_avg": load, "wall_s": time.perf_counter() - t0}
+           **worker_section("benchmarks.bench_grad_chunks", quick, smoke, timeout)}
+    w = res["worker"]
     print("grad_chunks: " + ", ".join(f"{k.split('_')[1]} parts {v:.2f}x" for k, v in w["speedup_over_whole"].items())
           + f" the whole minibatch's gradient ({w['rates']['chunks_1']:,.0f} ctrl steps/s)", file=sys.stderr, flush=True)
     return res

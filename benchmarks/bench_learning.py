@@ -81,6 +81,18 @@ def run_worker(module: str, size: list[str], cores: int, timeout: float) -> dict
     return json.loads(p.stdout.strip().splitlines()[-1])
 
 
+def worker_section(module: str, quick: bool, smoke: bool, timeout: float) -> dict:
+    """A section measured in its own worker (:func:`run_worker`, one device per core) at its size:
+    ``quick``, ``smoke``, the worker's result, the load average before and after, and the wall seconds."""
+    from nmrl.runs.devices import cpu_cores
+
+    t0 = time.perf_counter()
+    load = [load_avg()]
+    w = run_worker(module, ["--smoke"] if smoke else ["--quick"] if quick else [], cpu_cores(), timeout)
+    load.append(load_avg())
+    return {"quick": quick, "smoke": smoke, "worker": w, "load_avg": load, "wall_s": time.perf_counter() - t0}
+
+
 def load_avg() -> list[float]:
     return list(os.getloadavg()) if hasattr(os, "getloadavg") else []
 

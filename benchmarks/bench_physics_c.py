@@ -229,23 +229,18 @@ def _ppo_group(n_dev: int, cores: int, rounds: int, quick: bool, smoke: bool) ->
 
 
 def run(quick: bool = False, smoke: bool = False, timeout: float = 3600) -> dict:
-    from benchmarks.bench_learning import load_avg, run_worker
-    from nmrl.runs.devices import cpu_cores
+    from benchmarks.bench_learning import worker_section
 
-    t0 = time.perf_counter()
-    load = [load_avg()]
-    size = ["--smoke"] if smoke else ["--quick"] if quick else []
-    w = run_worker("benchmarks.bench_physics_c", size, cpu_cores(), timeout)
-    load.append(load_avg())
+    sec = worker_section("benchmarks.bench_physics_c", quick, smoke, timeout)
+    w = sec["worker"]
     sw = w["b_sweep"]
     res = {
         "benchmark": "--physics c: the C env in the program vs mujoco.batch alone; the 24-point sweep with "
                      "learning on C vs MJX vs MuJoCo C alone; native PPO one iteration on C vs MJX",
-        "quick": quick, "smoke": smoke, "worker": w,
+        **sec,
         "goal": "the sweep with learning on C >= 0.6x MuJoCo C alone at the same batch and threads "
                 "(either layout: a point at a time, or each device's points grouped)",
         "goal_met": bool(max(w["c_limit"]["sweep_c_over_limit"], w["c_limit"]["sweep_c_grouped_over_limit"]) >= 0.6),
-        "load_avg": load, "wall_s": time.perf_counter() - t0,
     }
     print(f"physics_c: env in program {w['a_env']['ratio']:.2f}x mujoco.batch alone; sweep C "
           f"{sw['rates']['c']:,.0f} vs MJX {sw['rates']['mjx']:,.0f} ctrl steps/s ({sw['c_over_mjx']:.2f}x), "
