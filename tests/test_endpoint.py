@@ -1,4 +1,4 @@
-"""The deterministic endpoint (nmrl/analysis/endpoint.py) and the perturbed start it uses."""
+"""The deterministic endpoint and the noisy one (nmrl/analysis/endpoint.py) and the perturbed start they use."""
 
 from __future__ import annotations
 
@@ -61,3 +61,47 @@ def test_endpoint_and_eval_use_the_runs_physics_timestep():
     assert out["seconds"] == pytest.approx(0.1) and len(out["rollouts"]) == 2
     ref = evaluate.rollout_params(cfg, params, seconds=0.1, seed=0, exploring=False)
     assert len(ref["reward"]) == 40
+
+
+@pytest.mark.parametrize("exploration", [{"exploration": "white", "sigma": 0.7},
+                                         {"exploration": "ou", "sigma": 0.5, "corr_time_s": 0.06}],
+                         ids=["white", "ou"])
+def test_the_noisy_endpoint_is_a_plain_loop_of_the_policy_with_its_scaled_noise(exploration):
+    """Each rollout of ``noisy_endpoint`` against a Python loop over the environment's single step:
+    the endpoint's start (``split(key)``), N(0, I) draws from ``fold_in(key, 1)`` through the run's
+    process (its sigma, and for OU its state carried from step to step), the action ``act(obs, k xi)``."""
+    from nmrl.analysis import eval_env
+    from nmrl.learners import ppo_policy
+
+    cfg = PPOConfig(num_envs=4, batch_size=4, num_minibatches=1, value_layers=1, value_width=8, policy_layers=1,
+                    policy_width=8, physics="c", **exploration).resolved()
+    st = make_ppo(cfg).init(jax.random.PRNGKey(0))
+    params = {"policy": st.policy, "obs_stats": st.obs_stats}
+    k, n, rollouts = 0.6, 10, 2
+    out = endpoint.noisy_endpoint(cfg, params, k, seconds=n * 0.02, rollouts=rollouts, seed=4)
+    env = eval_env.of_config(cfg)
+    pol = ppo_policy.policy(cfg, env)
+    ref, speeds = [], []
+    for key in jax.random.split(jax.random.PRNGKey(4), rollouts):
+        k_reset, k_start = jax.random.split(key)
+        s = env.perturb(env.reset(k_reset), k_start, endpoint.START_NOISE)
+        eps = np.asarray(jax.random.normal(jax.random.fold_in(key, 1), (n, env.act_dim), np.float32))
+        ns = pol.noise_init(env.act_dim)
+        r, v = [], []
+        for t in range(n):
+            ns, xi = pol.noise_step(pol.noise_args, ns, eps[t])
+            s = env.step(s, pol.act(params, s.obs, k * np.asarray(xi)))
+            r.append(float(s.reward))
+            v.append(float(s.metrics["forward_speed"]))
+        ref.append(np.mean(r) / 0.02)
+        speeds.append(np.mean(v))
+    assert out["rollouts"] == pytest.approx(ref, rel=1e-3)
+    assert out["forward_speed"] == pytest.approx(speeds, rel=1e-3, abs=1e-4)
+    assert out["noise_scale"] == k
+    # k = 0 is the deterministic endpoint, to the bit; a different k moves the result
+    det = endpoint.deterministic_endpoint(cfg, params, seconds=n * 0.02, rollouts=rollouts, seed=4)
+    assert endpoint.noisy_endpoint(cfg, params, 0.0, seconds=n * 0.02, rollouts=rollouts, seed=4)["rollouts"] \
+        == det["rollouts"]
+    assert out["rollouts"] != det["rollouts"]
+    with pytest.raises(ValueError, match="noise_scale=-1"):
+        endpoint.noisy_endpoint(cfg, params, -1.0)

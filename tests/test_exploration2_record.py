@@ -148,3 +148,34 @@ def test_the_analysis_tables_primary_contrasts_are_welch_tests_of_the_rows():
         assert got == pytest.approx(_welch(xa, xb), rel=1e-9), label
         checked += 1
     assert checked >= 3  # P1-P3: their cells have finished in the record
+
+
+def test_the_noise_scale_tables_k0_is_each_runs_published_endpoint():
+    """noise_scales.csv (nmrl/experiments/exploration2_noise.py) at k = 0 is the deterministic endpoint
+    rows.csv gives the run, to the last digit, and every run it holds has all four k."""
+    path = RECORD / "noise_scales.csv"
+    if not path.is_file():
+        pytest.skip("no noise-scale measurement in the record")
+    det = {(r["cell"], r["point"]): r["det_reward_per_s"] for r in _csv(RECORD / kit.ROWS)}
+    got = _csv(path)
+    ks: dict[tuple[str, str], set[str]] = {}
+    for r in got:
+        ks.setdefault((r["cell"], r["point"]), set()).add(r["noise_scale"])
+        if float(r["noise_scale"]) == 0.0:
+            assert r["reward_per_s"] == det[r["cell"], r["point"]], (r["cell"], r["point"])
+    assert ks and all(v == {"0.0", "0.25", "0.5", "1.0"} for v in ks.values())
+
+
+def test_the_docs_noise_scale_means_are_the_tables():
+    path = RECORD / "noise_scales.csv"
+    if not path.is_file():
+        pytest.skip("no noise-scale measurement in the record")
+    got = _csv(path)
+    doc = _doc()
+    for name, cell in GRID.items():
+        if not any(r["cell"] == cell for r in got):
+            continue
+        means = [np.mean([float(r["reward_per_s"]) for r in got if r["cell"] == cell and float(r["noise_scale"]) == k])
+                 for k in (0.0, 0.25, 0.5, 1.0)]
+        claim = f"{name} " + " / ".join(_n(m) for m in means)
+        assert claim in doc, claim

@@ -1,8 +1,9 @@
 """The second exploration x control-step study (docs/exploration-study-2.md) on the kit: its cells
 (nmrl/experiments/exploration2_cells.py), the rules that add the later ones
 (nmrl/experiments/exploration2_rules.py), the gradient's SNR at matched policies (:func:`snr`),
-the gaits of the best and worst arm at 2.5 ms (nmrl/experiments/exploration2_gaits.py), the
-analysis and report (nmrl/experiments/exploration2_analysis.py), and its command.
+the gaits of the best and worst arm at 2.5 ms (nmrl/experiments/exploration2_gaits.py), each
+grid policy with its noise scaled (nmrl/experiments/exploration2_noise.py), the analysis and
+report (nmrl/experiments/exploration2_analysis.py), and its command.
 
     python -m nmrl.experiments.exploration2 run --out runs/exploration2 [--published results/exploration2/runs]
     python -m nmrl.experiments.exploration2 publish --out runs/exploration2 --dest results/exploration2/runs
@@ -18,9 +19,10 @@ import sys
 
 from nmrl.experiments import kit, kit_progress
 from nmrl.experiments.exploration2_analysis import analysis, report
-from nmrl.experiments.exploration2_cells import (SIGMA_SCREEN, SNR_CSV, SNR_POLICY_ITERATIONS, SNR_SEEDS, grid_name,
-                                                 snr_name)
+from nmrl.experiments.exploration2_cells import (ENDPOINT, SIGMA_SCREEN, SNR_CSV, SNR_POLICY_ITERATIONS, SNR_SEEDS,
+                                                 grid_name, snr_name)
 from nmrl.experiments.exploration2_gaits import GAITS, gaits
+from nmrl.experiments.exploration2_noise import NOISE_CSV, noise_scales
 from nmrl.experiments.exploration2_rules import complete_cells, later_cells
 
 
@@ -53,10 +55,9 @@ def snr(out: pathlib.Path, rows: list[dict]) -> None:
     matched_snr.measure(by_it, arms, out / SNR_CSV)
 
 
-STUDY = kit.Study(name="exploration2", cells=SIGMA_SCREEN, endpoint=kit.Endpoint(seconds=10.0, rollouts=8,
-                                                                                 start_noise=0.05, seed=0),
-                  later=later_cells, analysis=analysis, report=report,
-                  measurements=(kit.Measurement(SNR_CSV, snr), kit.Measurement(GAITS, gaits)))
+STUDY = kit.Study(name="exploration2", cells=SIGMA_SCREEN, endpoint=ENDPOINT, later=later_cells, analysis=analysis,
+                  report=report, measurements=(kit.Measurement(SNR_CSV, snr), kit.Measurement(GAITS, gaits),
+                                               kit.Measurement(NOISE_CSV, noise_scales)))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -15,7 +15,9 @@ import pathlib
 
 import numpy as np
 
-from nmrl.experiments.exploration2_cells import SNR_CSV, arm_and_dt, asymptote_name, grid_name
+from nmrl.experiments.exploration2_cells import ARM_ORDER, SNR_CSV, arm_and_dt, asymptote_name, grid_name
+from nmrl.experiments.exploration2_noise import NOISE_CSV
+from nmrl.experiments.exploration2_noise import figure as noise_figure
 from nmrl.experiments.exploration2_rules import (CHOICE_COLUMNS, best_correlated, choices, complete_cells, diverged,
                                                 ended)
 from nmrl.paper.control_step import DELTA_0
@@ -131,7 +133,6 @@ CELLS_CSV, CHOICES_CSV, SECONDARY_CSV, ARMS_CSV = "cells.csv", "choices.csv", "s
 SCREEN_FIGURE, GRID_FIGURE = "screen_curves.png", "learning_curves.png"
 ENDPOINT_FIGURE, CONTRAST_FIGURE, SPEED_FIGURE = "endpoints.png", "contrasts.png", "speeds.png"
 #: the arms' order in the endpoint figure: white first, the correlated arms after it
-ARM_ORDER = ("white", "ws", "ou", "colored", "nms", "nmp")
 SUMMARY_COLUMNS = ("n", "mean", "sd", "ci_lo", "ci_hi", "iqm", "iqm_lo", "iqm_hi")  #: cell_curves.summary's
 CELL_COLUMNS = ("cell", "value", *SUMMARY_COLUMNS, "diverged")
 
@@ -157,7 +158,8 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
     interval, one panel per control step), every ended grid run's forward speed with its
     exploration noise (the last iteration) against its deterministic policy's (``speeds.png``) and,
     once any contrast has an estimate, the families of :func:`analysis` against the margin
-    (``contrasts.png``)."""
+    (``contrasts.png``); with the measurements' files, the SNR's summary and figure and
+    ``noise_scales.png`` (nmrl/experiments/exploration2_noise.py)."""
     from nmrl.analysis import cell_curves, contrast_figures
 
     groups: dict[tuple[str, str], list[float]] = {}
@@ -216,6 +218,8 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
                                    "the pre-registered contrasts (decisions: Holm over each family)")
     if (dest / SNR_CSV).is_file():
         _snr_report(dest)
+    if (dest / NOISE_CSV).is_file():
+        noise_figure(dest)
 
 
 def _panels(by_dt: dict[float, dict[str, list]]) -> dict[str, dict[str, list]]:

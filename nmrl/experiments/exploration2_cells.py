@@ -21,6 +21,9 @@ from nmrl.explore.spec import PAPER_CORR_TIME_S
 from nmrl.paper.control_step import DELTA_0
 
 ITERATION_S = 102.4  #: simulated seconds per environment in one PPO iteration (256 unrolls of 0.4 s)
+#: the primary endpoint: the deterministic policy's reward per second over 8 rollouts of 10 s from
+#: perturbed starts (0.05 rad and rad/s), the same starts for every run
+ENDPOINT = kit.Endpoint(seconds=10.0, rollouts=8, start_noise=0.05, seed=0)
 SIGMAS = (0.064, 0.16, 0.4, 1.0)
 SCREEN_SEED0, SCREEN_SEEDS, SCREEN_ITERATIONS = 100, 2, 4
 #: the paper's alpha = 0.8 per 20 ms step as a correlation time, to the 5 digits the cells' options give
@@ -34,6 +37,9 @@ ARMS = {
     "nmp": ("--exploration", "nm-periods", "--period-s", "0.06", "--corr-time-s", str(NM_CORR_TIME_S),
             "--period-wise", "true"),
 }
+
+#: the arms in the order tables and figures list them (ws: white with sigma by eq. (1))
+ARM_ORDER = ("white", "ws", "ou", "colored", "nms", "nmp")
 
 
 def base(dt: float, iterations: int) -> tuple[str, ...]:

@@ -1,0 +1,57 @@
+"""Each grid policy with its noise scaled (nmrl/experiments/exploration2_noise.py), on published 20 ms
+policies: which runs it measures, that k = 0 is the endpoint the study published for the run, that a
+run is measured once per saved step, and the figure from its table."""
+
+from __future__ import annotations
+
+import json
+import pathlib
+import shutil
+
+import pytest
+
+from nmrl.analysis import endpoint
+from nmrl.experiments import exploration2_noise as xn
+from nmrl.runs import store
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+RUNS = REPO / "results/exploration2/runs"
+POINTS = {"grid/dt0.02/white": "s0", "grid/dt0.02/nmp": "s0"}
+
+
+def _row(cell: str, point: str, steps: int, budget: int, det: float | str = -40.0) -> dict:
+    return {"cell": cell, "point": point, "seed": int(point[1:]), "steps": steps, "budget": budget,
+            "diverged": "False", "det_reward_per_s": det}
+
+
+def test_every_ended_run_of_a_complete_grid_cell_at_every_noise_scale_once_per_step(tmp_path, monkeypatch):
+    if not all((RUNS / c / "points" / p / "compact.npz").is_file() for c, p in POINTS.items()):
+        pytest.skip("the published 20 ms grid points are not in this checkout")
+    rows = []
+    for cell, point in POINTS.items():
+        shutil.copytree(RUNS / cell / "points" / point, tmp_path / cell / "points" / point)
+        step = json.loads((RUNS / cell / "points" / point / "endpoint.json").read_text())["step"]
+        rows.append(_row(cell, point, step, step))
+    # a cell with a run still going is not measured; neither is a screen cell
+    rows += [_row("grid/dt0.0025/ou", "s0", 5, 10, det=""), _row("grid/dt0.0025/ou", "s1", 10, 10),
+             _row("screen/sigma/dt0.02/white", "s9", 10, 10)]
+    xn.noise_scales(tmp_path, rows)
+    got = store.read_csv(tmp_path / xn.NOISE_CSV)
+    assert sorted((r["cell"], r["point"], r["noise_scale"]) for r in got) == sorted(
+        (c, p, k) for c, p in POINTS.items() for k in xn.NOISE_SCALES)
+    for cell, point in POINTS.items():
+        published = json.loads((RUNS / cell / "points" / point / "endpoint.json").read_text())
+        mine = {r["noise_scale"]: r for r in got if r["cell"] == cell}
+        assert mine[0.0]["reward_per_s"] == published["reward_per_s"]  # the endpoint the study published
+        assert mine[0.0]["forward_speed"] == pytest.approx(sum(published["forward_speed"]) / 8, rel=1e-12)
+        assert {r["step"] for r in mine.values()} == {published["step"]}
+        assert len({r["reward_per_s"] for r in mine.values()}) == len(xn.NOISE_SCALES)  # k moves the result
+
+    def refuse(*_a, **_k):
+        raise AssertionError("measured again")
+
+    monkeypatch.setattr(endpoint, "noisy_endpoint", refuse)
+    xn.noise_scales(tmp_path, rows)  # nothing new: nothing measured, the table unchanged
+    assert store.read_csv(tmp_path / xn.NOISE_CSV) == got
+    xn.figure(tmp_path)
+    assert (tmp_path / xn.NOISE_FIGURE).stat().st_size > 10_000
