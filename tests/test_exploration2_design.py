@@ -290,6 +290,36 @@ def test_the_secondary_endpoints_are_the_families_contrasts_reported_without_dec
     assert exploration2_analysis.secondary_endpoints(going)[0]["decision"] == "pending"
 
 
+def test_the_noise_scale_contrasts_are_the_families_on_each_scales_reward_reported_without_decisions():
+    import numpy as np
+    from scipy import stats as sps
+
+    rng = np.random.default_rng(3)
+    cells = ("grid/dt0.02/white", "grid/dt0.0025/white", "grid/dt0.0025/ws")
+    rows = [{"cell": c, "point": f"s{j}", "steps": 10, "budget": 10, "diverged": "False", "det_reward_per_s": "1.0"}
+            for c in cells for j in range(6)]
+    noise = [{"cell": c, "point": f"s{j}", "noise_scale": k, "reward_per_s": rng.normal(10 * i + 40 * k, 5)}
+             for i, c in enumerate(cells) for j in range(6) for k in (0.0, 0.25, 1.0)]
+    res = exploration2_analysis.noise_contrasts(rows, noise)
+    assert [r["noise_scale"] for r in res] == [0.25] * 14 + [1.0] * 14  # k = 0 is the registered endpoint's
+    got = {(r["noise_scale"], r["contrast"]): r for r in res}
+    for k in (0.25, 1.0):
+        x = {c: [r["reward_per_s"] for r in noise if r["cell"] == c and r["noise_scale"] == k] for c in cells}
+        for name, a, b in (("P1", cells[1], cells[0]), ("P2", cells[2], cells[1])):
+            t = sps.ttest_ind(x[a], x[b], equal_var=False)
+            ci = t.confidence_interval(0.95)
+            r = got[k, name]
+            assert r["decision"] == "reported" and r["n"] == "6 6"
+            assert (r["estimate"], r["lo"], r["hi"], r["p"]) == pytest.approx(
+                (np.mean(x[a]) - np.mean(x[b]), ci.low, ci.high, t.pvalue))
+    assert got[0.25, "P3"]["decision"] == "pending"  # OU's cell does not exist
+    # a run of Ws not measured at k = 1, or still going: Ws's contrasts wait
+    assert exploration2_analysis.noise_contrasts(rows, noise[:-1])[14 + 1]["decision"] == "pending"
+    going = [{**r, "steps": 5} if (r["cell"], r["point"]) == (cells[2], "s0") else r for r in rows]
+    assert exploration2_analysis.noise_contrasts(going, noise)[1]["decision"] == "pending"
+    assert exploration2_analysis.noise_contrasts(going, noise)[0]["decision"] == "reported"
+
+
 def test_each_arms_iqm_pools_its_grid_cells_over_the_control_steps_resampled_within_each():
     import numpy as np
     from scipy import stats as sps

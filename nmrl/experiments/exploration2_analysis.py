@@ -3,7 +3,8 @@
 :func:`analysis`: the pre-registered families on the deterministic endpoint of the complete grid
 cells (Welch contrasts, Holm, TOST; nmrl/analysis/prereg_stats.py) and the checks that decide
 nothing; :func:`secondary_endpoints`: the same contrasts on the secondary endpoints, reported;
-:func:`arm_iqms`: each arm's IQM across its control steps. :func:`report`: ``cells.csv``, those
+:func:`arm_iqms`: each arm's IQM across its control steps; :func:`noise_contrasts`: the contrasts
+on the policies with their noise scaled. :func:`report`: ``cells.csv``, those
 tables, the screen's and the grid's learning curves and the SNR's summary, from the published
 points.
 """
@@ -83,6 +84,30 @@ def secondary_endpoints(rows: list[dict]) -> list[dict]:
     return out
 
 
+NOISE_CONTRASTS_CSV = "noise_contrasts.csv"
+NOISE_CONTRAST_COLUMNS = ("noise_scale", "contrast", "cells", "n", "estimate", "lo", "hi", "p", "decision")
+
+
+def noise_contrasts(rows: list[dict], noise_rows: list[dict]) -> list[dict]:
+    """Every contrast of both families on the reward per second of the grid policies with their own
+    noise times k, for each k > 0 of ``noise_rows`` (nmrl/experiments/exploration2_noise.py's table):
+    estimate, 95% Welch interval and raw p, reported, deciding nothing (a check added after the
+    grid's first cells); "pending" while a cell has a run going or a run not measured at k."""
+    complete = complete_cells(rows)
+    out = []
+    for k in sorted({float(r["noise_scale"]) for r in noise_rows} - {0.0}):
+        cells = {}
+        for c in complete:
+            runs = sorted(r["point"] for r in rows if r["cell"] == c)
+            got = {r["point"]: float(r["reward_per_s"]) for r in noise_rows
+                   if r["cell"] == c and float(r["noise_scale"]) == k}
+            if runs and set(runs) <= set(got):
+                cells[c] = [got[p] for p in runs]
+        out += [{"noise_scale": k, **{f: v for f, v in _reported(name, w, cells).items() if f != "family"}}
+                for name, w in (*CONTRASTS, *SECONDARY)]
+    return out
+
+
 ARM_COLUMNS = ("arm", "control_dts", "n", "iqm", "iqm_lo", "iqm_hi")
 
 
@@ -158,8 +183,9 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
     interval, one panel per control step), every ended grid run's forward speed with its
     exploration noise (the last iteration) against its deterministic policy's (``speeds.png``) and,
     once any contrast has an estimate, the families of :func:`analysis` against the margin
-    (``contrasts.png``); with the measurements' files, the SNR's summary and figure and
-    ``noise_scales.png`` (nmrl/experiments/exploration2_noise.py)."""
+    (``contrasts.png``); with the measurements' files, the SNR's summary and figure,
+    ``noise_scales.png`` (nmrl/experiments/exploration2_noise.py) and ``noise_contrasts.csv``
+    (:func:`noise_contrasts`)."""
     from nmrl.analysis import cell_curves, contrast_figures
 
     groups: dict[tuple[str, str], list[float]] = {}
@@ -220,6 +246,8 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
         _snr_report(dest)
     if (dest / NOISE_CSV).is_file():
         noise_figure(dest)
+        store.write_csv(dest / NOISE_CONTRASTS_CSV, NOISE_CONTRAST_COLUMNS,
+                        noise_contrasts(rows, store.read_csv(dest / NOISE_CSV)))
 
 
 def _panels(by_dt: dict[float, dict[str, list]]) -> dict[str, dict[str, list]]:
