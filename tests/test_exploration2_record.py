@@ -179,3 +179,23 @@ def test_the_docs_noise_scale_means_are_the_tables():
                  for k in (0.0, 0.25, 0.5, 1.0)]
         claim = f"{name} " + " / ".join(_n(m) for m in means)
         assert claim in doc, claim
+
+
+def test_the_docs_contrasts_at_a_quarter_of_the_noise_are_welch_tests_of_the_table():
+    path = RECORD / "noise_scales.csv"
+    if not path.is_file():
+        pytest.skip("no noise-scale measurement in the record")
+    got = _csv(path)
+
+    def at(cell: str) -> np.ndarray:
+        return np.array([float(r["reward_per_s"]) for r in sorted(got, key=lambda r: r["point"])
+                         if r["cell"] == cell and float(r["noise_scale"]) == 0.25])
+
+    doc = _doc()
+    for label, a, b in SECONDARY_CLAIMS:  # P1-P3: the contrasts whose cells have finished
+        xa, xb = at(GRID[a]), at(GRID[b])
+        if len(xa) < 8 or len(xb) < 8:
+            continue
+        e, lo, hi, _ = _welch(xa, xb)
+        claim = f"{label} {_n(e, plus=True)} [{_n(lo)}, {_n(hi)}]"
+        assert claim in doc, claim
