@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import os
 import pathlib
-import resource
 import subprocess
 import sys
 import time
@@ -24,10 +23,11 @@ T = ["--preset", "fast", "--num-envs", "4", "--chunk-steps", "100", "--hidden-ac
 
 
 
-def _limited_memory() -> None:
-    """A child process's address space capped at 8 GiB: a run that enumerates billions of points
-    fails there instead of taking the machine."""
-    resource.setrlimit(resource.RLIMIT_AS, (8 << 30, 8 << 30))
+#: ``python -c`` that runs ``nmrl <its arguments>`` with its address space capped at 8 GiB: a run that
+#: enumerates billions of points fails there instead of taking the machine (set in the child itself,
+#: since a ``preexec_fn`` would fork this process, which runs JAX's threads)
+_LIMITED_MEMORY = ("import resource, runpy, sys; resource.setrlimit(resource.RLIMIT_AS, (8 << 30, 8 << 30)); "
+                   "sys.argv = ['nmrl', *sys.argv[1:]]; runpy.run_module('nmrl.cli', run_name='__main__')")
 
 
 def _run(argv: list[str], timeout: float = 300, cwd: str | None = None) -> subprocess.CompletedProcess:
@@ -66,9 +66,9 @@ def test_a_sweep_of_billions_of_points_is_refused_by_the_memory_estimate(tmp_pat
     t0 = time.time()
     env = dict(os.environ)
     env.pop("XLA_FLAGS", None)
-    p = subprocess.run([sys.executable, "-m", "nmrl.cli", "sweep", *T, "--steps", "100", "--quiet", "--l", "10",
+    p = subprocess.run([sys.executable, "-c", _LIMITED_MEMORY, "sweep", *T, "--steps", "100", "--quiet", "--l", "10",
                         "--seeds", str(2**32), "--out", str(out)], env=env, capture_output=True, text=True,
-                       timeout=300, preexec_fn=_limited_memory)
+                       timeout=300)
     line = one_line(p.stderr)
     assert p.returncode == exits.BAD_INPUT and "4294967296 points" in line and "GiB" in line, line
     assert time.time() - t0 < 120
