@@ -255,3 +255,35 @@ def test_a_cells_run_options_are_given_on_its_start_and_every_resume(tmp_path, m
     for argv in (start, resume):
         assert argv[argv.index("--group") + 1] == "2" and argv[-2] == "--out"
         assert argv.index("--quiet") < argv.index("--group")  # after the study's own run options
+
+
+_POINT_SWEEP = """
+import json, pathlib, sys
+out = pathlib.Path(sys.argv[sys.argv.index("--out") + 1])
+p = out / "points" / "s0"
+p.mkdir(parents=True, exist_ok=True)
+(out / "sweep.json").write_text("{}")
+(p / "config.json").write_text(json.dumps({"seed": 0, "steps": 10, "control_dt": 0.02}))
+(p / "metrics.jsonl").write_text(json.dumps({"step": 10, "avg_reward": 0.1, "diverged": False}) + "\\n")
+"""
+
+
+def test_each_measurement_runs_after_every_cell_on_the_rows_so_far(tmp_path, monkeypatch):
+    """A measurement sees each finished cell's rows as soon as that cell has run (so a publish between
+    cells holds it), in the study's order, and once more only when no cell ran."""
+    import sys
+
+    monkeypatch.setattr(kit, "_nmrl", lambda: [sys.executable, "-c", _POINT_SWEEP])
+    calls: list[tuple[str, tuple[str, ...]]] = []
+
+    def measure(name):
+        return lambda out, rows: calls.append((name, tuple(r["cell"] for r in rows)))
+
+    study = kit.Study(name="t", cells=(kit.Cell("a", ("--steps", "10")), kit.Cell("b", ("--steps", "10"))),
+                      endpoint=None, measurements=(kit.Measurement("m1", measure("m1")),
+                                                   kit.Measurement("m2", measure("m2"))))
+    kit.run(study, tmp_path)
+    assert calls == [("m1", ("a",)), ("m2", ("a",)), ("m1", ("a", "b")), ("m2", ("a", "b"))]
+    calls.clear()
+    kit.run(study, tmp_path, only=())  # no cell to run: the measurements run once on the rows as they are
+    assert calls == [("m1", ("a", "b")), ("m2", ("a", "b"))]

@@ -25,7 +25,7 @@ nmrl/experiments/kit_progress.py reads where each cell stands and its time left 
 a running study. :func:`publish` copies what continues and re-scores a study (no full checkpoints)
 into a folder small enough to commit, with ``analysis.csv``, the study's own analysis of the rows (its
 pre-registered contrasts), its report's figures and tables, and the files of its measurements (steps
-after the cells that are not sweeps, :class:`Measurement`). A study's own modules (e.g.
+that are not sweeps, run after every cell, :class:`Measurement`). A study's own modules (e.g.
 nmrl/experiments/exploration2.py and its cells, rules and analysis beside it; the finer-delta study,
 nmrl/experiments/study.py, with its cells and tables) hold its cells as data and any rule that makes
 later cells from earlier rows.
@@ -108,9 +108,10 @@ class Endpoint:
 
 @dataclasses.dataclass(frozen=True)
 class Measurement:
-    """A step of a study after its cells that is not a sweep: ``run(out, rows)`` writes ``file`` (a
-    file or a folder) in the study's directory from the rows and the cells' points, continuing what an earlier call left
-    there, and does nothing while a cell it needs is unfinished; :func:`publish` copies ``file``."""
+    """A step of a study that is not a sweep, run after every cell: ``run(out, rows)`` writes
+    ``file`` (a file or a folder) in the study's directory from the rows and the cells' points,
+    continuing what an earlier call left there, and does nothing while a cell it needs is
+    unfinished; :func:`publish` copies ``file``."""
 
     file: str
     run: Callable[[pathlib.Path, list[dict]], None]
@@ -315,7 +316,9 @@ def write_rows(study: Study, out: pathlib.Path) -> list[dict]:
 def run(study: Study, out: str | os.PathLike, *, published: str | os.PathLike | None = None,
         only: Sequence[str] | None = None) -> list[dict]:
     """Every cell (or, ``only`` given, those whose name starts with one of ``only``: none for ``()``)
-    to its budget, scored, then the measurements in order; the rows."""
+    to its budget and scored, the measurements in order after each (each does nothing while a cell
+    it needs is unfinished and continues what it left, so a finished cell's measurement is in the
+    next publish; with no cell to run, they run once on the rows as they are); the rows."""
     out = pathlib.Path(out)
     pub = pathlib.Path(published) if published is not None else None
     done: set[str] = set()
@@ -324,15 +327,20 @@ def run(study: Study, out: str | os.PathLike, *, published: str | os.PathLike | 
                 and (only is None or any(c.name.startswith(o) for o in only))]
         if not todo:
             r = write_rows(study, out)
-            for m in study.measurements:
-                m.run(out, r)
+            if not done:
+                _measure(study, out, r)
             return r
         for cell in todo:
             run_cell(study, cell, out, pub)
             for p in point_dirs(out / cell.name) if study.endpoint is not None else ():
                 score_point(study, p)
-            write_rows(study, out)
+            _measure(study, out, write_rows(study, out))
             done.add(cell.name)
+
+
+def _measure(study: Study, out: pathlib.Path, r: list[dict]) -> None:
+    for m in study.measurements:
+        m.run(out, r)
 
 
 def publish(study: Study, out: str | os.PathLike, dest: str | os.PathLike) -> None:
