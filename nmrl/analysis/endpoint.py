@@ -26,6 +26,7 @@ trained, evaluated like the deterministic one (trials never stopping).
 from __future__ import annotations
 
 import functools
+import numbers
 from typing import Any
 
 import jax
@@ -99,7 +100,8 @@ def noisy_endpoint(config: Any, params: dict, noise_scale: float, *, seconds: fl
                    start_noise: float = START_NOISE, seed: int = 0) -> dict:
     """:func:`deterministic_endpoint`'s numbers for the policy with its exploration noise times
     ``noise_scale`` (k >= 0; see the module docstring), with ``noise_scale`` in the result."""
-    if not (isinstance(noise_scale, (int, float)) and np.isfinite(noise_scale) and noise_scale >= 0):
+    if isinstance(noise_scale, bool) or not (isinstance(noise_scale, numbers.Real) and np.isfinite(noise_scale)
+                                             and noise_scale >= 0):
         raise ValueError(f"noise_scale={noise_scale!r} is invalid: must be a finite number >= 0")
     return {**_endpoint(config, params, float(noise_scale), seconds=seconds, rollouts=rollouts,
                         start_noise=start_noise, seed=seed), "noise_scale": float(noise_scale)}
