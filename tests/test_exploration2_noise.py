@@ -12,7 +12,7 @@ import pytest
 
 from nmrl.analysis import endpoint
 from nmrl.experiments import exploration2_noise as xn
-from nmrl.runs import store
+from nmrl.runs import checkpoint, store
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 RUNS = REPO / "results/exploration2/runs"
@@ -51,7 +51,8 @@ def test_every_ended_run_of_a_complete_grid_cell_at_every_noise_scale_once_per_s
         raise AssertionError("measured again")
 
     monkeypatch.setattr(endpoint, "noisy_endpoint", refuse)
-    xn.noise_scales(tmp_path, rows)  # nothing new: nothing measured, the table unchanged
+    monkeypatch.setattr(checkpoint, "restore_params", refuse)
+    xn.noise_scales(tmp_path, rows)  # nothing new: no policy restored, nothing measured, the table unchanged
     assert store.read_csv(tmp_path / xn.NOISE_CSV) == got
     xn.figure(tmp_path)
     assert (tmp_path / xn.NOISE_FIGURE).stat().st_size > 10_000

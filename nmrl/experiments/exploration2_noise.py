@@ -10,19 +10,22 @@ same noise draws at every k, so that k alone differs). k = 0 is the deterministi
 the exploring policy as trained, here without the training's trial stops.
 
 ``noise_scales.csv``: one row per run and k (its step, reward per second, forward speed); rows of
-a run already there at its step are kept, so a later call adds only new runs. :func:`figure`
+a run already there at its endpoint's step are kept (read from ``endpoint.json``, so a call that
+adds nothing restores no policy: the measurement runs after every cell). :func:`figure`
 draws ``noise_scales.png`` from it: reward per second and forward speed against k, one column per
 control step, each arm's mean over its runs with its 95% t band.
 """
 
 from __future__ import annotations
 
+import json
 import pathlib
 
 import numpy as np
 
 from nmrl.experiments.exploration2_cells import ARM_ORDER, ENDPOINT, arm_and_dt
 from nmrl.experiments.exploration2_rules import complete_cells, ended
+from nmrl.experiments.kit import ENDPOINT as ENDPOINT_FILE
 from nmrl.runs import store
 
 NOISE_CSV = "noise_scales.csv"
@@ -43,10 +46,11 @@ def noise_scales(out: pathlib.Path, rows: list[dict]) -> None:
     for r in rows:
         if r["cell"] not in cells or not ended(r):
             continue
-        meta, config, params = checkpoint.restore_params(out / r["cell"] / "points" / r["point"])
-        step = int(meta["step"])
+        point = out / r["cell"] / "points" / r["point"]
+        step = int(json.loads((point / ENDPOINT_FILE).read_text())["step"])  # the policy the endpoint scored
         if (r["cell"], r["point"], step) in have:
             continue
+        _, config, params = checkpoint.restore_params(point, step)
         done = [d for d in done if (d["cell"], d["point"]) != (r["cell"], r["point"])]
         for k in NOISE_SCALES:
             e = endpoint.noisy_endpoint(config, params, k, seconds=ENDPOINT.seconds, rollouts=ENDPOINT.rollouts,
