@@ -159,6 +159,11 @@ def test_the_paired_figure_draws_every_runs_pair_and_the_diagonal(tmp_path, draw
     assert [list(zip(ln.get_xdata(), ln.get_ydata())) for ln in series] == [w, [(0.9, 0.02), (0.8, 0.05)]]
     assert [t.get_text() for t in ax.get_legend().get_texts()] == ["y = x", "white (n=2)", "nmp (n=2)"]
     assert (ax.get_xlabel(), ax.get_ylabel()) == ("noisy", "det")
+    # colours given per cell hold in every panel, whatever the cells before them
+    contrast_figures.paired({"20 ms": {"white": w, "nmp": n}, "2.5 ms": {"nmp": n}}, tmp_path / "t.png", "x", "y",
+                            colors={"white": "C0", "nmp": "C5"})
+    first, second = drawn[1].axes[:2]
+    assert [ln.get_color() for ln in first.lines[1:]] == ["C0", "C5"] and second.lines[1].get_color() == "C5"
 
 
 def test_the_report_draws_the_endpoints_and_contrasts_once_grid_cells_exist(tmp_path):
@@ -177,3 +182,19 @@ def test_the_report_draws_the_endpoints_and_contrasts_once_grid_cells_exist(tmp_
     rows = [dict(r, forward_speed=0.5, det_forward_speed=0.4) for r in rows]
     exploration2_analysis.report(rows, tmp_path)
     assert (tmp_path / exploration2_analysis.SPEED_FIGURE).stat().st_size > 0
+
+
+def test_the_curves_figure_draws_each_cells_mean_and_t_band_in_its_colour(tmp_path, drawn):
+    t = np.array([1.0, 2.0, 3.0])
+    w = [(t, np.array([1.0, 2.0, 4.0])), (t, np.array([3.0, 2.0, 6.0])), (t, np.array([2.0, 5.0, 5.0]))]
+    n = [(t, np.array([0.0, 1.0, 1.0])), (t, np.array([1.0, 0.0, 2.0])), (t, np.array([2.0, 2.0, 0.0]))]
+    cell_curves.figure({"20 ms": {"white": w, "nmp": n}, "2.5 ms": {"nmp": n}}, tmp_path / "f.png", "reward",
+                       colors={"white": "C0", "nmp": "C5"})
+    first, second = drawn[0].axes[:2]
+    (mw, mn), (mn2,) = first.lines, second.lines
+    assert np.allclose(mw.get_ydata(), np.mean([y for _, y in w], axis=0))
+    assert (mw.get_color(), mn.get_color(), mn2.get_color()) == ("C0", "C5", "C5")
+    band = first.collections[0].get_paths()[0].vertices[:, 1]  # the t band of white, 95%
+    half = stats.t.ppf(0.975, 2) * np.std([y for _, y in w], axis=0, ddof=1) / np.sqrt(3)
+    assert band.max() == pytest.approx(np.max(mw.get_ydata() + half))
+    assert band.min() == pytest.approx(np.min(mw.get_ydata() - half))

@@ -66,9 +66,10 @@ def band(curves: Sequence[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, n
 
 
 def figure(panels: Mapping[str, Mapping[str, Sequence[tuple[np.ndarray, np.ndarray]]]], path: str | os.PathLike,
-           ylabel: str, title: str = "") -> pathlib.Path:
+           ylabel: str, title: str = "", colors: Mapping[str, str] | None = None) -> pathlib.Path:
     """One panel per key of ``panels`` (its title), one line per cell in it: the mean over the cell's
-    seeds with its 95% t band (:func:`band`), the seeds counted in the legend."""
+    seeds with its 95% t band (:func:`band`), the seeds counted in the legend; ``colors``: a cell's
+    colour in every panel (default: the colour cycle's next in each panel)."""
     plt = plots.plt
     path = pathlib.Path(path)
     n = max(1, len(panels))
@@ -81,7 +82,8 @@ def figure(panels: Mapping[str, Mapping[str, Sequence[tuple[np.ndarray, np.ndarr
     for ax, (name, cells) in zip(axes.ravel(), panels.items()):
         for label, curves in cells.items():
             t, mean, lo, hi = band(curves)
-            (line,) = ax.plot(t, mean, lw=1.6, marker="o", ms=3, label=f"{label} ({len(curves)})")
+            (line,) = ax.plot(t, mean, lw=1.6, marker="o", ms=3, label=f"{label} ({len(curves)})",
+                              color=(colors or {}).get(label))
             if len(curves) >= BAND_MIN_SEEDS:
                 ax.fill_between(t, lo, hi, color=line.get_color(), alpha=0.2, lw=0)
             else:  # a t interval over 2 seeds is 13 SDs wide: each seed is drawn instead

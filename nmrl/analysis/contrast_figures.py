@@ -58,10 +58,11 @@ def endpoints(panels: Mapping[str, Mapping[str, Sequence[float]]], path: str | o
 
 
 def paired(panels: Mapping[str, Mapping[str, Sequence[tuple[float, float]]]], path: str | os.PathLike,
-           xlabel: str, ylabel: str, title: str = "") -> pathlib.Path:
+           xlabel: str, ylabel: str, title: str = "", colors: Mapping[str, str] | None = None) -> pathlib.Path:
     """One panel per key of ``panels`` (its title), one marker series per cell in it: each run's
     ``(x, y)`` pair (finite pairs only), with the line y = x across the panel: runs below it score
-    less on y than on x."""
+    less on y than on x. ``colors``: a cell's colour in every panel (default: the colour cycle's
+    next in each panel)."""
     plt = plots.plt
     n = max(1, len(panels))
     fig, axes = plt.subplots(1, n, figsize=(1.4 + 3.6 * n, 3.9), sharex=True, sharey=True, squeeze=False,
@@ -75,7 +76,8 @@ def paired(panels: Mapping[str, Mapping[str, Sequence[tuple[float, float]]]], pa
         for cell, v in cells.items():
             xy = np.asarray(v, float).reshape(-1, 2)
             xy = xy[np.all(np.isfinite(xy), axis=1)]
-            ax.plot(xy[:, 0], xy[:, 1], "o", ms=5, alpha=0.7, label=f"{cell} (n={len(xy)})")
+            ax.plot(xy[:, 0], xy[:, 1], "o", ms=5, alpha=0.7, label=f"{cell} (n={len(xy)})",
+                    color=(colors or {}).get(cell))
         ax.set_title(name)
         ax.set_xlabel(xlabel)
         ax.grid(alpha=0.3)

@@ -16,7 +16,8 @@ import pathlib
 
 import numpy as np
 
-from nmrl.experiments.exploration2_cells import ARM_ORDER, SNR_CSV, arm_and_dt, asymptote_name, grid_name
+from nmrl.experiments.exploration2_cells import (ARM_COLORS, ARM_ORDER, SNR_CSV, arm_and_dt, asymptote_name,
+                                                 grid_name)
 from nmrl.experiments.exploration2_noise import NOISE_CSV
 from nmrl.experiments.exploration2_noise import figure as noise_figure
 from nmrl.experiments.exploration2_rules import (CHOICE_COLUMNS, best_correlated, choices, complete_cells, diverged,
@@ -216,7 +217,7 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
     if screen:
         cell_curves.figure(screen, dest / SCREEN_FIGURE, "exploring reward per second", "the screen (seeds 100, 101)")
     if grid:
-        cell_curves.figure(grid, dest / GRID_FIGURE, "exploring reward per second", "the grid")
+        cell_curves.figure(grid, dest / GRID_FIGURE, "exploring reward per second", "the grid", colors=ARM_COLORS)
     by_dt: dict[float, dict[str, list[float]]] = {}
     for (c, _), x in groups.items():
         if c.startswith("grid/") and x:
@@ -233,7 +234,7 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
         contrast_figures.paired(
             _panels(speeds), dest / SPEED_FIGURE,
             "forward speed with the noise, last iteration [m/s]", "deterministic forward speed, 10 s [m/s]",
-            "every ended grid run, with and without its noise")
+            "every ended grid run, with and without its noise", colors=ARM_COLORS)
     if by_dt:
         contrast_figures.endpoints(_panels(by_dt), dest / ENDPOINT_FIGURE, "deterministic reward per second",
                                    "the grid's primary endpoint (every ended run)")

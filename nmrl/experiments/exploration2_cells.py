@@ -40,6 +40,8 @@ ARMS = {
 
 #: the arms in the order tables and figures list them (ws: white with sigma by eq. (1))
 ARM_ORDER = ("white", "ws", "ou", "colored", "nms", "nmp")
+#: each arm's colour in every figure (matplotlib's colour cycle in that order)
+ARM_COLORS = {arm: f"C{i}" for i, arm in enumerate(ARM_ORDER)}
 
 
 def base(dt: float, iterations: int) -> tuple[str, ...]:

@@ -23,7 +23,7 @@ import pathlib
 
 import numpy as np
 
-from nmrl.experiments.exploration2_cells import ARM_ORDER, ENDPOINT, arm_and_dt
+from nmrl.experiments.exploration2_cells import ARM_COLORS, ARM_ORDER, ENDPOINT, arm_and_dt
 from nmrl.experiments.exploration2_rules import complete_cells, ended
 from nmrl.experiments.kit import ENDPOINT as ENDPOINT_FILE
 from nmrl.runs import store
@@ -78,7 +78,7 @@ def figure(dest: pathlib.Path) -> None:
     for j, dt in enumerate(dts):
         for arm in sorted(runs[dt], key=ARM_ORDER.index):
             points = runs[dt][arm]
-            color = f"C{ARM_ORDER.index(arm)}"  # an arm's colour is the same in every panel
+            color = ARM_COLORS[arm]
             for i, col in enumerate((1, 2)):
                 curves = [(np.array([x[0] for x in sorted(p)]), np.array([x[col] for x in sorted(p)]))
                           for p in points.values()]
