@@ -82,7 +82,7 @@ def _doc() -> str:
 
 
 GRID = {"W(20)": "grid/dt0.02/white", "NMp(20)": "grid/dt0.02/nmp", "W(2.5)": "grid/dt0.0025/white",
-        "Ws(2.5)": "grid/dt0.0025/ws", "OU(2.5)": "grid/dt0.0025/ou"}
+        "Ws(2.5)": "grid/dt0.0025/ws", "OU(2.5)": "grid/dt0.0025/ou", "CN(2.5)": "grid/dt0.0025/colored"}
 
 
 @pytest.mark.parametrize("name", GRID)
@@ -100,6 +100,7 @@ CONTRAST_CLAIMS = (
     ("P1", "W(2.5)", "W(20)", "by {e} reward per s [{lo}, {hi}]"),
     ("P2", "Ws(2.5)", "W(2.5)", "{e} reward per s [{lo}, {hi}] (Welch 95%, raw p {p:.2f})"),
     ("P3", "OU(2.5)", "W(2.5)", "{e} reward per s [{lo}, {hi}] (Welch 95%, raw p {p:.2f})"),
+    ("P4", "CN(2.5)", "W(2.5)", "{e} reward per s [{lo}, {hi}] (Welch 95%, raw p {p:.2f})"),
     ("NMp(20) - W(20)", "NMp(20)", "W(20)", "{e} reward per s [{lo}, {hi}]"),
 )
 
@@ -116,7 +117,8 @@ def test_the_docs_contrasts_are_welch_tests_of_the_rows(label, a, b, words):
 
 #: the doc's secondary endpoints of P1-P3: the exploring reward over the last iteration, its mean over
 #: the run, the deterministic forward speed (m/s), each "estimate [lo, hi]" with a sign
-SECONDARY_CLAIMS = (("P1", "W(2.5)", "W(20)"), ("P2", "Ws(2.5)", "W(2.5)"), ("P3", "OU(2.5)", "W(2.5)"))
+SECONDARY_CLAIMS = (("P1", "W(2.5)", "W(20)"), ("P2", "Ws(2.5)", "W(2.5)"), ("P3", "OU(2.5)", "W(2.5)"),
+                    ("P4", "CN(2.5)", "W(2.5)"))
 
 
 @pytest.mark.parametrize("label,a,b", SECONDARY_CLAIMS, ids=[c[0] for c in SECONDARY_CLAIMS])
@@ -147,7 +149,7 @@ def test_the_analysis_tables_primary_contrasts_are_welch_tests_of_the_rows():
         got = [float(rows[label][k]) for k in ("estimate", "lo", "hi", "p")]
         assert got == pytest.approx(_welch(xa, xb), rel=1e-9), label
         checked += 1
-    assert checked >= 3  # P1-P3: their cells have finished in the record
+    assert checked >= 4  # P1-P4: their cells have finished in the record
 
 
 def test_the_noise_scale_tables_k0_is_each_runs_published_endpoint():
@@ -192,7 +194,7 @@ def test_the_docs_contrasts_at_a_quarter_of_the_noise_are_welch_tests_of_the_tab
                          if r["cell"] == cell and float(r["noise_scale"]) == 0.25])
 
     doc = _doc()
-    for label, a, b in SECONDARY_CLAIMS:  # P1-P3: the contrasts whose cells have finished
+    for label, a, b in SECONDARY_CLAIMS:  # P1-P4: the contrasts whose cells have finished
         xa, xb = at(GRID[a]), at(GRID[b])
         if len(xa) < 8 or len(xb) < 8:
             continue
