@@ -158,7 +158,6 @@ def analysis(rows: list[dict]) -> list[dict]:
 CELLS_CSV, CHOICES_CSV, SECONDARY_CSV, ARMS_CSV = "cells.csv", "choices.csv", "secondary_endpoints.csv", "arms.csv"
 SCREEN_FIGURE, GRID_FIGURE = "screen_curves.png", "learning_curves.png"
 ENDPOINT_FIGURE, CONTRAST_FIGURE, SPEED_FIGURE = "endpoints.png", "contrasts.png", "speeds.png"
-#: the arms' order in the endpoint figure: white first, the correlated arms after it
 SUMMARY_COLUMNS = ("n", "mean", "sd", "ci_lo", "ci_hi", "iqm", "iqm_lo", "iqm_hi")  #: cell_curves.summary's
 CELL_COLUMNS = ("cell", "value", *SUMMARY_COLUMNS, "diverged")
 
