@@ -84,21 +84,6 @@ def test_the_report_tabulates_every_cell_at_its_budget_and_draws_the_curves(tmp_
     assert np.allclose(t, [102.4, 204.8]) and np.allclose(y, [-50.0, -25.0])  # per second: r / 0.02 s
 
 
-@pytest.fixture
-def drawn(monkeypatch):
-    """The figures contrast_figures draws, kept before plots.save closes them."""
-    from nmrl.analysis import plots
-
-    figs, save = [], plots.save
-
-    def keep(fig, path, **kw):
-        figs.append(fig)
-        return save(fig, path, **kw)
-
-    monkeypatch.setattr(plots, "save", keep)
-    return figs
-
-
 def _bars(ax):
     """Each errorbar of ``ax``: (its marker's x, y, the bar's two ends)."""
     out = []
@@ -109,7 +94,7 @@ def _bars(ax):
     return out
 
 
-def test_the_contrast_figure_draws_each_welch_interval_against_the_margin(tmp_path, drawn):
+def test_the_contrast_figure_draws_each_welch_interval_against_the_margin(tmp_path, saved_figures):
     from nmrl.analysis import contrast_figures, prereg_stats
 
     a, b, c = [12.0, 30.0, 25.0, 41.0, 19.0], [5.0, 9.0, -3.0, 14.0, 2.0, 7.0], [40.0, 90.0, 70.0]
@@ -118,7 +103,7 @@ def test_the_contrast_figure_draws_each_welch_interval_against_the_margin(tmp_pa
     table.append({"contrast": "X3", "decision": "pending"})  # no estimate: listed, not drawn
     contrast_figures.contrasts(table, 50.0, tmp_path / "c.png", "difference")
     assert (tmp_path / "c.png").stat().st_size > 0
-    ax = drawn[0].axes[0]
+    ax = saved_figures[0][1].axes[0]
     bars = sorted(_bars(ax), key=lambda t: -t[1])  # top row first
     assert len(bars) == 2
     for (x, _, seg), (p, q) in zip(bars, ((a, b), (c, b))):
@@ -131,12 +116,12 @@ def test_the_contrast_figure_draws_each_welch_interval_against_the_margin(tmp_pa
     assert (band.get_x(), band.get_x() + band.get_width()) == (-50.0, 50.0)
 
 
-def test_the_endpoint_figure_draws_every_run_and_each_cells_t_interval(tmp_path, drawn):
+def test_the_endpoint_figure_draws_every_run_and_each_cells_t_interval(tmp_path, saved_figures):
     from nmrl.analysis import contrast_figures
 
     w, n = [-40.0, -55.0, -47.5, -60.0], [10.0, float("nan"), 30.0, -5.0]
     contrast_figures.endpoints({"control step 2.5 ms": {"white": w, "nmp": n}}, tmp_path / "e.png", "reward per s")
-    ax = drawn[0].axes[0]
+    ax = saved_figures[0][1].axes[0]
     for (x, y, seg), v in zip(_bars(ax), (w, [10.0, 30.0, -5.0])):
         ci = stats.t.interval(0.95, len(v) - 1, loc=np.mean(v), scale=stats.sem(v))
         assert y == pytest.approx(np.mean(v))
@@ -147,12 +132,12 @@ def test_the_endpoint_figure_draws_every_run_and_each_cells_t_interval(tmp_path,
     assert labels == ["white\n(n=4)", "nmp\n(n=3, 1 non-finite)"]
 
 
-def test_the_paired_figure_draws_every_runs_pair_and_the_diagonal(tmp_path, drawn):
+def test_the_paired_figure_draws_every_runs_pair_and_the_diagonal(tmp_path, saved_figures):
     from nmrl.analysis import contrast_figures
 
     w, n = [(1.9, 2.0), (0.5, 0.6)], [(0.9, 0.02), (float("nan"), 0.1), (0.8, 0.05)]
     contrast_figures.paired({"control step 20 ms": {"white": w, "nmp": n}}, tmp_path / "s.png", "noisy", "det")
-    ax = drawn[0].axes[0]
+    ax = saved_figures[0][1].axes[0]
     diag, *series = ax.lines
     assert np.allclose(diag.get_xdata(), diag.get_ydata())  # y = x
     assert min(diag.get_xdata()) < 0.02 and max(diag.get_xdata()) > 2.0  # spans every pair
@@ -162,7 +147,7 @@ def test_the_paired_figure_draws_every_runs_pair_and_the_diagonal(tmp_path, draw
     # colours given per cell hold in every panel, whatever the cells before them
     contrast_figures.paired({"20 ms": {"white": w, "nmp": n}, "2.5 ms": {"nmp": n}}, tmp_path / "t.png", "x", "y",
                             colors={"white": "C0", "nmp": "C5"})
-    first, second = drawn[1].axes[:2]
+    first, second = saved_figures[1][1].axes[:2]
     assert [ln.get_color() for ln in first.lines[1:]] == ["C0", "C5"] and second.lines[1].get_color() == "C5"
 
 
@@ -184,13 +169,13 @@ def test_the_report_draws_the_endpoints_and_contrasts_once_grid_cells_exist(tmp_
     assert (tmp_path / exploration2_analysis.SPEED_FIGURE).stat().st_size > 0
 
 
-def test_the_curves_figure_draws_each_cells_mean_and_t_band_in_its_colour(tmp_path, drawn):
+def test_the_curves_figure_draws_each_cells_mean_and_t_band_in_its_colour(tmp_path, saved_figures):
     t = np.array([1.0, 2.0, 3.0])
     w = [(t, np.array([1.0, 2.0, 4.0])), (t, np.array([3.0, 2.0, 6.0])), (t, np.array([2.0, 5.0, 5.0]))]
     n = [(t, np.array([0.0, 1.0, 1.0])), (t, np.array([1.0, 0.0, 2.0])), (t, np.array([2.0, 2.0, 0.0]))]
     cell_curves.figure({"20 ms": {"white": w, "nmp": n}, "2.5 ms": {"nmp": n}}, tmp_path / "f.png", "reward",
                        colors={"white": "C0", "nmp": "C5"})
-    first, second = drawn[0].axes[:2]
+    first, second = saved_figures[0][1].axes[:2]
     (mw, mn), (mn2,) = first.lines, second.lines
     assert np.allclose(mw.get_ydata(), np.mean([y for _, y in w], axis=0))
     assert (mw.get_color(), mn.get_color(), mn2.get_color()) == ("C0", "C5", "C5")

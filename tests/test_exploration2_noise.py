@@ -12,6 +12,7 @@ import pytest
 
 from nmrl.analysis import endpoint
 from nmrl.experiments import exploration2_noise as xn
+from nmrl.experiments.exploration2_cells import ARM_COLORS
 from nmrl.runs import checkpoint, store
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
@@ -24,7 +25,8 @@ def _row(cell: str, point: str, steps: int, budget: int, det: float | str = -40.
             "diverged": "False", "det_reward_per_s": det}
 
 
-def test_every_ended_run_of_a_complete_grid_cell_at_every_noise_scale_once_per_step(tmp_path, monkeypatch):
+def test_every_ended_run_of_a_complete_grid_cell_at_every_noise_scale_once_per_step(tmp_path, monkeypatch,
+                                                                                     saved_figures):
     if not all((RUNS / c / "points" / p / "compact.npz").is_file() for c, p in POINTS.items()):
         pytest.skip("the published 20 ms grid points are not in this checkout")
     rows = []
@@ -55,4 +57,14 @@ def test_every_ended_run_of_a_complete_grid_cell_at_every_noise_scale_once_per_s
     xn.noise_scales(tmp_path, rows)  # nothing new: no policy restored, nothing measured, the table unchanged
     assert store.read_csv(tmp_path / xn.NOISE_CSV) == got
     xn.figure(tmp_path)
-    assert (tmp_path / xn.NOISE_FIGURE).stat().st_size > 10_000
+    ((path, fig),) = saved_figures
+    assert path == tmp_path / xn.NOISE_FIGURE and path.stat().st_size > 10_000
+    reward, speed = fig.axes  # one column, 20 ms: reward per second above forward speed
+    for ax, column in ((reward, "reward_per_s"), (speed, "forward_speed")):
+        for cell in POINTS:
+            arm = cell.rsplit("/", 1)[1]
+            (line,) = [ln for ln in ax.lines if ln.get_label() == f"{arm} (1)"]
+            mine = sorted((float(r["noise_scale"]), float(r[column])) for r in got if r["cell"] == cell)
+            assert list(line.get_xdata()) == [k for k, _ in mine] == sorted(xn.NOISE_SCALES)
+            assert list(line.get_ydata()) == [v for _, v in mine]  # one run: its values are the mean
+            assert line.get_color() == ARM_COLORS[arm]

@@ -65,11 +65,28 @@ def band(curves: Sequence[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, n
     return t, mean, mean - half, mean + half
 
 
+def draw(ax, cells: Mapping[str, Sequence[tuple[np.ndarray, np.ndarray]]],
+         colors: Mapping[str, str] | None = None) -> None:
+    """One line per cell on ``ax``: the mean over the cell's seeds with its 95% t band (:func:`band`),
+    each seed's curve instead of the band below :data:`BAND_MIN_SEEDS` seeds, the seeds counted in the
+    legend; ``colors``: a cell's colour (default: the colour cycle's next)."""
+    for label, curves in cells.items():
+        t, mean, lo, hi = band(curves)
+        (line,) = ax.plot(t, mean, lw=1.6, marker="o", ms=3, label=f"{label} ({len(curves)})",
+                          color=(colors or {}).get(label))
+        if len(curves) >= BAND_MIN_SEEDS:
+            ax.fill_between(t, lo, hi, color=line.get_color(), alpha=0.2, lw=0)
+        else:  # a t interval over 2 seeds is 13 SDs wide: each seed is drawn instead
+            for ti, yi in curves:
+                ax.plot(ti, yi, lw=0.6, alpha=0.5, color=line.get_color())
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+
+
 def figure(panels: Mapping[str, Mapping[str, Sequence[tuple[np.ndarray, np.ndarray]]]], path: str | os.PathLike,
            ylabel: str, title: str = "", colors: Mapping[str, str] | None = None) -> pathlib.Path:
-    """One panel per key of ``panels`` (its title), one line per cell in it: the mean over the cell's
-    seeds with its 95% t band (:func:`band`), the seeds counted in the legend; ``colors``: a cell's
-    colour in every panel (default: the colour cycle's next in each panel)."""
+    """One panel per key of ``panels`` (its title), its cells drawn by :func:`draw` against simulated
+    seconds per environment, y shared; ``colors``: a cell's colour in every panel."""
     plt = plots.plt
     path = pathlib.Path(path)
     n = max(1, len(panels))
@@ -80,19 +97,9 @@ def figure(panels: Mapping[str, Mapping[str, Sequence[tuple[np.ndarray, np.ndarr
     for ax in axes.ravel()[n:]:
         ax.set_visible(False)
     for ax, (name, cells) in zip(axes.ravel(), panels.items()):
-        for label, curves in cells.items():
-            t, mean, lo, hi = band(curves)
-            (line,) = ax.plot(t, mean, lw=1.6, marker="o", ms=3, label=f"{label} ({len(curves)})",
-                              color=(colors or {}).get(label))
-            if len(curves) >= BAND_MIN_SEEDS:
-                ax.fill_between(t, lo, hi, color=line.get_color(), alpha=0.2, lw=0)
-            else:  # a t interval over 2 seeds is 13 SDs wide: each seed is drawn instead
-                for ti, yi in curves:
-                    ax.plot(ti, yi, lw=0.6, alpha=0.5, color=line.get_color())
+        draw(ax, cells, colors)
         ax.set_title(name)
         ax.set_xlabel("simulated seconds per environment")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
     for row in axes:
         row[0].set_ylabel(ylabel)
     if title:

@@ -64,7 +64,7 @@ def noise_scales(out: pathlib.Path, rows: list[dict]) -> None:
 def figure(dest: pathlib.Path) -> None:
     """``noise_scales.png`` from ``dest/noise_scales.csv`` (see the module docstring)."""
     from nmrl.analysis import plots
-    from nmrl.analysis.cell_curves import band
+    from nmrl.analysis.cell_curves import draw
 
     got = store.read_csv(dest / NOISE_CSV)
     runs: dict[float, dict[str, dict[str, list[tuple[float, float, float]]]]] = {}
@@ -76,20 +76,13 @@ def figure(dest: pathlib.Path) -> None:
     fig, axes = plots.plt.subplots(2, len(dts), figsize=(4.6 * len(dts), 7.0), sharey="row", squeeze=False,
                                    layout="constrained")
     for j, dt in enumerate(dts):
-        for arm in sorted(runs[dt], key=ARM_ORDER.index):
-            points = runs[dt][arm]
-            color = ARM_COLORS[arm]
-            for i, col in enumerate((1, 2)):
-                curves = [(np.array([x[0] for x in sorted(p)]), np.array([x[col] for x in sorted(p)]))
-                          for p in points.values()]
-                k, mean, lo, hi = band(curves)
-                axes[i][j].plot(k, mean, marker="o", ms=3, lw=1.6, color=color, label=f"{arm} ({len(curves)})")
-                axes[i][j].fill_between(k, lo, hi, color=color, alpha=0.2, lw=0)
-        for i in range(2):
+        arms = sorted(runs[dt], key=ARM_ORDER.index)
+        for i, col in enumerate((1, 2)):
+            cells = {arm: [(np.array([x[0] for x in sorted(p)]), np.array([x[col] for x in sorted(p)]))
+                           for p in runs[dt][arm].values()] for arm in arms}
+            draw(axes[i][j], cells, ARM_COLORS)
             axes[i][j].set_title(f"control step {dt * 1000:g} ms")
             axes[i][j].set_xlabel("noise scale k (x the exploration noise it was trained with)")
-            axes[i][j].grid(alpha=0.3)
-            axes[i][j].legend(fontsize=7)
     axes[0][0].set_ylabel("reward per second")
     axes[1][0].set_ylabel("forward speed [m/s]")
     fig.suptitle("every ended grid policy with its own noise times k, 8 rollouts of 10 s from perturbed starts")
