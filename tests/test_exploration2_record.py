@@ -58,9 +58,10 @@ def test_the_published_tables_are_the_analysis_of_the_published_rows(rows, tmp_p
 # ------------------------------------------------------------------- against NumPy and scipy
 
 def _finished(cell: str, key: str = "det_reward_per_s") -> np.ndarray | None:
-    """The cell's values of ``key`` from the committed rows.csv, if its 8 runs are at their budget."""
+    """The cell's values of ``key`` from the committed rows.csv, if its 8 runs have ended: at their
+    budget, or diverged (then scored by their last good policy)."""
     rs = [r for r in _csv(RECORD / kit.ROWS) if r["cell"] == cell]
-    if len(rs) != 8 or any(r["steps"] != r["budget"] for r in rs):
+    if len(rs) != 8 or any(r["steps"] != r["budget"] and r["diverged"] != "True" for r in rs):
         return None
     return np.array([float(r[key]) for r in rs])
 
@@ -82,7 +83,8 @@ def _doc() -> str:
 
 
 GRID = {"W(20)": "grid/dt0.02/white", "NMp(20)": "grid/dt0.02/nmp", "W(2.5)": "grid/dt0.0025/white",
-        "Ws(2.5)": "grid/dt0.0025/ws", "OU(2.5)": "grid/dt0.0025/ou", "CN(2.5)": "grid/dt0.0025/colored"}
+        "Ws(2.5)": "grid/dt0.0025/ws", "OU(2.5)": "grid/dt0.0025/ou", "CN(2.5)": "grid/dt0.0025/colored",
+        "NMs(2.5)": "grid/dt0.0025/nms", "NMp(2.5)": "grid/dt0.0025/nmp"}
 
 
 @pytest.mark.parametrize("name", GRID)
@@ -150,6 +152,69 @@ def test_the_analysis_tables_primary_contrasts_are_welch_tests_of_the_rows():
         assert got == pytest.approx(_welch(xa, xb), rel=1e-9), label
         checked += 1
     assert checked >= 4  # P1-P4: their cells have finished in the record
+
+
+#: the primary family as the doc's table "Hypotheses and the primary family" writes it
+PRIMARY = (("P1", {"W(2.5)": 1, "W(20)": -1}), ("P2", {"Ws(2.5)": 1, "W(2.5)": -1}),
+           ("P3", {"OU(2.5)": 1, "W(2.5)": -1}), ("P4", {"CN(2.5)": 1, "W(2.5)": -1}),
+           ("P5", {"NMs(2.5)": 1, "W(2.5)": -1}), ("P6", {"NMp(2.5)": 1, "W(2.5)": -1}),
+           ("P7", {"NMp(2.5)": 1, "NMp(20)": -1, "W(2.5)": -1, "W(20)": 1}))
+MARGIN, ALPHA = 50.0, 0.05
+
+
+def _holm(p: list[float]) -> list[float]:
+    """Holm's step-down adjusted p-values (Holm 1979): the running maximum of (m - i) p_(i), capped at 1."""
+    order, out, run = np.argsort(p), [0.0] * len(p), 0.0
+    for i, j in enumerate(order):
+        run = max(run, min(1.0, (len(p) - i) * p[j]))
+        out[j] = run
+    return out
+
+
+def _family(cells: dict[str, np.ndarray]) -> dict[str, dict]:
+    """The primary family from the cells' endpoints, computed apart from nmrl: a two-cell contrast by
+    scipy's Welch test and its TOST as two scipy one-sided Welch tests of the shifted samples; P7's
+    interaction by hand (Welch-Satterthwaite); Holm over the 7 for both; the doc's words."""
+    out = {}
+    for label, weights in PRIMARY:
+        xs = [(w, cells[name]) for name, w in weights.items()]
+        if len(xs) == 2:
+            (_, a), (_, b) = xs
+            e, lo, hi, p = _welch(a, b)
+            tost = max(scipy.stats.ttest_ind(a + MARGIN, b, equal_var=False, alternative="greater").pvalue,
+                       scipy.stats.ttest_ind(a - MARGIN, b, equal_var=False, alternative="less").pvalue)
+        else:
+            v = [w * w * x.var(ddof=1) / len(x) for w, x in xs]
+            se, dof = np.sqrt(sum(v)), sum(v) ** 2 / sum(vi * vi / (len(x) - 1) for vi, (_, x) in zip(v, xs))
+            e = sum(w * x.mean() for w, x in xs)
+            h = scipy.stats.t.ppf(0.975, dof) * se
+            lo, hi, p = e - h, e + h, 2 * scipy.stats.t.sf(abs(e) / se, dof)
+            tost = max(scipy.stats.t.sf((e + MARGIN) / se, dof), scipy.stats.t.cdf((e - MARGIN) / se, dof))
+        out[label] = {"estimate": e, "lo": lo, "hi": hi, "p": float(p), "tost_p": float(tost)}
+    for key in ("p", "tost_p"):
+        for r, adj in zip(out.values(), _holm([r[key] for r in out.values()])):
+            r[key + "_holm"] = adj
+    for r in out.values():
+        r["decision"] = (("ahead" if r["estimate"] > 0 else "behind") if r["p_holm"] <= ALPHA
+                         else "equivalent" if r["tost_p_holm"] <= ALPHA else "not detected")
+    return out
+
+
+def test_the_primary_familys_decisions_are_holm_over_welch_and_tost_of_the_rows():
+    """Once the family's 7 cells have ended, analysis.csv's every number and word for P1-P7 is what
+    scipy and Holm's procedure give from rows.csv; before, every decision reads "pending"."""
+    table = {r["contrast"]: r for r in _csv(RECORD / kit.ANALYSIS) if r["family"] == "primary"}
+    assert sorted(table) == [label for label, _ in PRIMARY]
+    cells = {name: _finished(cell) for name, cell in GRID.items()}
+    if any(cells[name] is None for _, weights in PRIMARY for name in weights):
+        assert {r["decision"] for r in table.values()} == {"pending"}
+        pytest.skip("the primary family's cells have not all ended in the record")
+    for label, want in _family(cells).items():
+        got = table[label]
+        assert got["decision"] == want["decision"], label
+        for key, value in want.items():
+            if key != "decision":
+                assert float(got[key]) == pytest.approx(value, rel=1e-9, abs=1e-12), (label, key)
 
 
 def test_the_noise_scale_tables_k0_is_each_runs_published_endpoint():
