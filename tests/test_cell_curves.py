@@ -120,8 +120,10 @@ def test_the_endpoint_figure_draws_every_run_and_each_cells_t_interval(tmp_path,
     from nmrl.analysis import contrast_figures
 
     w, n = [-40.0, -55.0, -47.5, -60.0], [10.0, float("nan"), 30.0, -5.0]
-    contrast_figures.endpoints({"control step 2.5 ms": {"white": w, "nmp": n}}, tmp_path / "e.png", "reward per s")
+    contrast_figures.endpoints({"control step 2.5 ms": {"white": w, "nmp": n}}, tmp_path / "e.png", "reward per s",
+                               colors={"nmp": "C5"})
     ax = saved_figures[0][1].axes[0]
+    assert [c.lines[0].get_color() for c in ax.containers] == ["tab:blue", "C5"]  # a cell's colour, else blue
     for (x, y, seg), v in zip(_bars(ax), (w, [10.0, 30.0, -5.0])):
         ci = stats.t.interval(0.95, len(v) - 1, loc=np.mean(v), scale=stats.sem(v))
         assert y == pytest.approx(np.mean(v))

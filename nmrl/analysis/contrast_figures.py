@@ -27,9 +27,10 @@ JITTER = 0.12
 
 
 def endpoints(panels: Mapping[str, Mapping[str, Sequence[float]]], path: str | os.PathLike, ylabel: str,
-              title: str = "") -> pathlib.Path:
+              title: str = "", colors: Mapping[str, str] | None = None) -> pathlib.Path:
     """One panel per key of ``panels`` (its title), one column per cell in it: each run's value
-    (finite ones; a cell's non-finite runs are counted in its label), its mean and 95% t interval."""
+    (finite ones; a cell's non-finite runs are counted in its label), its mean and 95% t interval,
+    drawn in the cell's colour from ``colors`` (default blue)."""
     plt = plots.plt
     n = max(1, len(panels))
     width = max([len(c) for c in panels.values()] or [1])
@@ -46,7 +47,8 @@ def endpoints(panels: Mapping[str, Mapping[str, Sequence[float]]], path: str | o
                 continue
             ax.plot(i + rng.uniform(-JITTER, JITTER, ok.size), ok, "o", ms=4, alpha=0.55, color="tab:gray")
             mean, half = mean_ci95(ok)
-            ax.errorbar([i + 0.3], [mean], yerr=[[half], [half]], fmt="s", ms=6, capsize=4, color="tab:blue")
+            ax.errorbar([i + 0.3], [mean], yerr=[[half], [half]], fmt="s", ms=6, capsize=4,
+                        color=(colors or {}).get(cell, "tab:blue"))
         ax.set_xticks(range(len(labels)), labels, fontsize=8)
         ax.set_xlim(-0.6, max(len(labels), 1) - 0.2)
         ax.set_title(name)

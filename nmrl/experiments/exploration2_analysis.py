@@ -236,7 +236,7 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
             "every ended grid run, with and without its noise", colors=ARM_COLORS)
     if by_dt:
         contrast_figures.endpoints(_panels(by_dt), dest / ENDPOINT_FIGURE, "deterministic reward per second",
-                                   "the grid's primary endpoint (every ended run)")
+                                   "the grid's primary endpoint (every ended run)", colors=ARM_COLORS)
     table = [r for r in analysis(rows) if r.get("estimate", "") != ""]
     if table:
         contrast_figures.contrasts(table, MARGIN, dest / CONTRAST_FIGURE,
