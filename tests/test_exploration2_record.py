@@ -294,7 +294,7 @@ def test_the_docs_contrasts_at_a_quarter_of_the_noise_are_welch_tests_of_the_tab
         assert claim in doc, claim
 
 
-def test_the_readmes_decided_contrast_is_a_welch_test_of_the_rows():
+def test_the_readmes_decided_contrasts_are_welch_tests_of_the_rows():
     xa, xb = _finished(GRID["W(2.5)"]), _finished(GRID["W(20)"])
     if xa is None or xb is None:
         pytest.skip("P1's cells have not finished in the record")
@@ -303,3 +303,9 @@ def test_the_readmes_decided_contrast_is_a_welch_test_of_the_rows():
     claim = f"{_n(e, plus=True)} reward per second [{_n(lo)}, {_n(hi)}] (Welch 95%, raw p {p:.5f} < α/7)"
     assert claim in readme, claim
     assert p < 0.05 / 7
+    xa, xb = _finished(GRID["NMs(2.5)"]), _finished(GRID["W(2.5)"])
+    if xa is not None and xb is not None:  # P5, decided since NMs(2.5) ended
+        e, lo, hi, p = _welch(xa, xb)
+        claim = f"{_n(e)} reward per second [{_n(lo)}, {_n(hi)}] (Welch 95%, raw p {_sci(p)} < α/7)"
+        assert claim in readme, claim
+        assert p < 0.05 / 7
