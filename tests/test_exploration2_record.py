@@ -178,9 +178,16 @@ def _holm(p: list[float]) -> list[float]:
     return out
 
 
+def _tost(a: np.ndarray, b: np.ndarray) -> float:
+    """TOST's p of |mean(a) - mean(b)| >= MARGIN: the larger of two one-sided scipy Welch tests of the
+    samples shifted by the margin."""
+    return float(max(scipy.stats.ttest_ind(a + MARGIN, b, equal_var=False, alternative="greater").pvalue,
+                     scipy.stats.ttest_ind(a - MARGIN, b, equal_var=False, alternative="less").pvalue))
+
+
 def _family(cells: dict[str, np.ndarray]) -> dict[str, dict]:
     """The primary family from the cells' endpoints, computed apart from nmrl: a two-cell contrast by
-    scipy's Welch test and its TOST as two scipy one-sided Welch tests of the shifted samples; P7's
+    scipy's Welch test and its TOST (:func:`_tost`); P7's
     interaction by hand (Welch-Satterthwaite); Holm over the 7 for both; the doc's words."""
     out = {}
     for label, weights in PRIMARY:
@@ -188,8 +195,7 @@ def _family(cells: dict[str, np.ndarray]) -> dict[str, dict]:
         if len(xs) == 2:
             (_, a), (_, b) = xs
             e, lo, hi, p = _welch(a, b)
-            tost = max(scipy.stats.ttest_ind(a + MARGIN, b, equal_var=False, alternative="greater").pvalue,
-                       scipy.stats.ttest_ind(a - MARGIN, b, equal_var=False, alternative="less").pvalue)
+            tost = _tost(a, b)
         else:
             v = [w * w * x.var(ddof=1) / len(x) for w, x in xs]
             se, dof = np.sqrt(sum(v)), sum(v) ** 2 / sum(vi * vi / (len(x) - 1) for vi, (_, x) in zip(v, xs))
@@ -226,16 +232,13 @@ def test_the_primary_familys_decisions_are_holm_over_welch_and_tost_of_the_rows(
 
 def test_the_docs_fixed_not_detected_decisions_are_welch_and_tost_ps_above_alpha():
     """The doc calls P2-P4's "not detected" fixed before P6 and P7 are known: their raw Welch p and
-    TOST p (both one-sided Welch tests of the samples shifted by the margin, scipy) are above α,
-    and Holm's adjustment never lowers a p."""
+    TOST p (:func:`_tost`) are above α, and Holm's adjustment never lowers a p."""
     claims = []
     for label, a, b in (("P2", "Ws(2.5)", "W(2.5)"), ("P3", "OU(2.5)", "W(2.5)"), ("P4", "CN(2.5)", "W(2.5)")):
         xa, xb = _finished(GRID[a]), _finished(GRID[b])
         if xa is None or xb is None:
             pytest.skip(f"{label}: a cell has not finished in the record")
-        p = scipy.stats.ttest_ind(xa, xb, equal_var=False).pvalue
-        tost = max(scipy.stats.ttest_ind(xa + MARGIN, xb, equal_var=False, alternative="greater").pvalue,
-                   scipy.stats.ttest_ind(xa - MARGIN, xb, equal_var=False, alternative="less").pvalue)
+        p, tost = _welch(xa, xb)[3], _tost(xa, xb)
         assert p > ALPHA and tost > ALPHA, label
         claims.append((p, tost))
     (p2, t2), (p3, t3), (p4, t4) = claims
