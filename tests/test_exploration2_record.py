@@ -110,6 +110,7 @@ CONTRAST_CLAIMS = (
     ("P3", "OU(2.5)", "W(2.5)", "{e} reward per s [{lo}, {hi}] (Welch 95%, raw p {p:.2f})"),
     ("P4", "CN(2.5)", "W(2.5)", "{e} reward per s [{lo}, {hi}] (Welch 95%, raw p {p:.2f})"),
     ("P5", "NMs(2.5)", "W(2.5)", "{e} reward per s [{lo}, {hi}] (Welch 95%, raw p {p_sci} < α/7)"),
+    ("P6", "NMp(2.5)", "W(2.5)", "{e} reward per s [{lo}, {hi}] (Welch 95%, raw p {p_sci})"),
     ("NMp(20) - W(20)", "NMp(20)", "W(20)", "{e} reward per s [{lo}, {hi}]"),
 )
 
@@ -124,10 +125,10 @@ def test_the_docs_contrasts_are_welch_tests_of_the_rows(label, a, b, words):
     assert claim in _doc(), claim
 
 
-#: the doc's secondary endpoints of P1-P5: the exploring reward over the last iteration, its mean over
+#: the doc's secondary endpoints of P1-P6: the exploring reward over the last iteration, its mean over
 #: the run, the deterministic forward speed (m/s), each "estimate [lo, hi]" with a sign
 SECONDARY_CLAIMS = (("P1", "W(2.5)", "W(20)"), ("P2", "Ws(2.5)", "W(2.5)"), ("P3", "OU(2.5)", "W(2.5)"),
-                    ("P4", "CN(2.5)", "W(2.5)"), ("P5", "NMs(2.5)", "W(2.5)"))
+                    ("P4", "CN(2.5)", "W(2.5)"), ("P5", "NMs(2.5)", "W(2.5)"), ("P6", "NMp(2.5)", "W(2.5)"))
 
 
 @pytest.mark.parametrize("label,a,b", SECONDARY_CLAIMS, ids=[c[0] for c in SECONDARY_CLAIMS])
@@ -185,6 +186,17 @@ def _tost(a: np.ndarray, b: np.ndarray) -> float:
                      scipy.stats.ttest_ind(a - MARGIN, b, equal_var=False, alternative="less").pvalue))
 
 
+def _interaction(xs: list[tuple[float, np.ndarray]]) -> tuple[float, float, float, float, float]:
+    """A contrast of 4 cells by hand: estimate, 95% interval, two-sided p and TOST p, with the
+    Welch-Satterthwaite degrees of freedom (the t test of a linear contrast of independent means)."""
+    v = [w * w * x.var(ddof=1) / len(x) for w, x in xs]
+    se, dof = np.sqrt(sum(v)), sum(v) ** 2 / sum(vi * vi / (len(x) - 1) for vi, (_, x) in zip(v, xs))
+    e = sum(w * x.mean() for w, x in xs)
+    h = scipy.stats.t.ppf(0.975, dof) * se
+    tost = max(scipy.stats.t.sf((e + MARGIN) / se, dof), scipy.stats.t.cdf((e - MARGIN) / se, dof))
+    return float(e), float(e - h), float(e + h), float(2 * scipy.stats.t.sf(abs(e) / se, dof)), float(tost)
+
+
 def _family(cells: dict[str, np.ndarray]) -> dict[str, dict]:
     """The primary family from the cells' endpoints, computed apart from nmrl: a two-cell contrast by
     scipy's Welch test and its TOST (:func:`_tost`); P7's
@@ -197,12 +209,7 @@ def _family(cells: dict[str, np.ndarray]) -> dict[str, dict]:
             e, lo, hi, p = _welch(a, b)
             tost = _tost(a, b)
         else:
-            v = [w * w * x.var(ddof=1) / len(x) for w, x in xs]
-            se, dof = np.sqrt(sum(v)), sum(v) ** 2 / sum(vi * vi / (len(x) - 1) for vi, (_, x) in zip(v, xs))
-            e = sum(w * x.mean() for w, x in xs)
-            h = scipy.stats.t.ppf(0.975, dof) * se
-            lo, hi, p = e - h, e + h, 2 * scipy.stats.t.sf(abs(e) / se, dof)
-            tost = max(scipy.stats.t.sf((e + MARGIN) / se, dof), scipy.stats.t.cdf((e - MARGIN) / se, dof))
+            e, lo, hi, p, tost = _interaction(xs)
         out[label] = {"estimate": e, "lo": lo, "hi": hi, "p": float(p), "tost_p": float(tost)}
     for key in ("p", "tost_p"):
         for r, adj in zip(out.values(), _holm([r[key] for r in out.values()])):
@@ -228,6 +235,121 @@ def test_the_primary_familys_decisions_are_holm_over_welch_and_tost_of_the_rows(
         for key, value in want.items():
             if key != "decision":
                 assert float(got[key]) == pytest.approx(value, rel=1e-9, abs=1e-12), (label, key)
+
+
+def _p(x: float) -> str:
+    """A p as the doc's table writes it: two significant digits, below 0.001 as :func:`_sci`."""
+    return _sci(x) if x < 1e-3 else f"{x:#.2g}"
+
+
+def test_the_docs_table_of_the_decided_family_is_holm_over_welch_and_tost_of_the_rows():
+    """The Results' table of P1-P7 (a row per contrast: estimate [95% interval], raw p, Holm p, TOST p
+    with its Holm p, the decision) is :func:`_family` of the rows, once the family's cells have ended."""
+    cells = {name: _finished(cell) for name, cell in GRID.items()}
+    if any(cells[name] is None for _, weights in PRIMARY for name in weights):
+        pytest.skip("the primary family's cells have not all ended in the record")
+    results = DOC.read_text().split("\n## Results\n", 1)[1].replace("**", "")
+    lines = {line.split("|")[1].strip(): line.strip() for line in results.splitlines() if line.startswith("| P")}
+    for label, r in _family(cells).items():
+        claim = (f"| {_n(r['estimate'], plus=True)} [{_n(r['lo'])}, {_n(r['hi'])}] | {_p(r['p'])} | "
+                 f"{_p(r['p_holm'])} | {_p(r['tost_p'])} ({_p(r['tost_p_holm'])}) | {r['decision']} |")
+        assert lines.get(label, "").endswith(claim), (label, claim)
+
+
+def _complete_family(key: str = "det_reward_per_s") -> dict[str, np.ndarray]:
+    cells = {name: _finished(cell, key) for name, cell in GRID.items()}
+    if any(cells[name] is None for _, weights in PRIMARY for name in weights):
+        pytest.skip("the primary family's cells have not all ended in the record")
+    return cells
+
+
+def test_the_docs_cells_of_the_decided_family_are_the_rows():
+    cells = _complete_family()
+    claim = ", ".join(f"{name} {_n(x.mean())} ({_n(x.std(ddof=1))})" for name, x in cells.items())
+    assert claim in _doc(), claim
+
+
+def test_the_docs_p7_secondary_endpoints_and_quarter_noise_are_interactions_of_the_rows():
+    """P7's secondary endpoints and its reward at k = 0.25, each an interaction computed by hand."""
+    _complete_family()
+    weights = dict(PRIMARY)["P7"]
+    parts = []
+    for key, unit in (("avg_reward_per_s", ""), ("auc_reward_per_s", ""), ("det_forward_speed", " m/s")):
+        e, lo, hi, _, _ = _interaction([(w, _finished(GRID[name], key)) for name, w in weights.items()])
+        parts.append(f"{_n(e, plus=e >= 0)}{unit} [{_n(lo)}, {_n(hi)}]")
+    claim = f"P7's: {parts[0]}, {parts[1]} and {parts[2]}"
+    assert claim in _doc(), claim
+    quarter = _at_noise(0.25)
+    e, lo, hi, _, _ = _interaction([(w, quarter[name]) for name, w in weights.items()])
+    claim = f"P7 {_n(e)} [{_n(lo)}, {_n(hi)}]"
+    assert claim in _doc(), claim
+
+
+def _at_noise(k: float) -> dict[str, np.ndarray]:
+    """Each grid cell's rewards per s with its noise times k (noise_scales.csv), in rows.csv's order."""
+    got = {(r["cell"], r["point"]): float(r["reward_per_s"]) for r in _csv(RECORD / "noise_scales.csv")
+           if float(r["noise_scale"]) == k}
+    points = [(r["cell"], r["point"]) for r in _csv(RECORD / kit.ROWS)]
+    return {name: np.array([got[c, p] for c, p in points if c == cell]) for name, cell in GRID.items()}
+
+
+def test_the_family_decided_on_the_noisy_reward_is_what_the_doc_says():
+    """Decided on the reward at k = 0.25 the family's decisions are the registered endpoint's; at
+    k = 0.5 and 1 only P2's differs, and reads "equivalent"."""
+    registered = {label: r["decision"] for label, r in _family(_complete_family()).items()}
+    for k in (0.25, 0.5, 1.0):
+        got = {label: r["decision"] for label, r in _family(_at_noise(k)).items()}
+        differ = {label: d for label, d in got.items() if d != registered[label]}
+        assert differ == ({} if k == 0.25 else {"P2": "equivalent"}), k
+    claim = ('its seven decisions would be the same (P1 +97.7, P5 −201.2, P6 −194.6, P7 −88.6 [−123.0, −54.2]); '
+             'at k = 0.5 and at k = 1, P2 would read "equivalent" and the other six the same.')
+    assert claim in _doc(), claim
+
+
+def test_the_docs_permutation_ps_are_exact_permutation_tests_of_the_rows():
+    """Each two-cell contrast's two-sided p of the difference of means over all C(16, 8) = 12,870
+    splits, counted here by enumerating the splits (scipy's permutation_test agrees)."""
+    import itertools
+
+    cells = _complete_family()
+    ps = {}
+    for label, weights in PRIMARY[:6]:
+        (a, _), (b, _) = weights.items()
+        pooled = np.concatenate([cells[a], cells[b]])
+        observed = abs(cells[a].mean() - cells[b].mean())
+        total, hits = pooled.sum(), 0
+        splits = list(itertools.combinations(range(16), 8))
+        for idx in splits:
+            s_a = pooled[list(idx)].sum()
+            hits += abs(s_a / 8 - (total - s_a) / 8) >= observed * (1 - 1e-12)
+        ps[label] = hits / len(splits)
+    def w(x):
+        return f"{x:.5f}" if x < 1e-3 else f"{x:.2f}"
+    claim = (f"two-sided p {w(ps['P1'])} (P1), {w(ps['P2'])} (P2), {w(ps['P3'])} (P3), {w(ps['P4'])} (P4), and "
+             f"{w(ps['P5'])} (P5 and P6, the smallest such a test can give)")
+    assert ps["P5"] == ps["P6"] == 2 / 12870
+    assert claim in _doc(), claim
+
+
+def test_the_docs_detectable_differences_are_noncentral_t_powers_at_the_cells_sds():
+    """The smallest whole difference 8 seeds detect with 80% power at alpha/7 for P2-P4, at the SD of
+    the contrast's two cells pooled (noncentral t with 14 degrees of freedom, by scipy)."""
+    cells = _complete_family()
+    sds, ds = [], []
+    for label, weights in PRIMARY[1:4]:
+        (a, _), (b, _) = weights.items()
+        sd = np.sqrt((cells[a].var(ddof=1) + cells[b].var(ddof=1)) / 2)
+        tc = scipy.stats.t.ppf(1 - ALPHA / 7 / 2, 14)
+
+        def power(d):
+            nc = d / (sd * np.sqrt(2 / 8))
+            return scipy.stats.nct.sf(tc, 14, nc) + scipy.stats.nct.cdf(-tc, 14, nc)
+
+        sds.append(sd)
+        ds.append(next(d for d in range(1, 1000) if power(d) >= 0.8))
+    claim = (f"(pooled {_n(sds[0])}, {_n(sds[1])} and {_n(sds[2])} for P2–P4), 8 seeds detect with 80% power "
+             f"at α/7 only differences of {ds[0]}, {ds[1]} and {ds[2]} reward per s")
+    assert claim in _doc(), claim
 
 
 def test_the_docs_fixed_not_detected_decisions_are_welch_and_tost_ps_above_alpha():
@@ -288,7 +410,7 @@ def test_the_docs_contrasts_at_a_quarter_of_the_noise_are_welch_tests_of_the_tab
                          if r["cell"] == cell and float(r["noise_scale"]) == 0.25])
 
     doc = _doc()
-    for label, a, b in SECONDARY_CLAIMS:  # P1-P5: the contrasts whose cells have finished
+    for label, a, b in SECONDARY_CLAIMS:  # P1-P6: the contrasts whose cells have finished
         xa, xb = at(GRID[a]), at(GRID[b])
         if len(xa) < 8 or len(xb) < 8:
             continue
