@@ -419,18 +419,18 @@ def test_the_docs_contrasts_at_a_quarter_of_the_noise_are_welch_tests_of_the_tab
         assert claim in doc, claim
 
 
-def test_the_readmes_decided_contrasts_are_welch_tests_of_the_rows():
-    xa, xb = _finished(GRID["W(2.5)"]), _finished(GRID["W(20)"])
-    if xa is None or xb is None:
-        pytest.skip("P1's cells have not finished in the record")
-    e, lo, hi, p = _welch(xa, xb)
-    readme = re.sub(r"\s+", " ", (REPO / "README.md").read_text())
-    claim = f"{_n(e, plus=True)} reward per second [{_n(lo)}, {_n(hi)}] (Welch 95%, raw p {p:.5f} < α/7)"
-    assert claim in readme, claim
-    assert p < 0.05 / 7
-    xa, xb = _finished(GRID["NMs(2.5)"]), _finished(GRID["W(2.5)"])
-    if xa is not None and xb is not None:  # P5, decided since NMs(2.5) ended
-        e, lo, hi, p = _welch(xa, xb)
-        claim = f"{_n(e)} reward per second [{_n(lo)}, {_n(hi)}] (Welch 95%, raw p {_sci(p)} < α/7)"
+def test_the_readmes_summary_is_the_decided_family():
+    """The README's summary: P1, P6 and P7 with their Welch intervals and Holm p as :func:`_family`
+    gives them, and the decisions it names in words are the family's."""
+    fam = _family(_complete_family())
+    readme = re.sub(r"\s+", " ", (REPO / "README.md").read_text().replace("**", ""))
+    for label, unit in (("P1", " reward per second"), ("P6", ""), ("P7", "")):
+        r = fam[label]
+        claim = (f"{_n(r['estimate'], plus=label == 'P1')}{unit} [{_n(r['lo'])}, {_n(r['hi'])}] "
+                 f"({'Welch 95%, ' if label == 'P1' else ''}Holm p {_p(r['p_holm'])})")
         assert claim in readme, claim
-        assert p < 0.05 / 7
+    decisions = {label: r["decision"] for label, r in fam.items()}
+    assert decisions == {"P1": "ahead", "P2": "not detected", "P3": "not detected", "P4": "not detected",
+                         "P5": "behind", "P6": "behind", "P7": "behind"}
+    assert "The paper's thesis does not hold for PPO on its robot." in readme
+    assert "scaled white, OU and colored against white: not detected" in readme
