@@ -434,3 +434,27 @@ def test_the_readmes_summary_is_the_decided_family():
                          "P5": "behind", "P6": "behind", "P7": "behind"}
     assert "The paper's thesis does not hold for PPO on its robot." in readme
     assert "scaled white, OU and colored against white: not detected" in readme
+
+
+def test_the_docs_gaits_are_the_published_gaits_and_their_trajectories():
+    """The gait sentence's arms, seeds and distances are gaits.json's; each 10-s trajectory
+    (trajectory.npz: every joint's position at every control step) moves every joint that far."""
+    path = RECORD / "gaits" / "gaits.json"
+    if not path.is_file():
+        pytest.skip("no gaits in the record")
+    import json
+
+    best, worst = json.loads(path.read_text())
+    for g in (best, worst):
+        z = np.load(RECORD / "gaits" / f"{g['rank']}_{g['arm']}" / "trajectory.npz")
+        assert z["pos"].shape[0] - 1 == round(10.0 / float(z["control_dt"]))  # the full 10 s
+        moved = z["pos"][-1, :, 0] - z["pos"][0, :, 0]
+        assert np.all(np.abs(moved - g["distance_m"]) < 0.35), g["arm"]
+    assert worst["gait"]["from_s"] == 1.0
+    assert worst["gait"]["hind_paw"]["ground_share"] == worst["gait"]["front_paw"]["ground_share"] == 1.0
+    claim = (f"white and its median run (seed {best['seed']}) runs {best['distance_m']:.1f} m in the 10 s from the "
+             f"initial pose ({best['forward_speed']:.2f} m/s")
+    assert best["arm"] == "white" and claim in _doc(), claim
+    claim = (f"the worst is NMp, whose median run (seed {worst['seed']}) stands where it starts "
+             f"({worst['distance_m']:.2f} m in 10 s, both paws on the ground from 1 s on")
+    assert worst["arm"] == "nmp" and claim in _doc(), claim
