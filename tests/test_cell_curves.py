@@ -84,6 +84,22 @@ def test_the_report_tabulates_every_cell_at_its_budget_and_draws_the_curves(tmp_
     assert np.allclose(t, [102.4, 204.8]) and np.allclose(y, [-50.0, -25.0])  # per second: r / 0.02 s
 
 
+def test_the_grids_learning_curves_are_panels_by_control_step_coarsest_first(tmp_path, saved_figures):
+    """Cells that ran finest step first are drawn 20, 5, 2.5 ms left to right, each panel's arms in
+    the study's arm order whatever order their rows come in."""
+    rows = []
+    for cell, dt in (("grid/dt0.0025/nmp", 0.0025), ("grid/dt0.0025/white", 0.0025), ("grid/dt0.02/white", 0.02),
+                     ("grid/dt0.005/white", 0.005)):
+        _point(tmp_path, cell, "s0", {"control_dt": dt}, [{"step": 100, "avg_reward": 0.1}])
+        rows.append({"cell": cell, "point": "s0", "field": "", "value": "", "steps": 100, "budget": 100,
+                     "diverged": False, "det_reward_per_s": 1.0})
+    exploration2_analysis.report(rows, tmp_path)
+    (fig,) = [f for p, f in saved_figures if p.name == exploration2_analysis.GRID_FIGURE]
+    axes = [ax for ax in fig.axes if ax.get_visible()]
+    assert [ax.get_title() for ax in axes] == ["control step 20 ms", "control step 5 ms", "control step 2.5 ms"]
+    assert [t.get_text() for t in axes[2].get_legend().get_texts()] == ["white (1)", "nmp (1)"]
+
+
 def _bars(ax):
     """Each errorbar of ``ax``: (its marker's x, y, the bar's two ends)."""
     out = []

@@ -191,7 +191,7 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
     groups: dict[tuple[str, str], list[float]] = {}
     n_diverged: dict[tuple[str, str], int] = {}
     screen: dict[str, dict[str, list]] = {}
-    grid: dict[str, dict[str, list]] = {}
+    grid: dict[float, dict[str, list]] = {}
     for r in rows:
         key = (r["cell"], f"{float(r['value']):g}" if r["cell"].startswith("screen/") else "")
         groups.setdefault(key, []).extend([float(r["det_reward_per_s"])] if ended(r) else [])
@@ -206,7 +206,7 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
                 _curve(point))
         elif r["cell"].startswith("grid/"):
             arm, dt = arm_and_dt(r["cell"])
-            grid.setdefault(f"control step {dt * 1000:g} ms", {}).setdefault(arm, []).append(_curve(point))
+            grid.setdefault(dt, {}).setdefault(arm, []).append(_curve(point))
     store.write_csv(dest / CHOICES_CSV, CHOICE_COLUMNS, choices(rows))
     store.write_csv(dest / CELLS_CSV, CELL_COLUMNS,
                    [{"cell": c, "value": v, **cell_curves.summary(x), "diverged": n_diverged[c, v]}
@@ -216,7 +216,7 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
     if screen:
         cell_curves.figure(screen, dest / SCREEN_FIGURE, "exploring reward per second", "the screen (seeds 100, 101)")
     if grid:
-        cell_curves.figure(grid, dest / GRID_FIGURE, "exploring reward per second", "the grid", colors=ARM_COLORS)
+        cell_curves.figure(_panels(grid), dest / GRID_FIGURE, "exploring reward per second", "the grid", colors=ARM_COLORS)
     by_dt: dict[float, dict[str, list[float]]] = {}
     for (c, _), x in groups.items():
         if c.startswith("grid/") and x:
