@@ -458,3 +458,11 @@ def test_the_docs_gaits_are_the_published_gaits_and_their_trajectories():
     claim = (f"the worst is NMp, whose median run (seed {worst['seed']}) stands where it starts "
              f"({worst['distance_m']:.2f} m in 10 s, both paws on the ground from 1 s on")
     assert worst["arm"] == "nmp" and claim in _doc(), claim
+
+
+def test_the_docs_quote_of_the_first_studys_samples_per_update_control_is_its_record():
+    answers = (REPO / "results" / "exploration" / "answers.md").read_text()
+    row = next(line for line in answers.splitlines() if line.startswith("| exploring, whole run |"))
+    quoted = row.split("|")[3].split("**")[0].strip()  # control − white at 5 ms
+    assert quoted == "-64.9 ± 20.9"
+    assert f"({quoted.replace('-', chr(0x2212))} per s)" in _doc()
