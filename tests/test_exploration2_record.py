@@ -121,6 +121,7 @@ CONTRAST_CLAIMS = (
     ("NMp(20) - W(20)", "NMp(20)", "W(20)", "{e} reward per s [{lo}, {hi}]"),
     ("S1", "W(5)", "W(20)", "{e_plus} reward per s [{lo}, {hi}] (Welch 95%, raw p {p:.5f})"),
     ("W(5) - W(2.5)", "W(5)", "W(2.5)", "no registered contrast: {e_plus} [{lo}, {hi}]"),
+    ("S2", "Ws(5)", "W(5)", "{e} reward per s [{lo}, {hi}] (Welch 95%, raw p {p:.2f})"),
 )
 
 
