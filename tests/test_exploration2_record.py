@@ -207,12 +207,12 @@ def _interaction(xs: list[tuple[float, np.ndarray]]) -> tuple[float, float, floa
     return float(e), float(e - h), float(e + h), float(2 * scipy.stats.t.sf(abs(e) / se, dof)), float(tost)
 
 
-def _family(cells: dict[str, np.ndarray]) -> dict[str, dict]:
-    """The primary family from the cells' endpoints, computed apart from nmrl: a two-cell contrast by
-    scipy's Welch test and its TOST (:func:`_tost`); P7's
-    interaction by hand (Welch-Satterthwaite); Holm over the 7 for both; the doc's words."""
+def _family(cells: dict[str, np.ndarray], spec: tuple = PRIMARY) -> dict[str, dict]:
+    """A family (default the primary) from the cells' endpoints, computed apart from nmrl: a two-cell
+    contrast by scipy's Welch test and its TOST (:func:`_tost`); an interaction of 4 cells by hand
+    (Welch-Satterthwaite); Holm over the family's 7 for both; the doc's words."""
     out = {}
-    for label, weights in PRIMARY:
+    for label, weights in spec:
         xs = [(w, cells[name]) for name, w in weights.items()]
         if len(xs) == 2:
             (_, a), (_, b) = xs

@@ -1,0 +1,99 @@
+"""The second exploration study's secondary family and checks in its published record.
+
+Once the secondary family's cells have all ended, ``analysis.csv``'s S1-S7 and the doc's table of
+them are what scipy, Holm's procedure and a contrast of 4 cells by hand give from the committed
+rows.csv (tests/test_exploration2_record.py's ``_family``); before, S1-S7 read "pending". The checks
+that decide nothing (W's sigma sensitivity at 2.5 ms, the asymptote at 5 ms) are scipy's Welch
+intervals of their cells, the asymptote's arm the best correlated 2.5 ms grid cell by rows.csv.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from nmrl.experiments import kit
+from tests.test_exploration2_record import (DOC, GRID, LATER, RECORD, _csv, _family, _finished, _n, _p,
+                                            _welch)
+
+pytestmark = pytest.mark.skipif(not (RECORD / kit.ROWS).is_file(), reason="no published record of study 2")
+
+#: the cells of the secondary family not in the primary grid (4 seeds each)
+LATER20 = {"OU(20)": "grid/dt0.02/ou", "CN(20)": "grid/dt0.02/colored", "NMs(20)": "grid/dt0.02/nms"}
+CELLS = {**GRID, **LATER, **LATER20}
+
+#: the secondary family as the doc's Progress ("Written before any grid cell ran") writes it
+SECONDARY = (("S1", {"W(5)": 1, "W(20)": -1}), ("S2", {"Ws(5)": 1, "W(5)": -1}), ("S3", {"NMp(5)": 1, "W(5)": -1}),
+             ("S4", {"NMp(5)": 1, "NMp(20)": -1, "W(5)": -1, "W(20)": 1}),
+             *((f"S{5 + i}", {f"{x}(2.5)": 1, f"{x}(20)": -1, "W(2.5)": -1, "W(20)": 1})
+               for i, x in enumerate(("OU", "CN", "NMs"))))
+
+
+def _cells() -> dict[str, np.ndarray] | None:
+    """The secondary family's cells' deterministic endpoints, or None while one has not ended."""
+    cells = {name: _finished(CELLS[name]) for _, weights in SECONDARY for name in weights}
+    return None if any(x is None for x in cells.values()) else cells
+
+
+def test_the_secondary_familys_decisions_are_holm_over_welch_and_tost_of_the_rows():
+    """analysis.csv's every number and word for S1-S7 is :func:`_family` of rows.csv once the family's
+    cells have ended; before, every decision reads "pending"."""
+    table = {r["contrast"]: r for r in _csv(RECORD / kit.ANALYSIS) if r["family"] == "secondary"}
+    assert sorted(table) == [label for label, _ in SECONDARY]
+    cells = _cells()
+    if cells is None:
+        assert {r["decision"] for r in table.values()} == {"pending"}
+        pytest.skip("the secondary family's cells have not all ended in the record")
+    for label, want in _family(cells, SECONDARY).items():
+        got = table[label]
+        assert got["decision"] == want["decision"], label
+        for key, value in want.items():
+            if key != "decision":
+                assert float(got[key]) == pytest.approx(value, rel=1e-9, abs=1e-12), (label, key)
+
+
+def test_the_docs_table_of_the_secondary_family_is_holm_over_welch_and_tost_of_the_rows():
+    """The Results' table of S1-S7 (as P1-P7's: estimate [95% interval], raw p, Holm p, TOST p with its
+    Holm p, the decision) is :func:`_family` of the rows, once the family's cells have ended."""
+    cells = _cells()
+    if cells is None:
+        pytest.skip("the secondary family's cells have not all ended in the record")
+    results = DOC.read_text().split("\n## Results\n", 1)[1].replace("**", "")
+    lines = {line.split("|")[1].strip(): line.strip() for line in results.splitlines() if line.startswith("| S")}
+    for label, r in _family(cells, SECONDARY).items():
+        claim = (f"| {_n(r['estimate'], plus=True)} [{_n(r['lo'])}, {_n(r['hi'])}] | {_p(r['p'])} | "
+                 f"{_p(r['p_holm'])} | {_p(r['tost_p'])} ({_p(r['tost_p_holm'])}) | {r['decision']} |")
+        assert lines.get(label, "").endswith(claim), (label, claim)
+
+
+def _rows_of(cell: str) -> list[dict]:
+    return [r for r in _csv(RECORD / kit.ROWS) if r["cell"] == cell]
+
+
+def test_the_checks_are_welch_intervals_of_their_ended_cells():
+    """analysis.csv's checks: a sensitivity row for each of W's neighbouring-sigma cells at 2.5 ms whose
+    4 runs have ended (that cell minus the grid's W(2.5)), and the asymptote (the best correlated arm
+    at 2.5 ms by rows.csv's means, minus white, both at 5 ms and 64 iterations), each scipy's Welch
+    interval of its cells once they have ended, "pending" before."""
+    checks = {r["contrast"]: r for r in _csv(RECORD / kit.ANALYSIS) if r["family"] == "check"}
+    cells = {r["cell"] for r in _csv(RECORD / kit.ROWS)}
+    want = {}
+    for cell in sorted(c for c in cells if c.startswith("sensitivity/dt0.0025/white_sigma")):
+        if _finished(cell) is not None:
+            want[cell.split("/")[-1]] = (cell, GRID["W(2.5)"])
+    means = {arm: _finished(GRID[name]).mean() for arm, name in
+             (("ou", "OU(2.5)"), ("colored", "CN(2.5)"), ("nms", "NMs(2.5)"), ("nmp", "NMp(2.5)"))}
+    best = max(means, key=means.get)
+    want["asymptote"] = (f"asymptote/dt0.005/{best}", "asymptote/dt0.005/white")
+    assert set(checks) == set(want)
+    for label, (a, b) in want.items():
+        row = checks[label]
+        assert row["cells"] == f"+1*{a} -1*{b}", label
+        xa, xb = _finished(a), _finished(b)
+        if xa is None or xb is None:
+            assert row["decision"] == "pending", label
+            continue
+        assert [len(_rows_of(a)), len(_rows_of(b))] == [4, 8 if b in GRID.values() else 4]
+        assert row["decision"] == "reported"
+        got = [float(row[k]) for k in ("estimate", "lo", "hi", "p")]
+        assert got == pytest.approx(_welch(xa, xb), rel=1e-9), label
