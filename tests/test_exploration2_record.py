@@ -122,6 +122,7 @@ CONTRAST_CLAIMS = (
     ("S1", "W(5)", "W(20)", "{e_plus} reward per s [{lo}, {hi}] (Welch 95%, raw p {p:.5f})"),
     ("W(5) - W(2.5)", "W(5)", "W(2.5)", "no registered contrast: {e_plus} [{lo}, {hi}]"),
     ("S2", "Ws(5)", "W(5)", "{e} reward per s [{lo}, {hi}] (Welch 95%, raw p {p:.2f})"),
+    ("S3", "NMp(5)", "W(5)", "{e} reward per s [{lo}, {hi}] (Welch 95%, raw p {p_sci})"),
 )
 
 

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from nmrl.experiments import kit
-from tests.test_exploration2_record import (DOC, GRID, LATER, RECORD, _csv, _family, _finished, _n, _p,
-                                            _welch)
+from tests.test_exploration2_record import (DOC, GRID, LATER, RECORD, _csv, _doc, _family, _finished,
+                                            _interaction, _n, _p, _welch)
 
 pytestmark = pytest.mark.skipif(not (RECORD / kit.ROWS).is_file(), reason="no published record of study 2")
 
@@ -97,3 +97,42 @@ def test_the_checks_are_welch_intervals_of_their_ended_cells():
         assert row["decision"] == "reported"
         got = [float(row[k]) for k in ("estimate", "lo", "hi", "p")]
         assert got == pytest.approx(_welch(xa, xb), rel=1e-9), label
+
+
+#: the doc's observed interactions of the secondary family, each "estimate [95% interval] (raw p ...)"
+INTERACTION_CLAIMS = ("S4",)
+
+
+@pytest.mark.parametrize("label", INTERACTION_CLAIMS)
+def test_the_docs_observed_interactions_are_contrasts_of_4_cells_by_hand(label):
+    weights = dict(SECONDARY)[label]
+    xs = [(w, _finished(CELLS[name])) for name, w in weights.items()]
+    if any(x is None for _, x in xs):
+        pytest.skip(f"{label}: a cell has not finished in the record")
+    e, lo, hi, p, _ = _interaction(xs)
+    a, b, c, d = weights
+    claim = f"{label}, [{a} − {b}] − [{c} − {d}]: {_n(e)} [{_n(lo)}, {_n(hi)}] (raw p {_p(p)})"
+    assert claim in _doc(), claim
+
+
+#: the Progress bullets of the later cells, by their title, with the speeds they give
+BULLETS = (("W at 5 ms", "W(5)"), ("Ws at 5 ms", "Ws(5)"), ("NMp at 5 ms", "NMp(5)"))
+
+
+@pytest.mark.parametrize("title,name", BULLETS, ids=[b[1] for b in BULLETS])
+def test_the_docs_speeds_of_a_later_cell_are_its_runs(title, name):
+    """A later cell's Progress bullet gives the range over its runs of the deterministic policy's
+    forward speed and of the exploring policy's over the last iteration (rows.csv), and where it
+    names one, of the speed with a quarter of the noise (noise_scales.csv at k = 0.25)."""
+    if _finished(CELLS[name]) is None:
+        pytest.skip(f"{name} has not finished in the record")
+    bullet = _doc().split(f"* {title} finished", 1)[1].split(" * ", 1)[0]
+    for key in ("det_forward_speed", "forward_speed"):
+        x = _finished(CELLS[name], key)
+        claim = f"{x.min():.2f}–{x.max():.2f} m/s"
+        assert claim in bullet, (key, claim)
+    if "with a quarter of their noise" in bullet:
+        x = [float(r["forward_speed"]) for r in _csv(RECORD / "noise_scales.csv")
+             if r["cell"] == CELLS[name] and float(r["noise_scale"]) == 0.25]
+        claim = f"with a quarter of their noise at {min(x):.2f}–{max(x):.2f} m/s"
+        assert len(x) == 4 and claim in bullet, claim
