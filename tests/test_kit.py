@@ -287,3 +287,27 @@ def test_each_measurement_runs_after_every_cell_on_the_rows_so_far(tmp_path, mon
     calls.clear()
     kit.run(study, tmp_path, only=())  # no cell to run: the measurements run once on the rows as they are
     assert calls == [("m1", ("a", "b")), ("m2", ("a", "b"))]
+
+
+def test_a_cell_the_rule_adds_runs_where_the_rule_puts_it(tmp_path, monkeypatch):
+    """A rule lists x (once a's rows exist, and only while x has none, as an extension drops out while
+    its runs go on) before c (from the start): the study runs a, x, c, not in the order it first knew
+    them (a, c, x), and x keeps its place once the rule stops listing it."""
+    import pathlib
+    import sys
+
+    monkeypatch.setattr(kit, "_nmrl", lambda: [sys.executable, "-c", _POINT_SWEEP])
+    ran: list[str] = []
+    sweep = kit._sweep
+    monkeypatch.setattr(kit, "_sweep", lambda argv: ran.append(pathlib.Path(argv[argv.index("--out") + 1]).name)
+                        or sweep(argv))
+
+    def later(rows):
+        have = {r["cell"] for r in rows}
+        return [*([kit.Cell("x", ("--steps", "10"))] if "a" in have and "x" not in have else []),
+                kit.Cell("c", ("--steps", "10"))]
+
+    study = kit.Study(name="t", cells=(kit.Cell("a", ("--steps", "10")),), endpoint=None, later=later)
+    kit.run(study, tmp_path)
+    assert ran == ["a", "x", "c"]
+    assert [c.name for c in kit.all_cells(study, tmp_path)] == ["a", "x", "c"]

@@ -139,14 +139,23 @@ class Study:
 
 
 def all_cells(study: Study, out: pathlib.Path) -> list[Cell]:
-    """``study.cells`` and every later cell its rule makes from the rows so far."""
+    """``study.cells`` and every later cell its rule makes from the rows so far, in the rule's order: a
+    cell the rule adds once other cells' rows exist (a screen's extension) goes right after the cell
+    the rule lists before it, so it comes before the cells the rule lists after it, whenever those
+    became known; a cell the rule stops listing (an extension while its runs go on) keeps its place."""
     cells = list(study.cells)
     while study.later is not None:
         names = {c.name for c in cells}
-        new = [c for c in study.later(rows(study, out, cells)) if c.name not in names]
-        if not new:
+        later = study.later(rows(study, out, cells))
+        if all(c.name in names for c in later):
             break
-        cells += new
+        for i, c in enumerate(later):
+            if c.name in names:
+                continue
+            before = next((p.name for p in reversed(later[:i]) if p.name in names), None)
+            at = len(study.cells) if before is None else [x.name for x in cells].index(before) + 1
+            cells.insert(at, c)
+            names.add(c.name)
     return cells
 
 
@@ -316,9 +325,11 @@ def write_rows(study: Study, out: pathlib.Path) -> list[dict]:
 def run(study: Study, out: str | os.PathLike, *, published: str | os.PathLike | None = None,
         only: Sequence[str] | None = None) -> list[dict]:
     """Every cell (or, ``only`` given, those whose name starts with one of ``only``: none for ``()``)
-    to its budget and scored, the measurements in order after each (each does nothing while a cell
-    it needs is unfinished and continues what it left, so a finished cell's measurement is in the
-    next publish; with no cell to run, they run once on the rows as they are); the rows."""
+    to its budget and scored, one at a time in :func:`all_cells`'s order as it stands after the cell
+    before (so a cell the rule adds runs where the rule puts it), the measurements in order after
+    each (each does nothing while a cell it needs is unfinished and continues what it left, so a
+    finished cell's measurement is in the next publish; with no cell to run, they run once on the
+    rows as they are); the rows."""
     out = pathlib.Path(out)
     pub = pathlib.Path(published) if published is not None else None
     done: set[str] = set()
@@ -330,12 +341,12 @@ def run(study: Study, out: str | os.PathLike, *, published: str | os.PathLike | 
             if not done:
                 _measure(study, out, r)
             return r
-        for cell in todo:
-            run_cell(study, cell, out, pub)
-            for p in point_dirs(out / cell.name) if study.endpoint is not None else ():
-                score_point(study, p)
-            _measure(study, out, write_rows(study, out))
-            done.add(cell.name)
+        cell = todo[0]
+        run_cell(study, cell, out, pub)
+        for p in point_dirs(out / cell.name) if study.endpoint is not None else ():
+            score_point(study, p)
+        _measure(study, out, write_rows(study, out))
+        done.add(cell.name)
 
 
 def _measure(study: Study, out: pathlib.Path, r: list[dict]) -> None:
