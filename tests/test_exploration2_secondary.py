@@ -136,3 +136,20 @@ def test_the_docs_speeds_of_a_later_cell_are_its_runs(title, name):
              if r["cell"] == CELLS[name] and float(r["noise_scale"]) == 0.25]
         claim = f"with a quarter of their noise at {min(x):.2f}–{max(x):.2f} m/s"
         assert len(x) == 4 and claim in bullet, claim
+
+
+def test_the_docs_means_of_the_20_ms_sigma_screens_are_the_rows():
+    """The screens of OU, CN and NMs at 20 ms: each sigma's mean deterministic reward per second over
+    the screen's two seeds (rows.csv), in the doc's order of sigma and arms."""
+    rows = _csv(RECORD / kit.ROWS)
+    parts = []
+    for arm, name in (("ou", "OU"), ("colored", "CN"), ("nms", "NMs")):
+        by: dict[float, list[float]] = {}
+        for r in rows:
+            if r["cell"] == f"screen/sigma/dt0.02/{arm}":
+                by.setdefault(float(r["value"]), []).append(float(r["det_reward_per_s"]))
+        if sorted(by) != [0.064, 0.16, 0.4, 1.0] or any(len(x) != 2 for x in by.values()):
+            pytest.skip(f"the 20 ms sigma screen of {name} has not ended in the record")
+        parts.append(", ".join(_n(np.mean(by[v])) for v in sorted(by)) + f"{' per s' if arm == 'ou' else ''} ({name})")
+    claim = f"means {parts[0]}, {parts[1]} and {parts[2]} for σ = 0.064, 0.16, 0.4, 1.0"
+    assert claim in _doc(), claim
