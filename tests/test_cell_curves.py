@@ -100,6 +100,35 @@ def test_the_grids_learning_curves_are_panels_by_control_step_coarsest_first(tmp
     assert [t.get_text() for t in axes[2].get_legend().get_texts()] == ["white (1)", "nmp (1)"]
 
 
+def test_the_asymptotes_curves_and_ws_sigma_sensitivity_are_drawn_from_their_runs(tmp_path, saved_figures):
+    """The asymptote's runs are drawn as curves, one line per arm (white first), against simulated
+    seconds; W's sigma sensitivity as every ended run of W at 2.5 ms by sigma (read from the points'
+    configs), smallest first, the grid's cell marked, each cell's mean at its marker; a run still
+    going is left out."""
+    rows = []
+    for cell, sigma, dets in (("asymptote/dt0.005/colored", 0.4, (1.0, 2.0)),
+                              ("asymptote/dt0.005/white", 1.0, (3.0, 5.0)),
+                              ("sensitivity/dt0.0025/white_sigma2.5", 2.5, (50.0, 70.0, 0.0)),
+                              ("grid/dt0.0025/white", 1.0, (100.0, 120.0)),
+                              ("sensitivity/dt0.0025/white_sigma0.4", 0.4, (10.0, 30.0))):
+        dt = 0.005 if cell.startswith("asymptote/") else 0.0025
+        for seed, det in enumerate(dets):
+            _point(tmp_path, cell, f"s{seed}", {"control_dt": dt, "sigma": sigma},
+                   [{"step": 100, "avg_reward": 0.1}, {"step": 200, "avg_reward": 0.2 + seed}])
+            going = seed == 2
+            rows.append({"cell": cell, "point": f"s{seed}", "field": "", "value": "", "steps": 100 if going else 200,
+                         "budget": 200, "diverged": False, "det_reward_per_s": det})
+    exploration2_analysis.report(rows, tmp_path)
+    figs = {p.name: f for p, f in saved_figures}
+    (ax,) = [a for a in figs[exploration2_analysis.ASYMPTOTE_FIGURE].axes if a.get_visible()]
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["white (2)", "colored (2)"]
+    assert ax.get_xlabel() == "simulated seconds per environment"
+    (ax,) = figs[exploration2_analysis.SENSITIVITY_FIGURE].axes
+    labels = [t.get_text() for t in ax.get_xticklabels()]
+    assert labels == ["σ = 0.4\n(n=2)", "σ = 1 (grid)\n(n=2)", "σ = 2.5\n(n=2)"]
+    assert [y for _, y, _ in _bars(ax)] == [20.0, 110.0, 60.0]
+
+
 def _bars(ax):
     """Each errorbar of ``ax``: (its marker's x, y, the bar's two ends)."""
     out = []

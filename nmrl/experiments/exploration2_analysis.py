@@ -158,6 +158,7 @@ def analysis(rows: list[dict]) -> list[dict]:
 CELLS_CSV, CHOICES_CSV, SECONDARY_CSV, ARMS_CSV = "cells.csv", "choices.csv", "secondary_endpoints.csv", "arms.csv"
 SCREEN_FIGURE, GRID_FIGURE = "screen_curves.png", "learning_curves.png"
 ENDPOINT_FIGURE, CONTRAST_FIGURE, SPEED_FIGURE = "endpoints.png", "contrasts.png", "speeds.png"
+ASYMPTOTE_FIGURE, SENSITIVITY_FIGURE = "asymptote_curves.png", "sensitivity.png"
 SUMMARY_COLUMNS = ("n", "mean", "sd", "ci_lo", "ci_hi", "iqm", "iqm_lo", "iqm_hi")  #: cell_curves.summary's
 CELL_COLUMNS = ("cell", "value", *SUMMARY_COLUMNS, "diverged")
 
@@ -177,8 +178,11 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
     with the count of its diverged runs), ``secondary_endpoints.csv`` (:func:`secondary_endpoints`),
     ``arms.csv`` (:func:`arm_iqms`),
     the screen's learning curves (one panel per screened arm and control step, one line per value,
-    extensions included) and, once grid cells exist, the grid's (one panel per control step, one
-    line per arm), from the published points' metrics; with them the grid's endpoints
+    extensions included), once grid cells exist, the grid's (one panel per control step, one line
+    per arm) and, once its runs exist, the asymptote's (``asymptote_curves.png``: white and the best
+    correlated arm at 5 ms over 4x the budget), from the published points' metrics; W's sigma
+    sensitivity at 2.5 ms once a neighbouring sigma's run has ended (``sensitivity.png``: every
+    ended run of W at 2.5 ms by its sigma, the grid's cell among them); with them the grid's endpoints
     (``endpoints.png``: every ended run, each cell's mean and 95% t
     interval, one panel per control step), every ended grid run's forward speed with its
     exploration noise (the last iteration) against its deterministic policy's (``speeds.png``) and,
@@ -192,6 +196,7 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
     n_diverged: dict[tuple[str, str], int] = {}
     screen: dict[str, dict[str, list]] = {}
     grid: dict[float, dict[str, list]] = {}
+    asymptote: dict[str, list] = {}
     for r in rows:
         key = (r["cell"], f"{float(r['value']):g}" if r["cell"].startswith("screen/") else "")
         groups.setdefault(key, []).extend([float(r["det_reward_per_s"])] if ended(r) else [])
@@ -207,6 +212,8 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
         elif r["cell"].startswith("grid/"):
             arm, dt = arm_and_dt(r["cell"])
             grid.setdefault(dt, {}).setdefault(arm, []).append(_curve(point))
+        elif r["cell"].startswith("asymptote/"):
+            asymptote.setdefault(arm_and_dt(r["cell"])[0], []).append(_curve(point))
     store.write_csv(dest / CHOICES_CSV, CHOICE_COLUMNS, choices(rows))
     store.write_csv(dest / CELLS_CSV, CELL_COLUMNS,
                    [{"cell": c, "value": v, **cell_curves.summary(x), "diverged": n_diverged[c, v]}
@@ -217,6 +224,12 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
         cell_curves.figure(screen, dest / SCREEN_FIGURE, "exploring reward per second", "the screen (seeds 100, 101)")
     if grid:
         cell_curves.figure(_panels(grid), dest / GRID_FIGURE, "exploring reward per second", "the grid", colors=ARM_COLORS)
+    if asymptote:
+        cell_curves.figure({"control step 5 ms, 4x the grid's budget": {a: asymptote[a] for a in
+                                                                        sorted(asymptote, key=_arm_rank)}},
+                           dest / ASYMPTOTE_FIGURE, "exploring reward per second", "the asymptote (seeds 0-3)",
+                           colors=ARM_COLORS)
+    _sensitivity_figure(groups, dest)
     by_dt: dict[float, dict[str, list[float]]] = {}
     for (c, _), x in groups.items():
         if c.startswith("grid/") and x:
@@ -248,6 +261,28 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
         noise_figure(dest)
         store.write_csv(dest / NOISE_CONTRASTS_CSV, NOISE_CONTRAST_COLUMNS,
                         noise_contrasts(rows, store.read_csv(dest / NOISE_CSV)))
+
+
+def _sensitivity_figure(groups: dict[tuple[str, str], list[float]], dest: pathlib.Path) -> None:
+    """``sensitivity.png``: W at 2.5 ms, every ended run's deterministic endpoint by its sigma (each
+    cell's sigma from its first published point's config), the grid's cell marked; drawn once a
+    sensitivity cell has an ended run."""
+    from nmrl.analysis import contrast_figures
+
+    grid = grid_name("white", 0.0025)
+    cells = [c for (c, _), x in groups.items() if x and (c.startswith("sensitivity/") or c == grid)]
+    if not any(c.startswith("sensitivity/") for c in cells):
+        return
+
+    def sigma(cell: str) -> float | None:
+        for f in sorted((dest / cell / "points").glob("*/config.json")):
+            return float(json.loads(f.read_text())["sigma"])
+        return None
+
+    by = sorted((s, c) for c in cells if (s := sigma(c)) is not None)
+    contrast_figures.endpoints(
+        {"W at 2.5 ms": {f"σ = {s:g}" + (" (grid)" if c == grid else ""): groups[c, ""] for s, c in by}},
+        dest / SENSITIVITY_FIGURE, "deterministic reward per second", "W's σ sensitivity (every ended run)")
 
 
 def _panels(by_dt: dict[float, dict[str, list]]) -> dict[str, dict[str, list]]:
