@@ -116,7 +116,18 @@ def test_the_docs_observed_interactions_are_contrasts_of_4_cells_by_hand(label):
 
 
 #: the Progress bullets of the later cells, by their title, with the speeds they give
-BULLETS = (("W at 5 ms", "W(5)"), ("Ws at 5 ms", "Ws(5)"), ("NMp at 5 ms", "NMp(5)"))
+BULLETS = (("W at 5 ms", "W(5)"), ("Ws at 5 ms", "Ws(5)"), ("NMp at 5 ms", "NMp(5)"), ("OU at 20 ms", "OU(20)"),
+           ("CN at 20 ms", "CN(20)"), ("NMs at 20 ms", "NMs(20)"))
+
+
+@pytest.mark.parametrize("name", LATER20)
+def test_the_docs_20_ms_cells_means_sds_and_ranges_are_the_rows(name):
+    x = _finished(CELLS[name])
+    if x is None:
+        pytest.skip(f"{name} has not finished in the record")
+    claim = (f"deterministic endpoint mean {_n(x.mean())} reward per s, SD {_n(x.std(ddof=1))} "
+             f"({_n(x.min())} to {_n(x.max())})")
+    assert claim in _doc(), claim
 
 
 @pytest.mark.parametrize("title,name", BULLETS, ids=[b[1] for b in BULLETS])
