@@ -100,7 +100,7 @@ def test_the_checks_are_welch_intervals_of_their_ended_cells():
 
 
 #: the doc's observed interactions of the secondary family, each "estimate [95% interval] (raw p ...)"
-INTERACTION_CLAIMS = ("S4",)
+INTERACTION_CLAIMS = ("S4", "S5")
 
 
 @pytest.mark.parametrize("label", INTERACTION_CLAIMS)
@@ -111,7 +111,7 @@ def test_the_docs_observed_interactions_are_contrasts_of_4_cells_by_hand(label):
         pytest.skip(f"{label}: a cell has not finished in the record")
     e, lo, hi, p, _ = _interaction(xs)
     a, b, c, d = weights
-    claim = f"{label}, [{a} − {b}] − [{c} − {d}]: {_n(e)} [{_n(lo)}, {_n(hi)}] (raw p {_p(p)})"
+    claim = f"{label}, [{a} − {b}] − [{c} − {d}]: {_n(e, plus=True)} [{_n(lo)}, {_n(hi)}] (raw p {_p(p)})"
     assert claim in _doc(), claim
 
 
@@ -163,4 +163,34 @@ def test_the_docs_means_of_the_20_ms_sigma_screens_are_the_rows():
             pytest.skip(f"the 20 ms sigma screen of {name} has not ended in the record")
         parts.append(", ".join(_n(np.mean(by[v])) for v in sorted(by)) + f"{' per s' if arm == 'ou' else ''} ({name})")
     claim = f"means {parts[0]}, {parts[1]} and {parts[2]} for σ = 0.064, 0.16, 0.4, 1.0"
+    assert claim in _doc(), claim
+
+
+#: the doc's two-cell contrasts with a 20 ms cell of the secondary family: (label, minuend, subtrahend)
+TWO_CELL_CLAIMS = (("OU(20) − W(20)", "OU(20)", "W(20)"),)
+
+
+@pytest.mark.parametrize("label,a,b", TWO_CELL_CLAIMS, ids=[c[0] for c in TWO_CELL_CLAIMS])
+def test_the_docs_20_ms_contrasts_are_welch_tests_of_the_rows(label, a, b):
+    xa, xb = _finished(CELLS[a]), _finished(CELLS[b])
+    if xa is None or xb is None:
+        pytest.skip(f"{label}: a cell has not finished in the record")
+    e, lo, hi, p = _welch(xa, xb)
+    claim = f"{label}: {_n(e)} reward per s [{_n(lo)}, {_n(hi)}] (Welch 95%, raw p {_p(p)}"
+    assert claim in _doc(), claim
+
+
+@pytest.mark.parametrize("name", LATER20)
+def test_the_docs_noise_scale_means_of_the_20_ms_cells_are_the_table(name):
+    """The mean reward per second of the cell's policies with their noise times k = 0, 0.25, 0.5, 1
+    (noise_scales.csv, all 4 runs at each k)."""
+    if _finished(CELLS[name]) is None:
+        pytest.skip(f"{name} has not finished in the record")
+    got = [r for r in _csv(RECORD / "noise_scales.csv") if r["cell"] == CELLS[name]]
+    means = []
+    for k in (0.0, 0.25, 0.5, 1.0):
+        x = [float(r["reward_per_s"]) for r in got if float(r["noise_scale"]) == k]
+        assert len(x) == 4, (name, k)
+        means.append(np.mean(x))
+    claim = f"at k = 0 / 0.25 / 0.5 / 1: {' / '.join(_n(m) for m in means)}"
     assert claim in _doc(), claim
