@@ -100,7 +100,7 @@ def test_the_checks_are_welch_intervals_of_their_ended_cells():
 
 
 #: the doc's observed interactions of the secondary family, each "estimate [95% interval] (raw p ...)"
-INTERACTION_CLAIMS = ("S4", "S5")
+INTERACTION_CLAIMS = ("S4", "S5", "S6")
 
 
 @pytest.mark.parametrize("label", INTERACTION_CLAIMS)
@@ -167,7 +167,7 @@ def test_the_docs_means_of_the_20_ms_sigma_screens_are_the_rows():
 
 
 #: the doc's two-cell contrasts with a 20 ms cell of the secondary family: (label, minuend, subtrahend)
-TWO_CELL_CLAIMS = (("OU(20) − W(20)", "OU(20)", "W(20)"),)
+TWO_CELL_CLAIMS = (("OU(20) − W(20)", "OU(20)", "W(20)"), ("CN(20) − W(20)", "CN(20)", "W(20)"))
 
 
 @pytest.mark.parametrize("label,a,b", TWO_CELL_CLAIMS, ids=[c[0] for c in TWO_CELL_CLAIMS])
