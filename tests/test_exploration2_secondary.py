@@ -167,7 +167,8 @@ def test_the_docs_means_of_the_20_ms_sigma_screens_are_the_rows():
 
 
 #: the doc's two-cell contrasts with a 20 ms cell of the secondary family: (label, minuend, subtrahend)
-TWO_CELL_CLAIMS = (("OU(20) − W(20)", "OU(20)", "W(20)"), ("CN(20) − W(20)", "CN(20)", "W(20)"))
+TWO_CELL_CLAIMS = (("OU(20) − W(20)", "OU(20)", "W(20)"), ("CN(20) − W(20)", "CN(20)", "W(20)"),
+                   ("NMs(20) − W(20)", "NMs(20)", "W(20)"))
 
 
 @pytest.mark.parametrize("label,a,b", TWO_CELL_CLAIMS, ids=[c[0] for c in TWO_CELL_CLAIMS])
@@ -194,3 +195,14 @@ def test_the_docs_noise_scale_means_of_the_20_ms_cells_are_the_table(name):
         means.append(np.mean(x))
     claim = f"at k = 0 / 0.25 / 0.5 / 1: {' / '.join(_n(m) for m in means)}"
     assert claim in _doc(), claim
+
+
+def test_the_docs_new_cells_of_the_decided_secondary_family_are_the_rows():
+    """The Results' line of the secondary family's six 4-seed cells: each mean and SD from rows.csv."""
+    cells = _cells()
+    if cells is None:
+        pytest.skip("the secondary family's cells have not all ended in the record")
+    new = ("W(5)", "Ws(5)", "NMp(5)", "OU(20)", "CN(20)", "NMs(20)")
+    claim = ", ".join(f"{name} {_n(cells[name].mean())} ({_n(cells[name].std(ddof=1))})" for name in new)
+    assert all(len(cells[name]) == 4 for name in new)
+    assert f"mean and SD over 4 runs): {claim}." in _doc(), claim
