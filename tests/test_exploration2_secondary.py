@@ -206,3 +206,16 @@ def test_the_docs_new_cells_of_the_decided_secondary_family_are_the_rows():
     claim = ", ".join(f"{name} {_n(cells[name].mean())} ({_n(cells[name].std(ddof=1))})" for name in new)
     assert all(len(cells[name]) == 4 for name in new)
     assert f"mean and SD over 4 runs): {claim}." in _doc(), claim
+
+
+def test_the_readmes_word_on_5_ms_is_the_decided_secondary_family():
+    """The README says the answer is the same at 5 ms: white ahead of its 20 ms cell (S1, as P1), NMp
+    behind white and losing more than white from 20 ms (S3, S4, as P6, P7), eq. (1)'s scaled white
+    not detected against white (S2, as P2)."""
+    cells = _cells()
+    if cells is None:
+        pytest.skip("the secondary family's cells have not all ended in the record")
+    got = {label: r["decision"] for label, r in _family(cells, SECONDARY).items()}
+    assert [got[s] for s in ("S1", "S2", "S3", "S4")] == ["ahead", "not detected", "behind", "behind"]
+    readme = " ".join((DOC.parents[1] / "README.md").read_text().split())
+    assert "With the noise on, and at 5 ms (the secondary family), the answer is the same." in readme
