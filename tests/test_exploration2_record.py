@@ -96,7 +96,8 @@ GRID = {"W(20)": "grid/dt0.02/white", "NMp(20)": "grid/dt0.02/nmp", "W(2.5)": "g
 
 
 #: the later grid cells (4 seeds each) the doc gives numbers for once they have finished
-LATER = {"W(5)": "grid/dt0.005/white", "Ws(5)": "grid/dt0.005/ws", "NMp(5)": "grid/dt0.005/nmp"}
+LATER = {"W(5)": "grid/dt0.005/white", "Ws(5)": "grid/dt0.005/ws", "NMp(5)": "grid/dt0.005/nmp",
+         "OU(20)": "grid/dt0.02/ou", "CN(20)": "grid/dt0.02/colored", "NMs(20)": "grid/dt0.02/nms"}
 CELLS = {**GRID, **LATER}
 
 
