@@ -124,6 +124,8 @@ CONTRAST_CLAIMS = (
     ("W(5) - W(2.5)", "W(5)", "W(2.5)", "no registered contrast: {e_plus} [{lo}, {hi}]"),
     ("S2", "Ws(5)", "W(5)", "{e} reward per s [{lo}, {hi}] (Welch 95%, raw p {p:.2f})"),
     ("S3", "NMp(5)", "W(5)", "{e} reward per s [{lo}, {hi}] (Welch 95%, raw p {p_sci})"),
+    *((f"{x}(20) - W(20)", f"{x}(20)", "W(20)", "{e} reward per s [{lo}, {hi}] (Welch 95%, raw p {p_2}; no registered")
+      for x in ("OU", "CN", "NMs")),
 )
 
 
@@ -133,7 +135,7 @@ def test_the_docs_contrasts_are_welch_tests_of_the_rows(label, a, b, words):
     if xa is None or xb is None:
         pytest.skip(f"{label}: a cell has not finished in the record")
     e, lo, hi, p = _welch(xa, xb)
-    claim = words.format(e=_n(e), e_plus=_n(e, plus=True), lo=_n(lo), hi=_n(hi), p=p, p_sci=_sci(p))
+    claim = words.format(e=_n(e), e_plus=_n(e, plus=True), lo=_n(lo), hi=_n(hi), p=p, p_sci=_sci(p), p_2=_p(p))
     assert claim in _doc(), claim
 
 
@@ -241,7 +243,12 @@ def test_the_primary_familys_decisions_are_holm_over_welch_and_tost_of_the_rows(
     if any(cells[name] is None for _, weights in PRIMARY for name in weights):
         assert {r["decision"] for r in table.values()} == {"pending"}
         pytest.skip("the primary family's cells have not all ended in the record")
-    for label, want in _family(cells).items():
+    _assert_table_is(table, _family(cells))
+
+
+def _assert_table_is(table: dict[str, dict], family: dict[str, dict]) -> None:
+    """analysis.csv's rows of a family (by contrast) hold :func:`_family`'s every number and word."""
+    for label, want in family.items():
         got = table[label]
         assert got["decision"] == want["decision"], label
         for key, value in want.items():
@@ -257,10 +264,15 @@ def _p(x: float) -> str:
 def test_the_docs_table_of_the_decided_family_is_holm_over_welch_and_tost_of_the_rows():
     """The Results' table of P1-P7 (a row per contrast: estimate [95% interval], raw p, Holm p, TOST p
     with its Holm p, the decision) is :func:`_family` of the rows, once the family's cells have ended."""
-    cells = _complete_family()
+    _assert_docs_table_is(_family(_complete_family()))
+
+
+def _assert_docs_table_is(family: dict[str, dict]) -> None:
+    """The Results' table row of each contrast of ``family`` ends with its estimate [95% interval],
+    raw p, Holm p, TOST p (its Holm p) and decision as :func:`_family` gives them."""
     results = DOC.read_text().split("\n## Results\n", 1)[1].replace("**", "")
-    lines = {line.split("|")[1].strip(): line.strip() for line in results.splitlines() if line.startswith("| P")}
-    for label, r in _family(cells).items():
+    lines = {line.split("|")[1].strip(): line.strip() for line in results.splitlines() if line.startswith("| ")}
+    for label, r in family.items():
         claim = (f"| {_n(r['estimate'], plus=True)} [{_n(r['lo'])}, {_n(r['hi'])}] | {_p(r['p'])} | "
                  f"{_p(r['p_holm'])} | {_p(r['tost_p'])} ({_p(r['tost_p_holm'])}) | {r['decision']} |")
         assert lines.get(label, "").endswith(claim), (label, claim)

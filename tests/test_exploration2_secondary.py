@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from nmrl.experiments import kit
-from tests.test_exploration2_record import (DOC, GRID, LATER, RECORD, _csv, _doc, _family, _finished,
-                                            _interaction, _n, _p, _welch)
+from tests.test_exploration2_record import (DOC, GRID, LATER, RECORD, _assert_docs_table_is, _assert_table_is, _csv,
+                                            _doc, _family, _finished, _interaction, _n, _p, _welch)
 
 pytestmark = pytest.mark.skipif(not (RECORD / kit.ROWS).is_file(), reason="no published record of study 2")
 
@@ -44,12 +44,7 @@ def test_the_secondary_familys_decisions_are_holm_over_welch_and_tost_of_the_row
     if cells is None:
         assert {r["decision"] for r in table.values()} == {"pending"}
         pytest.skip("the secondary family's cells have not all ended in the record")
-    for label, want in _family(cells, SECONDARY).items():
-        got = table[label]
-        assert got["decision"] == want["decision"], label
-        for key, value in want.items():
-            if key != "decision":
-                assert float(got[key]) == pytest.approx(value, rel=1e-9, abs=1e-12), (label, key)
+    _assert_table_is(table, _family(cells, SECONDARY))
 
 
 def test_the_docs_table_of_the_secondary_family_is_holm_over_welch_and_tost_of_the_rows():
@@ -58,12 +53,7 @@ def test_the_docs_table_of_the_secondary_family_is_holm_over_welch_and_tost_of_t
     cells = _cells()
     if cells is None:
         pytest.skip("the secondary family's cells have not all ended in the record")
-    results = DOC.read_text().split("\n## Results\n", 1)[1].replace("**", "")
-    lines = {line.split("|")[1].strip(): line.strip() for line in results.splitlines() if line.startswith("| S")}
-    for label, r in _family(cells, SECONDARY).items():
-        claim = (f"| {_n(r['estimate'], plus=True)} [{_n(r['lo'])}, {_n(r['hi'])}] | {_p(r['p'])} | "
-                 f"{_p(r['p_holm'])} | {_p(r['tost_p'])} ({_p(r['tost_p_holm'])}) | {r['decision']} |")
-        assert lines.get(label, "").endswith(claim), (label, claim)
+    _assert_docs_table_is(_family(cells, SECONDARY))
 
 
 def _rows_of(cell: str) -> list[dict]:
@@ -153,21 +143,6 @@ def test_the_docs_means_of_the_20_ms_sigma_screens_are_the_rows():
             pytest.skip(f"the 20 ms sigma screen of {name} has not ended in the record")
         parts.append(", ".join(_n(np.mean(by[v])) for v in sorted(by)) + f"{' per s' if arm == 'ou' else ''} ({name})")
     claim = f"means {parts[0]}, {parts[1]} and {parts[2]} for σ = 0.064, 0.16, 0.4, 1.0"
-    assert claim in _doc(), claim
-
-
-#: the doc's two-cell contrasts with a 20 ms cell of the secondary family: (label, minuend, subtrahend)
-TWO_CELL_CLAIMS = (("OU(20) − W(20)", "OU(20)", "W(20)"), ("CN(20) − W(20)", "CN(20)", "W(20)"),
-                   ("NMs(20) − W(20)", "NMs(20)", "W(20)"))
-
-
-@pytest.mark.parametrize("label,a,b", TWO_CELL_CLAIMS, ids=[c[0] for c in TWO_CELL_CLAIMS])
-def test_the_docs_20_ms_contrasts_are_welch_tests_of_the_rows(label, a, b):
-    xa, xb = _finished(CELLS[a]), _finished(CELLS[b])
-    if xa is None or xb is None:
-        pytest.skip(f"{label}: a cell has not finished in the record")
-    e, lo, hi, p = _welch(xa, xb)
-    claim = f"{label}: {_n(e)} reward per s [{_n(lo)}, {_n(hi)}] (Welch 95%, raw p {_p(p)}"
     assert claim in _doc(), claim
 
 
