@@ -129,7 +129,7 @@ CONTRAST_CLAIMS = (
     *((f"{x}(20) - W(20)", f"{x}(20)", "W(20)", "{e} reward per s [{lo}, {hi}] (Welch 95%, raw p {p_2}; no registered")
       for x in ("OU", "CN", "NMs")),
     *((f"W(2.5) σ {x} - W(2.5)", f"W(2.5) σ {x}", "W(2.5)",
-       "this cell minus the grid's W(2.5), {e} reward per s [{lo}, {hi}] (Welch 95%, raw p {p_2})") for x in ("0.4", "2.5")),
+       "this cell minus the grid's W(2.5), {e_plus} reward per s [{lo}, {hi}] (Welch 95%, raw p {p_2})") for x in ("0.4", "2.5")),
 )
 
 

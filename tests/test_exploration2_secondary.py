@@ -89,6 +89,48 @@ def test_the_checks_are_welch_intervals_of_their_ended_cells():
         assert got == pytest.approx(_welch(xa, xb), rel=1e-9), label
 
 
+SENSITIVITY = ("0.4", "2.5")
+
+
+def _sensitivity() -> dict[str, np.ndarray] | None:
+    """W's sigma sensitivity cells' deterministic endpoints by sigma, or None while one has not ended."""
+    cells = {x: _finished(LATER[f"W(2.5) σ {x}"]) for x in SENSITIVITY}
+    return None if any(x is None for x in cells.values()) else cells
+
+
+def test_the_docs_table_of_the_comparators_sigma_is_welch_of_the_rows():
+    """The Results' table of W's sigma sensitivity: per sigma its cell's mean (SD), and the cell minus
+    the grid's W(2.5) with scipy's Welch 95% interval and raw p, once both cells have ended."""
+    cells = _sensitivity()
+    if cells is None:
+        pytest.skip("W's sigma sensitivity has not ended in the record")
+    w = _finished(GRID["W(2.5)"])
+    doc = _doc()
+    assert f"| 1 (the grid's W(2.5), 8 seeds) | {_n(w.mean())} ({_n(w.std(ddof=1))}) | | |" in doc
+    for sigma, x in cells.items():
+        e, lo, hi, p = _welch(x, w)
+        row = (f"| {sigma} | {_n(x.mean())} ({_n(x.std(ddof=1))}) | {_n(e, plus=True)} [{_n(lo)}, {_n(hi)}] "
+               f"| {_p(p)} |")
+        assert row in doc, row
+
+
+def test_the_verdict_on_the_comparator_is_the_registered_rule():
+    """The registered rule: if a neighbouring sigma's cell beats the grid's W(2.5) by more than 50
+    reward per s (its estimate), P2-P6 are conditional on an untuned comparator. The Results and the
+    README say what the rule gives from the rows, and nothing else."""
+    cells = _sensitivity()
+    if cells is None:
+        pytest.skip("W's sigma sensitivity has not ended in the record")
+    w = _finished(GRID["W(2.5)"]).mean()
+    beaten = any(x.mean() - w > 50 for x in cells.values())
+    results = _doc().split("### The comparator's σ, checked", 1)[1].split("### Progress", 1)[0]
+    said = {v: f"by the registered rule P2–P6 are {v}conditional on an untuned comparator." in results
+            for v in ("", "not ")}
+    assert said == {"": beaten, "not ": not beaten}
+    readme = " ".join((DOC.parents[1] / "README.md").read_text().split())
+    assert ("white's σ one screen step either side does not beat the comparator." in readme) == (not beaten)
+
+
 #: the doc's observed interactions of the secondary family, each "estimate [95% interval] (raw p ...)"
 INTERACTION_CLAIMS = ("S4", "S5", "S6")
 
@@ -184,4 +226,4 @@ def test_the_readmes_word_on_5_ms_is_the_decided_secondary_family():
     got = {label: r["decision"] for label, r in _family(cells, SECONDARY).items()}
     assert [got[s] for s in ("S1", "S2", "S3", "S4")] == ["ahead", "not detected", "behind", "behind"]
     readme = " ".join((DOC.parents[1] / "README.md").read_text().split())
-    assert "With the noise on, and at 5 ms (the secondary family), the answer is the same." in readme
+    assert "With the noise on, and at 5 ms (the secondary family), the answer is the same;" in readme
