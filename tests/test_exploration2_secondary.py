@@ -9,6 +9,9 @@ intervals of their cells, the asymptote's arm the best correlated 2.5 ms grid ce
 
 from __future__ import annotations
 
+import json
+import pathlib
+
 import numpy as np
 import pytest
 
@@ -129,6 +132,32 @@ def test_the_verdict_on_the_comparator_is_the_registered_rule():
     assert said == {"": beaten, "not ": not beaten}
     readme = " ".join((DOC.parents[1] / "README.md").read_text().split())
     assert ("white's σ one screen step either side does not beat the comparator." in readme) == (not beaten)
+
+
+def _metrics(point: pathlib.Path) -> list[dict]:
+    return [json.loads(line) for line in (point / "metrics.jsonl").read_text().splitlines()]
+
+
+def test_the_asymptotes_white_runs_repeat_the_grids_w5_within_its_budget():
+    """The asymptote's white cell is W(5) with 4x the budget (its runs' configs differ in the budget
+    alone), and nothing in PPO depends on the budget: each run's first 16 iterations log what W(5)'s
+    run of the same seed logged, every metric to the bit (their wall times aside), as the doc's
+    Progress says. Both cells ran on one machine; skipped until the record holds 16 iterations."""
+    cell = RECORD / "asymptote" / "dt0.005" / "white" / "points"
+    grid = RECORD / LATER["W(5)"] / "points"
+    if not cell.is_dir() or any(len(_metrics(p)) < 16 for p in cell.iterdir()):
+        pytest.skip("the asymptote's white runs have not logged 16 iterations in the record")
+    assert sorted(p.name for p in cell.iterdir()) == sorted(p.name for p in grid.iterdir())
+    for point in cell.iterdir():
+        a, g = (json.loads((d / "config.json").read_text()) for d in (point, grid / point.name))
+        assert {k for k in a.keys() | g.keys() if a.get(k) != g.get(k)} == {"steps"}
+        assert a["steps"] == 4 * g["steps"]
+        ma, mg = _metrics(point)[:16], _metrics(grid / point.name)
+        assert len(mg) == 16
+        clock = {"wall_s", "steps_per_s"}
+        assert [{k: v for k, v in m.items() if k not in clock} for m in ma] == \
+            [{k: v for k, v in m.items() if k not in clock} for m in mg], point.name
+    assert "its first 16 iterations log what W(5)'s runs logged, to the bit" in _doc()
 
 
 #: the doc's observed interactions of the secondary family, each "estimate [95% interval] (raw p ...)"
