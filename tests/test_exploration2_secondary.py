@@ -4,7 +4,9 @@ Once the secondary family's cells have all ended, ``analysis.csv``'s S1-S7 and t
 them are what scipy, Holm's procedure and a contrast of 4 cells by hand give from the committed
 rows.csv (tests/test_exploration2_record.py's ``_family``); before, S1-S7 read "pending". The checks
 that decide nothing (W's sigma sensitivity at 2.5 ms, the asymptote at 5 ms) are scipy's Welch
-intervals of their cells, the asymptote's arm the best correlated 2.5 ms grid cell by rows.csv.
+intervals of their cells, the asymptote's arm the best correlated 2.5 ms grid cell by rows.csv; the
+doc's verdict on the comparator is the registered rule applied to the rows, and the asymptote's white
+runs repeat W(5)'s within its budget.
 """
 
 from __future__ import annotations
