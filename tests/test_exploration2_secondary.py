@@ -94,6 +94,11 @@ def test_the_checks_are_welch_intervals_of_their_ended_cells():
         assert got == pytest.approx(_welch(xa, xb), rel=1e-9), label
 
 
+def _readme() -> str:
+    """The README with its whitespace runs made single spaces."""
+    return " ".join((DOC.parents[1] / "README.md").read_text().split())
+
+
 SENSITIVITY = ("0.4", "2.5")
 
 
@@ -132,8 +137,7 @@ def test_the_verdict_on_the_comparator_is_the_registered_rule():
     said = {v: f"by the registered rule P2–P6 are {v}conditional on an untuned comparator." in results
             for v in ("", "not ")}
     assert said == {"": beaten, "not ": not beaten}
-    readme = " ".join((DOC.parents[1] / "README.md").read_text().split())
-    assert ("white's σ one screen step either side does not beat the comparator." in readme) == (not beaten)
+    assert ("white's σ one screen step either side does not beat the comparator." in _readme()) == (not beaten)
 
 
 def _metrics(point: pathlib.Path) -> list[dict]:
@@ -147,18 +151,19 @@ def test_the_asymptotes_white_runs_repeat_the_grids_w5_within_its_budget():
     Progress says. Both cells ran on one machine; skipped until the record holds 16 iterations."""
     cell = RECORD / "asymptote" / "dt0.005" / "white" / "points"
     grid = RECORD / LATER["W(5)"] / "points"
-    if not cell.is_dir() or any(len(_metrics(p)) < 16 for p in cell.iterdir()):
+    logs = {p.name: _metrics(p) for p in cell.iterdir()} if cell.is_dir() else {}
+    if not logs or any(len(m) < 16 for m in logs.values()):
         pytest.skip("the asymptote's white runs have not logged 16 iterations in the record")
-    assert sorted(p.name for p in cell.iterdir()) == sorted(p.name for p in grid.iterdir())
-    for point in cell.iterdir():
-        a, g = (json.loads((d / "config.json").read_text()) for d in (point, grid / point.name))
+    assert sorted(logs) == sorted(p.name for p in grid.iterdir())
+    for name, log in logs.items():
+        a, g = (json.loads((d / name / "config.json").read_text()) for d in (cell, grid))
         assert {k for k in a.keys() | g.keys() if a.get(k) != g.get(k)} == {"steps"}
         assert a["steps"] == 4 * g["steps"]
-        ma, mg = _metrics(point)[:16], _metrics(grid / point.name)
+        ma, mg = log[:16], _metrics(grid / name)
         assert len(mg) == 16
         clock = {"wall_s", "steps_per_s"}
         assert [{k: v for k, v in m.items() if k not in clock} for m in ma] == \
-            [{k: v for k, v in m.items() if k not in clock} for m in mg], point.name
+            [{k: v for k, v in m.items() if k not in clock} for m in mg], name
     assert "its first 16 iterations log what W(5)'s runs logged, to the bit" in _doc()
 
 
@@ -256,5 +261,4 @@ def test_the_readmes_word_on_5_ms_is_the_decided_secondary_family():
         pytest.skip("the secondary family's cells have not all ended in the record")
     got = {label: r["decision"] for label, r in _family(cells, SECONDARY).items()}
     assert [got[s] for s in ("S1", "S2", "S3", "S4")] == ["ahead", "not detected", "behind", "behind"]
-    readme = " ".join((DOC.parents[1] / "README.md").read_text().split())
-    assert "With the noise on, and at 5 ms (the secondary family), the answer is the same;" in readme
+    assert "With the noise on, and at 5 ms (the secondary family), the answer is the same;" in _readme()
