@@ -289,6 +289,49 @@ def test_each_measurement_runs_after_every_cell_on_the_rows_so_far(tmp_path, mon
     assert calls == [("m1", ("a", "b")), ("m2", ("a", "b"))]
 
 
+def test_a_study_resumed_from_its_published_copy_continues_its_measurements(tmp_path, monkeypatch):
+    """A measurement that continues its own file (one line per cell it measured, as the study's
+    measurements keep their rows) measures on a fresh machine only what the published copy lacks:
+    its file (and a folder measurement's) is seeded from the copy, never over one already there."""
+    import sys
+
+    monkeypatch.setattr(kit, "_nmrl", lambda: [sys.executable, "-c", _POINT_SWEEP])
+    measured: list[str] = []
+
+    def log(out, rows):
+        f = out / "log.txt"
+        have = f.read_text().split() if f.exists() else []
+        for c in dict.fromkeys(r["cell"] for r in rows):
+            if c not in have:
+                measured.append(c)
+                have.append(c)
+        f.write_text("\n".join(have))
+
+    def folder(out, rows):
+        (out / "pics").mkdir(exist_ok=True)
+        if not (out / "pics" / "made.txt").exists():
+            measured.append("pics")
+            (out / "pics" / "made.txt").write_text("x")
+
+    cells = (kit.Cell("a", ("--steps", "10")), kit.Cell("b", ("--steps", "10")))
+    study = kit.Study(name="t", cells=cells[:1], endpoint=None,
+                      measurements=(kit.Measurement("log.txt", log), kit.Measurement("pics", folder)))
+    kit.run(study, tmp_path / "first")
+    assert measured == ["a", "pics"]
+    kit.publish(study, tmp_path / "first", tmp_path / "pub")
+    measured.clear()
+    longer = dataclasses.replace(study, cells=cells)
+    kit.run(longer, tmp_path / "fresh", published=tmp_path / "pub")
+    assert measured == ["b"]  # a and the folder came with the copy
+    assert (tmp_path / "fresh" / "log.txt").read_text().split() == ["a", "b"]
+    (tmp_path / "own").mkdir()
+    (tmp_path / "own" / "log.txt").write_text("z")  # a file already there is the run's own: kept
+    measured.clear()
+    kit.run(longer, tmp_path / "own", published=tmp_path / "pub")
+    assert measured == ["a", "b"]
+    assert (tmp_path / "own" / "log.txt").read_text().split() == ["z", "a", "b"]
+
+
 def test_a_cell_the_rule_adds_runs_where_the_rule_puts_it(tmp_path, monkeypatch):
     """A rule lists x (once a's rows exist, and only while x has none, as an extension drops out while
     its runs go on) before c (from the start): the study runs a, x, c, not in the order it first knew

@@ -11,6 +11,7 @@ budget and scores it:
   one missing but present in ``published`` (a committed copy made by :func:`publish`) is first
   seeded from there (sweep.json, every point's config.json, metrics.jsonl and compact.npz: the
   compact continuation states, every environment starting a new trial); any other starts fresh;
+  a measurement's file missing but published is seeded the same way (:func:`seed_measurements`);
 * each sweep runs as its own ``nmrl sweep`` process (niced by the caller), so that its devices,
   memory and signals are its own; a signal stops the study after the sweep saves, with its status;
 * every point at its budget gets ``endpoint.json``: the deterministic policy's reward per second
@@ -332,6 +333,8 @@ def run(study: Study, out: str | os.PathLike, *, published: str | os.PathLike | 
     rows as they are); the rows."""
     out = pathlib.Path(out)
     pub = pathlib.Path(published) if published is not None else None
+    if pub is not None:
+        seed_measurements(study, out, pub)
     done: set[str] = set()
     while True:
         todo = [c for c in all_cells(study, out) if c.name not in done
@@ -347,6 +350,21 @@ def run(study: Study, out: str | os.PathLike, *, published: str | os.PathLike | 
             score_point(study, p)
         _measure(study, out, write_rows(study, out))
         done.add(cell.name)
+
+
+def seed_measurements(study: Study, out: pathlib.Path, published: pathlib.Path) -> None:
+    """Copy each measurement's file (or folder) missing in ``out`` from ``published``, as a cell is
+    seeded: a measurement continues what it left there, so a study resumed on another machine does
+    not measure again what was published (a measurement stopped half-way goes on where it was)."""
+    for m in study.measurements:
+        src, dst = published / m.file, out / m.file
+        if dst.exists() or not src.exists():
+            continue
+        out.mkdir(parents=True, exist_ok=True)
+        if src.is_dir():
+            shutil.copytree(src, dst)
+        else:
+            shutil.copy2(src, dst)
 
 
 def _measure(study: Study, out: pathlib.Path, r: list[dict]) -> None:
