@@ -95,11 +95,12 @@ GRID = {"W(20)": "grid/dt0.02/white", "NMp(20)": "grid/dt0.02/nmp", "W(2.5)": "g
         "NMs(2.5)": "grid/dt0.0025/nms", "NMp(2.5)": "grid/dt0.0025/nmp"}
 
 
-#: the later cells (4 seeds each: the 5 and 20 ms grid cells, W's σ sensitivity) the doc gives numbers for once
-#: they have finished
+#: the later cells (4 seeds each: the 5 and 20 ms grid cells, W's σ sensitivity, the asymptote) the doc gives
+#: numbers for once they have finished
 LATER = {"W(5)": "grid/dt0.005/white", "Ws(5)": "grid/dt0.005/ws", "NMp(5)": "grid/dt0.005/nmp",
          "OU(20)": "grid/dt0.02/ou", "CN(20)": "grid/dt0.02/colored", "NMs(20)": "grid/dt0.02/nms",
-         "W(2.5) σ 0.4": "sensitivity/dt0.0025/white_sigma0.4", "W(2.5) σ 2.5": "sensitivity/dt0.0025/white_sigma2.5"}
+         "W(2.5) σ 0.4": "sensitivity/dt0.0025/white_sigma0.4", "W(2.5) σ 2.5": "sensitivity/dt0.0025/white_sigma2.5",
+         "W(5) 64 it": "asymptote/dt0.005/white", "CN(5) 64 it": "asymptote/dt0.005/colored"}
 CELLS = {**GRID, **LATER}
 
 

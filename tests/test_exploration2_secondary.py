@@ -5,14 +5,11 @@ them are what scipy, Holm's procedure and a contrast of 4 cells by hand give fro
 rows.csv (tests/test_exploration2_record.py's ``_family``); before, S1-S7 read "pending". The checks
 that decide nothing (W's sigma sensitivity at 2.5 ms, the asymptote at 5 ms) are scipy's Welch
 intervals of their cells, the asymptote's arm the best correlated 2.5 ms grid cell by rows.csv; the
-doc's verdict on the comparator is the registered rule applied to the rows, and the asymptote's white
-runs repeat W(5)'s within its budget.
+doc's verdict on the comparator is the registered rule applied to the rows (the asymptote's own
+checks: tests/test_exploration2_asymptote.py).
 """
 
 from __future__ import annotations
-
-import json
-import pathlib
 
 import numpy as np
 import pytest
@@ -140,33 +137,6 @@ def test_the_verdict_on_the_comparator_is_the_registered_rule():
     assert ("white's σ one screen step either side does not beat the comparator." in _readme()) == (not beaten)
 
 
-def _metrics(point: pathlib.Path) -> list[dict]:
-    return [json.loads(line) for line in (point / "metrics.jsonl").read_text().splitlines()]
-
-
-def test_the_asymptotes_white_runs_repeat_the_grids_w5_within_its_budget():
-    """The asymptote's white cell is W(5) with 4x the budget (its runs' configs differ in the budget
-    alone), and nothing in PPO depends on the budget: each run's first 16 iterations log what W(5)'s
-    run of the same seed logged, every metric to the bit (their wall times aside), as the doc's
-    Progress says. Both cells ran on one machine; skipped until the record holds 16 iterations."""
-    cell = RECORD / "asymptote" / "dt0.005" / "white" / "points"
-    grid = RECORD / LATER["W(5)"] / "points"
-    logs = {p.name: _metrics(p) for p in cell.iterdir()} if cell.is_dir() else {}
-    if not logs or any(len(m) < 16 for m in logs.values()):
-        pytest.skip("the asymptote's white runs have not logged 16 iterations in the record")
-    assert sorted(logs) == sorted(p.name for p in grid.iterdir())
-    for name, log in logs.items():
-        a, g = (json.loads((d / name / "config.json").read_text()) for d in (cell, grid))
-        assert {k for k in a.keys() | g.keys() if a.get(k) != g.get(k)} == {"steps"}
-        assert a["steps"] == 4 * g["steps"]
-        ma, mg = log[:16], _metrics(grid / name)
-        assert len(mg) == 16
-        clock = {"wall_s", "steps_per_s"}
-        assert [{k: v for k, v in m.items() if k not in clock} for m in ma] == \
-            [{k: v for k, v in m.items() if k not in clock} for m in mg], name
-    assert "its first 16 iterations log what W(5)'s runs logged, to the bit" in _doc()
-
-
 #: the doc's observed interactions of the secondary family, each "estimate [95% interval] (raw p ...)"
 INTERACTION_CLAIMS = ("S4", "S5", "S6")
 
@@ -186,7 +156,7 @@ def test_the_docs_observed_interactions_are_contrasts_of_4_cells_by_hand(label):
 #: the Progress bullets of the later cells, by their title, with the speeds they give
 BULLETS = (("W at 5 ms", "W(5)"), ("Ws at 5 ms", "Ws(5)"), ("NMp at 5 ms", "NMp(5)"), ("OU at 20 ms", "OU(20)"),
            ("CN at 20 ms", "CN(20)"), ("NMs at 20 ms", "NMs(20)"), ("W at 2.5 ms with σ = 0.4", "W(2.5) σ 0.4"),
-           ("W at 2.5 ms with σ = 2.5", "W(2.5) σ 2.5"))
+           ("W at 2.5 ms with σ = 2.5", "W(2.5) σ 2.5"), ("W at 5 ms with 4× the budget", "W(5) 64 it"))
 
 
 @pytest.mark.parametrize("title,name", BULLETS, ids=[b[1] for b in BULLETS])

@@ -1,0 +1,85 @@
+"""The second exploration study's asymptote (white and CN at 5 ms, 4x the grid's budget) in its published record.
+
+The white cell is W(5) with 4x the budget: its runs repeat W(5)'s within W(5)'s budget, every metric
+to the bit, so W(5)'s endpoints are the same runs' endpoints after 16 iterations, and the doc's gain
+from 16 to 64 iterations is scipy's paired t interval of the two rows.csv columns by seed; the doc's
+learning-curve means and slopes are NumPy's from the runs' metrics.jsonl (the exploring reward per
+second, avg_reward / 0.02 s as rows.csv's).
+"""
+
+from __future__ import annotations
+
+import json
+import pathlib
+
+import numpy as np
+import pytest
+import scipy.stats
+
+from nmrl.experiments import kit
+from tests.test_exploration2_record import LATER, RECORD, _csv, _doc, _finished, _n
+
+pytestmark = pytest.mark.skipif(not (RECORD / kit.ROWS).is_file(), reason="no published record of study 2")
+
+WHITE = RECORD / "asymptote" / "dt0.005" / "white" / "points"
+
+
+def _metrics(point: pathlib.Path) -> list[dict]:
+    return [json.loads(line) for line in (point / "metrics.jsonl").read_text().splitlines()]
+
+
+def test_the_asymptotes_white_runs_repeat_the_grids_w5_within_its_budget():
+    """The asymptote's white cell is W(5) with 4x the budget (its runs' configs differ in the budget
+    alone), and nothing in PPO depends on the budget: each run's first 16 iterations log what W(5)'s
+    run of the same seed logged, every metric to the bit (their wall times aside), as the doc's
+    Progress says. Both cells ran on one machine; skipped until the record holds 16 iterations."""
+    grid = RECORD / LATER["W(5)"] / "points"
+    logs = {p.name: _metrics(p) for p in WHITE.iterdir()} if WHITE.is_dir() else {}
+    if not logs or any(len(m) < 16 for m in logs.values()):
+        pytest.skip("the asymptote's white runs have not logged 16 iterations in the record")
+    assert sorted(logs) == sorted(p.name for p in grid.iterdir())
+    for name, log in logs.items():
+        a, g = (json.loads((d / name / "config.json").read_text()) for d in (WHITE, grid))
+        assert {k for k in a.keys() | g.keys() if a.get(k) != g.get(k)} == {"steps"}
+        assert a["steps"] == 4 * g["steps"]
+        ma, mg = log[:16], _metrics(grid / name)
+        assert len(mg) == 16
+        clock = {"wall_s", "steps_per_s"}
+        assert [{k: v for k, v in m.items() if k not in clock} for m in ma] == \
+            [{k: v for k, v in m.items() if k not in clock} for m in mg], name
+    assert "its first 16 iterations log what W(5)'s runs logged, to the bit" in _doc()
+
+
+def _by_seed(cell: str) -> dict[int, float]:
+    return {int(r["seed"]): float(r["det_reward_per_s"]) for r in _csv(RECORD / kit.ROWS) if r["cell"] == cell}
+
+
+def test_the_docs_gain_from_16_to_64_iterations_is_a_paired_t_interval_of_the_rows():
+    """Each white run's endpoint after 64 iterations minus its W(5) run's (the same run after 16):
+    the doc's mean, 95% t interval over the seeds and range of the per-seed gains."""
+    if _finished(LATER["W(5) 64 it"]) is None:
+        pytest.skip("the asymptote's white cell has not finished in the record")
+    late, early = _by_seed(LATER["W(5) 64 it"]), _by_seed(LATER["W(5)"])
+    assert sorted(late) == sorted(early) == [0, 1, 2, 3]
+    a, b = (np.array([d[s] for s in sorted(late)]) for d in (late, early))
+    ci = scipy.stats.ttest_rel(a, b).confidence_interval(0.95)
+    d = a - b
+    claim = (f"{_n(d.mean(), plus=True)} reward per s [{_n(ci.low)}, {_n(ci.high)}] (95% t over the 4 seeds; "
+             f"each run {_n(d.min())} to {_n(d.max())})")
+    assert claim in _doc(), claim
+
+
+def test_the_docs_white_asymptote_curve_is_the_runs_metrics():
+    """The exploring reward per second (each iteration's avg_reward / 0.02 s) averaged over the seeds
+    after 16, 32, 48 and 64 iterations, and the range of each run's least-squares slope over the last
+    16 iterations (np.polyfit)."""
+    if _finished(LATER["W(5) 64 it"]) is None:
+        pytest.skip("the asymptote's white cell has not finished in the record")
+    curves = np.array([[m["avg_reward"] / 0.02 for m in _metrics(p)] for p in sorted(WHITE.iterdir())])
+    assert curves.shape == (4, 64)
+    means = " and ".join([", ".join(_n(curves[:, i - 1].mean()) for i in (16, 32, 48)), _n(curves[:, 63].mean())])
+    slopes = [np.polyfit(np.arange(49, 65), c[48:], 1)[0] for c in curves]
+    doc = _doc()
+    assert f"mean over the seeds, is {means} after 16, 32, 48 and 64 iterations" in doc, means
+    claim = f"still {min(slopes):.2f} to {max(slopes):.2f} per s per iteration"
+    assert claim in doc, claim
