@@ -358,13 +358,17 @@ def seed_measurements(study: Study, out: pathlib.Path, published: pathlib.Path) 
     not measure again what was published (a measurement stopped half-way goes on where it was)."""
     for m in study.measurements:
         src, dst = published / m.file, out / m.file
-        if dst.exists() or not src.exists():
-            continue
-        out.mkdir(parents=True, exist_ok=True)
-        if src.is_dir():
-            shutil.copytree(src, dst)
-        else:
-            shutil.copy2(src, dst)
+        if not dst.exists() and src.exists():
+            out.mkdir(parents=True, exist_ok=True)
+            _copy(src, dst)
+
+
+def _copy(src: pathlib.Path, dst: pathlib.Path) -> None:
+    """A measurement's file, or its folder merged into ``dst``; nothing if ``src`` is neither."""
+    if src.is_file():
+        shutil.copy2(src, dst)
+    elif src.is_dir():
+        shutil.copytree(src, dst, dirs_exist_ok=True)
 
 
 def _measure(study: Study, out: pathlib.Path, r: list[dict]) -> None:
@@ -393,10 +397,7 @@ def publish(study: Study, out: str | os.PathLike, dest: str | os.PathLike) -> No
     r = write_rows(study, out)
     shutil.copy2(out / ROWS, dest / ROWS)
     for m in study.measurements:
-        if (out / m.file).is_file():
-            shutil.copy2(out / m.file, dest / m.file)
-        elif (out / m.file).is_dir():
-            shutil.copytree(out / m.file, dest / m.file, dirs_exist_ok=True)
+        _copy(out / m.file, dest / m.file)
     if study.analysis is not None:
         table = study.analysis(r)
         store.write_csv(dest / ANALYSIS, list(dict.fromkeys(k for row in table for k in row)), table)
