@@ -181,17 +181,22 @@ def seed_from(published: pathlib.Path, d: pathlib.Path) -> bool:
     sweep); True if done."""
     if (d / "sweep.json").exists() or not (published / "sweep.json").exists():
         return False
-    d.mkdir(parents=True, exist_ok=True)
+    _copy_cell(published, d)
+    return True
+
+
+def _copy_cell(src: pathlib.Path, dst: pathlib.Path) -> None:
+    """A cell's sweep.json and results.csv, and each point's continuation files, from ``src`` to ``dst``."""
+    dst.mkdir(parents=True, exist_ok=True)
     for f in _CELL_FILES:
-        if (published / f).is_file():
-            shutil.copy2(published / f, d / f)
-    for p in sorted((published / "points").glob("*/")):
-        q = d / "points" / p.name
+        if (src / f).is_file():
+            shutil.copy2(src / f, dst / f)
+    for p in point_dirs(src):
+        q = dst / "points" / p.name
         q.mkdir(parents=True, exist_ok=True)
         for f in _PUBLISHED_POINT_FILES:
             if (p / f).is_file():
                 shutil.copy2(p / f, q / f)
-    return True
 
 
 def run_cell(study: Study, cell: Cell, out: pathlib.Path, published: pathlib.Path | None = None) -> None:
@@ -383,17 +388,7 @@ def publish(study: Study, out: str | os.PathLike, dest: str | os.PathLike) -> No
         d = out / cell.name
         if not (d / "sweep.json").exists():
             continue
-        t = dest / cell.name
-        t.mkdir(parents=True, exist_ok=True)
-        for f in _CELL_FILES:
-            if (d / f).is_file():
-                shutil.copy2(d / f, t / f)
-        for p in point_dirs(d):
-            q = t / "points" / p.name
-            q.mkdir(parents=True, exist_ok=True)
-            for f in _PUBLISHED_POINT_FILES:
-                if (p / f).is_file():
-                    shutil.copy2(p / f, q / f)
+        _copy_cell(d, dest / cell.name)
     r = write_rows(study, out)
     shutil.copy2(out / ROWS, dest / ROWS)
     for m in study.measurements:
