@@ -74,9 +74,9 @@ def _welch(a: np.ndarray, b: np.ndarray) -> tuple[float, float, float, float]:
     return float(a.mean() - b.mean()), float(ci.low), float(ci.high), float(t.pvalue)
 
 
-def _n(x: float, plus: bool = False) -> str:
-    """A number as the doc writes it: one decimal, the minus sign U+2212, a plus sign if asked."""
-    s = f"{x:.1f}".replace("-", "\N{MINUS SIGN}")
+def _n(x: float, plus: bool = False, digits: int = 1) -> str:
+    """A number as the doc writes it: one decimal (or ``digits``), the minus sign U+2212, a plus sign if asked."""
+    s = f"{x:.{digits}f}".replace("-", "\N{MINUS SIGN}")
     return "+" + s if plus and x >= 0 else s
 
 
@@ -131,6 +131,8 @@ CONTRAST_CLAIMS = (
       for x in ("OU", "CN", "NMs")),
     *((f"W(2.5) σ {x} - W(2.5)", f"W(2.5) σ {x}", "W(2.5)",
        "this cell minus the grid's W(2.5), {e_plus} reward per s [{lo}, {hi}] (Welch 95%, raw p {p_2})") for x in ("0.4", "2.5")),
+    ("asymptote", "CN(5) 64 it", "W(5) 64 it", "CN minus W at 5 ms with 4× the budget: {e_plus} reward per s [{lo}, {hi}] "
+     "(Welch 95%, raw p {p_2})"),
 )
 
 

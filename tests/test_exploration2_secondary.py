@@ -156,7 +156,8 @@ def test_the_docs_observed_interactions_are_contrasts_of_4_cells_by_hand(label):
 #: the Progress bullets of the later cells, by their title, with the speeds they give
 BULLETS = (("W at 5 ms", "W(5)"), ("Ws at 5 ms", "Ws(5)"), ("NMp at 5 ms", "NMp(5)"), ("OU at 20 ms", "OU(20)"),
            ("CN at 20 ms", "CN(20)"), ("NMs at 20 ms", "NMs(20)"), ("W at 2.5 ms with σ = 0.4", "W(2.5) σ 0.4"),
-           ("W at 2.5 ms with σ = 2.5", "W(2.5) σ 2.5"), ("W at 5 ms with 4× the budget", "W(5) 64 it"))
+           ("W at 2.5 ms with σ = 2.5", "W(2.5) σ 2.5"), ("W at 5 ms with 4× the budget", "W(5) 64 it"),
+           ("CN at 5 ms with 4× the budget", "CN(5) 64 it"))
 
 
 @pytest.mark.parametrize("title,name", BULLETS, ids=[b[1] for b in BULLETS])
