@@ -172,3 +172,37 @@ def test_the_snr_summary_is_the_mean_and_t_interval_over_the_seeds(tmp_path):
     assert float(got["0"]["mean"]) == pytest.approx(2.5) and float(got["0"]["ci_lo"]) == pytest.approx(lo)
     assert float(got["16"]["ci_hi"]) == pytest.approx(stats.t.interval(0.95, 2, loc=0.25, scale=stats.sem(vals[16]))[1])
     assert (tmp_path / exploration2_analysis.SNR_FIGURE).stat().st_size > 0
+
+
+def test_the_snr_figure_draws_each_seeds_policy_across_the_steps_and_the_t_interval(tmp_path, saved_figures):
+    """snr.png: a panel per arm and iteration; in each, every seed's values at 20, 5 and 2.5 ms (one
+    line per seed's policy) and at each step the mean with scipy's 95% t interval, from 0 up."""
+    from scipy import stats
+
+    rng = np.random.default_rng(4)
+    vals = {(a, it, dt): 10.0 ** rng.uniform(-4, -1, 3) for a in ("white", "nmp") for it in (0, 16)
+            for dt in (0.02, 0.005, 0.0025)}
+    with open(tmp_path / exploration2_cells.SNR_CSV, "w", newline="") as fh:
+        w = csv.DictWriter(fh, matched_snr.COLUMNS)
+        w.writeheader()
+        for (a, it, dt), xs in vals.items():
+            for s, x in enumerate(xs):
+                w.writerow({"seed": s, "iteration": it, "control_dt": dt, "arm": a, "snr_per_s": x})
+    exploration2_analysis._snr_report(tmp_path)
+    (path, fig), = saved_figures
+    assert path == tmp_path / exploration2_analysis.SNR_FIGURE
+    assert [ax.get_title() for ax in fig.axes] == ["white, policy after 0 iterations", "white, policy after 16 iterations",
+                                                   "nmp, policy after 0 iterations", "nmp, policy after 16 iterations"]
+    for ax, (a, it) in zip(fig.axes, [("white", 0), ("white", 16), ("nmp", 0), ("nmp", 16)]):
+        ms = [2.5, 5.0, 20.0]
+        seeds = [ln for ln in ax.get_lines() if len(ln.get_xdata()) == 3 and ln.get_marker() == "o"]
+        assert [list(ln.get_xdata()) for ln in seeds] == [ms] * 3
+        assert [list(ln.get_ydata()) for ln in seeds] == [[vals[a, it, dt / 1000][s] for dt in ms] for s in range(3)]
+        (bars,) = ax.containers
+        (xs, ys), segs = bars.lines[0].get_data(), bars.lines[2][0].get_segments()
+        for x, y, seg in zip(xs, ys, segs):
+            v = vals[a, it, x / 1000]
+            lo, hi = stats.t.interval(0.95, 2, loc=v.mean(), scale=stats.sem(v))
+            assert y == pytest.approx(v.mean()) and sorted([seg[0][1], seg[1][1]]) == [pytest.approx(lo), pytest.approx(hi)]
+        assert ax.get_ylim()[0] <= 0.0 and ax.get_xscale() == "log"
+        assert [t.get_text() for t in ax.get_xticklabels()] == ["2.5", "5", "20"]

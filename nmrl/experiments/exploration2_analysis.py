@@ -301,32 +301,42 @@ SNR_SUMMARY_CSV, SNR_FIGURE = "snr_summary.csv", "snr.png"
 
 def _snr_report(dest: pathlib.Path) -> None:
     """``snr_summary.csv``: per arm, iteration and control step, the SNR per second over the seeds'
-    policies (cell_curves.summary: mean, 95% t interval); ``snr.png``: one panel per arm, the mean
-    against the control step, one line per iteration, with the t intervals."""
+    policies (cell_curves.summary: mean, 95% t interval); ``snr.png``: a panel per arm (rows) and
+    policy iteration (columns), each with its own linear scale from 0 (the SNR grows by orders of
+    magnitude with training): every seed's policy across the control steps (thin line, dots: the same
+    networks at each step) and the mean with its t interval."""
     from nmrl.analysis import cell_curves, plots
 
     got = store.read_csv(dest / SNR_CSV)
-    groups: dict[tuple[str, int, float], list[float]] = {}
+    groups: dict[tuple[str, int, float], dict[int, float]] = {}
     for r in got:
-        groups.setdefault((r["arm"], int(r["iteration"]), float(r["control_dt"])), []).append(float(r["snr_per_s"]))
-    table = [{"arm": a, "iteration": it, "control_dt": dt, **cell_curves.summary(x)}
+        groups.setdefault((r["arm"], int(r["iteration"]), float(r["control_dt"])), {})[int(r["seed"])] = float(r["snr_per_s"])
+    table = [{"arm": a, "iteration": it, "control_dt": dt, **cell_curves.summary(list(x.values()))}
              for (a, it, dt), x in sorted(groups.items())]
     store.write_csv(dest / SNR_SUMMARY_CSV, ("arm", "iteration", "control_dt", *SUMMARY_COLUMNS), table)
-    arms = sorted({a for a, _, _ in groups})
-    fig, axes = plots.plt.subplots(1, len(arms), figsize=(4.6 * len(arms), 3.6), sharey=True, squeeze=False,
+    arms = sorted({a for a, _, _ in groups}, key=_arm_rank)
+    its = sorted({i for _, i, _ in groups})
+    fig, axes = plots.plt.subplots(len(arms), len(its), figsize=(3.2 * len(its), 2.8 * len(arms)), squeeze=False,
                                    layout="constrained")
-    for ax, arm in zip(axes[0], arms):
-        for it in sorted({i for a, i, _ in groups if a == arm}):
-            rs = [r for r in table if r["arm"] == arm and r["iteration"] == it]
-            dt_ms = [1000 * r["control_dt"] for r in rs]
+    for row, arm in zip(axes, arms):
+        for ax, it in zip(row, its):
+            dts = sorted(dt for a, i, dt in groups if (a, i) == (arm, it))
+            ms = [1000 * dt for dt in dts]
+            for s in sorted({s for dt in dts for s in groups[arm, it, dt]}):
+                ax.plot(ms, [groups[arm, it, dt].get(s, np.nan) for dt in dts], "o-", color="0.6", lw=0.8, ms=3)
+            rs = [next(r for r in table if (r["arm"], r["iteration"], r["control_dt"]) == (arm, it, dt)) for dt in dts]
             mean = [r["mean"] for r in rs]
             err = [[m - (r["ci_lo"] if r["ci_lo"] != "" else m) for m, r in zip(mean, rs)],
                    [(r["ci_hi"] if r["ci_hi"] != "" else m) - m for m, r in zip(mean, rs)]]
-            ax.errorbar(dt_ms, mean, yerr=err, marker="o", capsize=3, label=f"iteration {it}")
-        ax.set_xscale("log")
-        ax.set_title(arm)
-        ax.set_xlabel("control step [ms]")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
-    axes[0][0].set_ylabel("gradient SNR per second of experience")
+            ax.errorbar(ms, mean, yerr=err, marker="s", capsize=3, color=ARM_COLORS.get(arm, "tab:blue"),
+                        label="mean, 95% t interval")
+            ax.set_xscale("log")
+            ax.set_xticks(ms, [f"{m:g}" for m in ms])
+            ax.minorticks_off()
+            ax.set_ylim(bottom=min(0.0, *ax.get_ylim()))
+            ax.set_title(f"{arm}, policy after {it} iterations", fontsize=9)
+            ax.set_xlabel("control step [ms]")
+            ax.grid(alpha=0.3)
+        row[0].set_ylabel("gradient SNR per second")
+    axes[0][0].legend(fontsize=7)
     plots.save(fig, dest / SNR_FIGURE, dpi=110, bbox_inches="tight")
