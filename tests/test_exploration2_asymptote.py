@@ -14,6 +14,7 @@ import pathlib
 
 import numpy as np
 import pytest
+import scipy.optimize
 import scipy.stats
 
 from nmrl.experiments import kit
@@ -85,3 +86,31 @@ def test_the_docs_asymptote_curves_are_the_runs_metrics(arm, name, title):
     assert f"mean over the seeds, is {means} after 16, 32, 48 and 64 iterations" in bullet, means
     claim = f"{_n(min(slopes), digits=2)} to {_n(max(slopes), digits=2)} per s per iteration"
     assert claim in bullet, claim
+
+
+def test_the_docs_asymptote_check_is_welch_and_power_of_the_rows():
+    """The Results' asymptote check: both cells' means and W(5)'s, CN minus W on the exploring reward
+    over the last iteration and over the run (scipy Welch 95%), and the difference 4 seeds detect
+    with 80% power at the two cells' pooled SD (a two-sided t test, 6 degrees of freedom, scipy's
+    noncentral t)."""
+    cn, w = _finished(LATER["CN(5) 64 it"]), _finished(LATER["W(5) 64 it"])
+    if cn is None or w is None:
+        pytest.skip("the asymptote's cells have not finished in the record")
+    section = _doc().split("### The asymptote, checked", 1)[1].split("###", 1)[0]
+    assert f"deterministic endpoints {_n(w.mean())} and {_n(cn.mean())} reward per s, against W(5)'s " \
+           f"{_n(_finished(LATER['W(5)']).mean())} after 16 iterations" in section
+    for key, words in (("avg_reward_per_s", "over the last iteration"), ("auc_reward_per_s", "mean over the run")):
+        a, b = _finished(LATER["CN(5) 64 it"], key), _finished(LATER["W(5) 64 it"], key)
+        ci = scipy.stats.ttest_ind(a, b, equal_var=False).confidence_interval(0.95)
+        claim = f"{words} {_n(a.mean() - b.mean(), plus=True)} [{_n(ci.low)}, {_n(ci.high)}]"
+        assert claim in section, claim
+    sd = np.sqrt((cn.var(ddof=1) + w.var(ddof=1)) / 2)
+    tc = scipy.stats.t.ppf(0.975, 6)
+
+    def power(d):
+        nc = d / (sd * np.sqrt(2 / 4))
+        return scipy.stats.nct.sf(tc, 6, nc) + scipy.stats.nct.cdf(-tc, 6, nc)
+
+    d80 = scipy.optimize.brentq(lambda d: power(d) - 0.8, 1e-6, 6 * sd)
+    claim = f"pooled SD ({_n(sd)}), 4 seeds detect with 80% power (α = 0.05) a difference of {d80:.0f} reward per s"
+    assert claim in section, claim
