@@ -19,6 +19,7 @@ import scipy.stats
 
 from nmrl.experiments import kit
 from tests.test_exploration2_record import LATER, RECORD, _csv, _doc, _finished, _n
+from tests.test_exploration2_secondary import _readme
 
 pytestmark = pytest.mark.skipif(not (RECORD / kit.ROWS).is_file(), reason="no published record of study 2")
 
@@ -89,7 +90,8 @@ def test_the_docs_asymptote_curves_are_the_runs_metrics(arm, name, title):
 
 
 def test_the_docs_asymptote_check_is_welch_and_power_of_the_rows():
-    """The Results' asymptote check: both cells' means and W(5)'s, CN minus W on the exploring reward
+    """The Results' asymptote check: both cells' means and W(5)'s, CN minus W (in the README too:
+    scipy Welch 95%, "not detected" as its interval holds 0), CN minus W on the exploring reward
     over the last iteration and over the run (scipy Welch 95%), and the difference 4 seeds detect
     with 80% power at the two cells' pooled SD (a two-sided t test, 6 degrees of freedom, scipy's
     noncentral t)."""
@@ -111,6 +113,10 @@ def test_the_docs_asymptote_check_is_welch_and_power_of_the_rows():
         nc = d / (sd * np.sqrt(2 / 4))
         return scipy.stats.nct.sf(tc, 6, nc) + scipy.stats.nct.cdf(-tc, 6, nc)
 
+    e, ci = cn.mean() - w.mean(), scipy.stats.ttest_ind(cn, w, equal_var=False).confidence_interval(0.95)
+    assert ci.low < 0 < ci.high
+    claim = f"colored noise minus white is {_n(e, plus=True)} reward per second [{_n(ci.low)}, {_n(ci.high)}], not detected"
+    assert claim in _readme(), claim
     d80 = scipy.optimize.brentq(lambda d: power(d) - 0.8, 1e-6, 6 * sd)
     claim = f"pooled SD ({_n(sd)}), 4 seeds detect with 80% power (α = 0.05) a difference of {d80:.0f} reward per s"
     assert claim in section, claim
