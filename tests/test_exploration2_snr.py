@@ -9,15 +9,17 @@ module alone).
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import scipy.stats
 
-from nmrl.experiments import exploration2_analysis
+from nmrl.experiments import exploration2_analysis, kit
 from nmrl.experiments.exploration2_cells import SNR_CSV
 from tests.test_exploration2_record import RECORD, _csv, _doc
 
-pytestmark = pytest.mark.skipif(not (RECORD / SNR_CSV).is_file(), reason="no published SNR of study 2")
+pytestmark = pytest.mark.skipif(not (RECORD / kit.ROWS).is_file(), reason="no published record of study 2")
 
 ITERATIONS, DTS, SEEDS = (0, 4, 8, 16), (0.02, 0.005, 0.0025), (0, 1, 2)
 ARMS = {"white": "W", "nmp": "NMp"}  #: snr.csv's arm and the doc's name for it
@@ -25,6 +27,8 @@ ARMS = {"white": "W", "nmp": "NMp"}  #: snr.csv's arm and the doc's name for it
 
 def _groups() -> dict[tuple[str, int, float], np.ndarray]:
     """Each (arm, iteration, control step)'s SNR per second by seed, once snr.csv holds every group."""
+    if not (RECORD / SNR_CSV).is_file():
+        pytest.skip("no published SNR of study 2")
     got: dict[tuple[str, int, float], dict[int, float]] = {}
     for r in _csv(RECORD / SNR_CSV):
         got.setdefault((r["arm"], int(r["iteration"]), float(r["control_dt"])), {})[int(r["seed"])] = float(r["snr_per_s"])
@@ -45,6 +49,33 @@ def _g(x: float) -> str:
     mantissa, exponent = f"{x:.1e}".split("e")
     return (f"{mantissa}·10" + str(int(exponent)).translate(str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹"))
             ).replace("-", "\N{MINUS SIGN}")
+
+
+@pytest.mark.parametrize("it", (1, 4, 8))
+def test_the_matched_policies_are_the_grids_w20_runs_after_their_iterations(it):
+    """The SNR's policies after 1, 4 and 8 iterations are cells of their own (white at 20 ms, seeds
+    0-2) with W(20)'s settings but the budget (and grad_chunks, which W(20)'s config lacks, at 1: one
+    gradient per minibatch, as W(20) took it): each run logs what W(20)'s run of its seed logged in
+    its first iterations, every metric to the bit (the wall times aside), so the measured policies are
+    the grid's runs at those iterations, as Progress says."""
+    cell = RECORD / "snr" / "dt0.02" / f"white_it{it}" / "points"
+    if not cell.is_dir():
+        pytest.skip(f"the SNR's iteration-{it} cell is not in the record")
+    grid = RECORD / "grid" / "dt0.02" / "white" / "points"
+    clock = {"wall_s", "steps_per_s"}
+
+    def log(p):
+        return [{k: v for k, v in json.loads(line).items() if k not in clock}
+                for line in (p / "metrics.jsonl").read_text().splitlines()]
+
+    assert sorted(p.name for p in cell.iterdir()) == [f"s{s}" for s in SEEDS]
+    for p in cell.iterdir():
+        a, g = (json.loads((d / p.name / "config.json").read_text()) for d in (cell, grid))
+        assert {k for k in a.keys() | g.keys() if a.get(k) != g.get(k)} <= {"steps", "grad_chunks"}
+        assert a["steps"] == it * 5120 and a.get("grad_chunks", 1) == 1  # W(20)'s config predates grad_chunks
+        mine = log(p)
+        assert len(mine) == it and mine == log(grid / p.name)[:it], p.name
+    assert "The matched-SNR cells finished" in _doc()
 
 
 def test_the_snr_summary_is_the_t_interval_of_each_group_over_the_seeds():
