@@ -17,7 +17,8 @@ import scipy.stats
 
 from nmrl.experiments import exploration2_analysis, kit
 from nmrl.experiments.exploration2_cells import SNR_CSV
-from tests.test_exploration2_record import RECORD, _csv, _doc
+from tests.test_exploration2_asymptote import _logged
+from tests.test_exploration2_record import RECORD, _csv, _doc, _sci
 
 pytestmark = pytest.mark.skipif(not (RECORD / kit.ROWS).is_file(), reason="no published record of study 2")
 
@@ -44,11 +45,9 @@ def _t(x: np.ndarray) -> tuple[float, float, float]:
 
 
 def _g(x: float) -> str:
-    """A number as the doc's SNR table writes it: two significant digits times a power of ten
-    (1.8·10⁻²), the minus sign U+2212."""
-    mantissa, exponent = f"{x:.1e}".split("e")
-    return (f"{mantissa}·10" + str(int(exponent)).translate(str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹"))
-            ).replace("-", "\N{MINUS SIGN}")
+    """A number as the doc's SNR table writes it: the record's :func:`_sci` (1.8·10⁻²), the minus
+    sign U+2212."""
+    return _sci(x).replace("-", "\N{MINUS SIGN}")
 
 
 @pytest.mark.parametrize("it", (1, 4, 8))
@@ -62,19 +61,13 @@ def test_the_matched_policies_are_the_grids_w20_runs_after_their_iterations(it):
     if not cell.is_dir():
         pytest.skip(f"the SNR's iteration-{it} cell is not in the record")
     grid = RECORD / "grid" / "dt0.02" / "white" / "points"
-    clock = {"wall_s", "steps_per_s"}
-
-    def log(p):
-        return [{k: v for k, v in json.loads(line).items() if k not in clock}
-                for line in (p / "metrics.jsonl").read_text().splitlines()]
-
     assert sorted(p.name for p in cell.iterdir()) == [f"s{s}" for s in SEEDS]
     for p in cell.iterdir():
         a, g = (json.loads((d / p.name / "config.json").read_text()) for d in (cell, grid))
         assert {k for k in a.keys() | g.keys() if a.get(k) != g.get(k)} <= {"steps", "grad_chunks"}
         assert a["steps"] == it * 5120 and a.get("grad_chunks", 1) == 1  # W(20)'s config predates grad_chunks
-        mine = log(p)
-        assert len(mine) == it and mine == log(grid / p.name)[:it], p.name
+        mine = _logged(p)
+        assert len(mine) == it and mine == _logged(grid / p.name)[:it], p.name
     assert "The matched-SNR cells finished" in _doc()
 
 
