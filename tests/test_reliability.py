@@ -12,6 +12,7 @@ import contextlib
 import dataclasses
 import errno
 import json
+import logging
 import os
 import pathlib
 import shutil
@@ -20,6 +21,7 @@ import struct
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 
 import jax
@@ -228,6 +230,45 @@ def test_a_disk_failure_line_is_the_last_thing_on_stderr_of_the_command(mute):
         assert lines == lines[:1], err
     else:  # called in-process (tests, other programs): their stderr is left alone
         assert lines[1] == "Traceback (most recent call last):" and "No space left on device" in lines[-1]
+
+
+class _OrbaxThread(threading.Thread):
+    """Stands for one of orbax's save threads (the quiet context recognises them by their module)."""
+
+
+_OrbaxThread.__module__ = "orbax.checkpoint._src.futures.future"
+
+
+def test_what_a_failed_saves_straggling_thread_logs_later_stays_off_the_log(monkeypatch):
+    from nmrl.runs import checkpoint_steps
+
+    monkeypatch.setattr(checkpoint_steps, "_SETTLE_S", 0.05)  # the thread outlives the wait, as under load
+    seen: list[logging.LogRecord] = []
+
+    class Keep(logging.Handler):
+        def emit(self, record):
+            seen.append(record)
+
+    absl = logging.getLogger("absl")
+    h = Keep(level=logging.DEBUG)
+    absl.addHandler(h)
+    go = threading.Event()
+    late = _OrbaxThread(target=lambda: (go.wait(10), absl.error("_SignalingThread.run() raised an exception")))
+    try:
+        with pytest.raises(OSError):
+            with checkpoint_steps._quiet_absl():
+                late.start()
+                raise OSError(28, "No space left on device")
+        assert late.is_alive() and absl.level != logging.CRITICAL  # the loggers speak again
+        go.set()
+        late.join(10)
+        absl.error("the next failure")  # another thread's record is still logged
+    finally:
+        absl.removeHandler(h)
+        for lg in map(logging.getLogger, ("absl", "orbax", "asyncio")):
+            for f in [f for f in lg.filters if isinstance(f, checkpoint_steps._FromThreads)]:
+                lg.removeFilter(f)
+    assert [r.getMessage() for r in seen] == ["the next failure"]
 
 
 def test_partial_saves_are_removed_and_finished_steps_kept(tmp_path):

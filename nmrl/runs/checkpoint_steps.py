@@ -17,6 +17,7 @@ import os
 import pathlib
 import threading
 import time
+import weakref
 from typing import Any, Iterator
 
 import jax
@@ -72,7 +73,7 @@ def _run_drained(coro: Any) -> Any:
 _SETTLE_S = 20.0
 
 
-def _join_new_threads(before: set, timeout: float) -> None:
+def _join_new_threads(before: set, timeout: float) -> list[threading.Thread]:
     """Wait (at most ``timeout`` s in all) for orbax's threads started since ``before`` was taken
     (its save and commit threads; a library's long-lived worker pools are not waited for).
 
@@ -80,9 +81,22 @@ def _join_new_threads(before: set, timeout: float) -> None:
     later and log their exception with its traceback through absl; waiting for them while the
     loggers are still quiet keeps a failure to the command's one line."""
     deadline = time.monotonic() + timeout
-    for t in threading.enumerate():
-        if t not in before and type(t).__module__.startswith("orbax") and t is not threading.current_thread():
-            t.join(max(0.0, deadline - time.monotonic()))
+    started = [t for t in threading.enumerate()
+               if t not in before and type(t).__module__.startswith("orbax") and t is not threading.current_thread()]
+    for t in started:
+        t.join(max(0.0, deadline - time.monotonic()))
+    return [t for t in started if t.is_alive()]
+
+
+class _FromThreads(logging.Filter):
+    """Drops the records that the given threads log: a failed operation's stragglers."""
+
+    def __init__(self, threads: list[threading.Thread]):
+        super().__init__()
+        self.threads = weakref.WeakSet(threads)
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return threading.current_thread() not in self.threads
 
 
 @contextlib.contextmanager
@@ -93,7 +107,8 @@ def _quiet_absl() -> Iterator[None]:
     read of a damaged checkpoint makes tensorstore print "Event loop is closed" tracebacks later
     (see :func:`_run_drained`, swapped in for orbax's loop runner while this context is active).
     When the body fails, the threads it started are given time to finish before the loggers speak
-    again (:func:`_join_new_threads`).
+    again (:func:`_join_new_threads`); what those still running after that time log later is
+    dropped (:class:`_FromThreads`), so a failure stays one line on a loaded machine too.
     """
     loggers = [logging.getLogger("absl"), logging.getLogger("orbax"), logging.getLogger("asyncio")]
     old = [lg.level for lg in loggers]
@@ -110,7 +125,10 @@ def _quiet_absl() -> Iterator[None]:
     try:
         yield
     except BaseException:
-        _join_new_threads(before, _SETTLE_S)
+        stragglers = _join_new_threads(before, _SETTLE_S)
+        if stragglers:  # still running on a loaded machine: whatever they log later stays off stderr
+            for lg in loggers:
+                lg.addFilter(_FromThreads(stragglers))
         raise
     finally:
         if runner is not None:
