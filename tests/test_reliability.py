@@ -271,6 +271,45 @@ def test_what_a_failed_saves_straggling_thread_logs_later_stays_off_the_log(monk
     assert [r.getMessage() for r in seen] == ["the next failure"]
 
 
+class _FailedOrbaxThread(_OrbaxThread):
+    """Like orbax's _SignalingThread: join() raises the failure the thread ended with."""
+
+    def join(self, timeout=None):
+        super().join(timeout)
+        raise OSError(28, "No space left on device")
+
+
+_FailedOrbaxThread.__module__ = _OrbaxThread.__module__
+
+
+def test_a_thread_that_raises_from_join_does_not_stop_the_wait_for_the_others(monkeypatch):
+    from nmrl.runs import checkpoint_steps
+
+    monkeypatch.setattr(checkpoint_steps, "_SETTLE_S", 30.0)
+    seen: list[logging.LogRecord] = []
+
+    class Keep(logging.Handler):
+        def emit(self, record):
+            seen.append(record)
+
+    absl = logging.getLogger("absl")
+    h = Keep(level=logging.DEBUG)
+    absl.addHandler(h)
+    failed = _FailedOrbaxThread(target=lambda: time.sleep(0.2))  # enumerated first: waited for first
+    late = _OrbaxThread(target=lambda: (time.sleep(0.5), absl.error("_SignalingThread.run() raised an exception")))
+    try:
+        with pytest.raises(OSError):
+            with checkpoint_steps._quiet_absl():
+                failed.start()
+                late.start()
+                raise OSError(28, "No space left on device")
+        assert not late.is_alive()  # waited for while the loggers were quiet
+    finally:
+        threading.Thread.join(late, 10)
+        absl.removeHandler(h)
+    assert seen == []
+
+
 def test_partial_saves_are_removed_and_finished_steps_kept(tmp_path):
     c = tmp_path / "checkpoints"
     (c / "200" / "state").mkdir(parents=True)

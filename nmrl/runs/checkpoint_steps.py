@@ -79,12 +79,17 @@ def _join_new_threads(before: set, timeout: float) -> list[threading.Thread]:
 
     When a save fails (a full disk), orbax's other background threads of that save fail a moment
     later and log their exception with its traceback through absl; waiting for them while the
-    loggers are still quiet keeps a failure to the command's one line."""
+    loggers are still quiet keeps a failure to the command's one line. orbax's threads raise their own
+    failure again from ``join``; that does not stop the wait for the others. Returns the threads still
+    running at the deadline."""
     deadline = time.monotonic() + timeout
     started = [t for t in threading.enumerate()
                if t not in before and type(t).__module__.startswith("orbax") and t is not threading.current_thread()]
     for t in started:
-        t.join(max(0.0, deadline - time.monotonic()))
+        try:
+            t.join(max(0.0, deadline - time.monotonic()))
+        except BaseException:  # noqa: BLE001 - orbax's threads re-raise their failure from join(): waited for all the same
+            pass
     return [t for t in started if t.is_alive()]
 
 
