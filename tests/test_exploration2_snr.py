@@ -4,7 +4,9 @@
 at 20, 5 and 2.5 ms and measured with white and with NMp (eq. (1)'s SNR per second of experience), one
 row per seed. Once it holds every group, ``snr_summary.csv`` and the doc's SNR table are each group's
 mean and 95% t interval over the 3 seeds as scipy computes them from ``snr.csv`` (read with the csv
-module alone).
+module alone); the doc's paired ratios (each seed's policy against itself across control steps and
+arms: geometric means with t intervals on the log ratios), its reading of them against eq. (1) and
+the README's sentence are each recomputed from ``snr.csv`` with NumPy and scipy.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from nmrl.experiments import exploration2_analysis, kit
 from nmrl.experiments.exploration2_cells import SNR_CSV
 from tests.test_exploration2_asymptote import _logged
 from tests.test_exploration2_record import RECORD, _csv, _doc, _sci
+from tests.test_exploration2_secondary import _readme
 
 pytestmark = pytest.mark.skipif(not (RECORD / kit.ROWS).is_file(), reason="no published record of study 2")
 
@@ -90,3 +93,110 @@ def test_the_docs_snr_table_is_the_t_interval_of_each_group_over_the_seeds():
             cells = " | ".join("{} [{}, {}]".format(*map(_g, _t(groups[arm, it, dt]))) for dt in DTS)
             row = f"| {it} | {name} | {cells} |"
             assert row in doc, row
+
+
+
+def _paired(num: np.ndarray, den: np.ndarray) -> tuple[float, float, float]:
+    """Paired by seed: the geometric mean of the seeds' ratios num/den and its 95% t interval on the
+    log ratios."""
+    lr = np.log(num / den)
+    lo, hi = scipy.stats.t.interval(0.95, len(lr) - 1, loc=lr.mean(), scale=scipy.stats.sem(lr))
+    return tuple(float(x) for x in np.exp([lr.mean(), lo, hi]))
+
+
+def _r(x: tuple[float, float, float]) -> str:
+    return "{:.2f} [{:.2f}, {:.2f}]".format(*x)
+
+
+def _ratios(g, it: int) -> dict[str, tuple[float, float, float]]:
+    """The doc's paired ratios of one policy iteration, by column."""
+    return {"W 5/20": _paired(g["white", it, 0.005], g["white", it, 0.02]),
+            "W 2.5/20": _paired(g["white", it, 0.0025], g["white", it, 0.02]),
+            "NMp 2.5/5": _paired(g["nmp", it, 0.0025], g["nmp", it, 0.005]),
+            "NMp/W 2.5": _paired(g["nmp", it, 0.0025], g["white", it, 0.0025])}
+
+
+def test_the_docs_paired_ratios_are_each_seeds_policy_against_itself():
+    """The Results' table of paired ratios, not registered: per policy iteration, white's SNR per
+    second at 5 and at 2.5 ms over the same policy's at 20 ms, NMp's at 2.5 over 5 ms (its period
+    0.02 s at both), and NMp's over white's at 2.5 ms on the same policy, each the geometric mean over
+    the 3 seeds with its t interval on the logs: | iteration | W 5/20 | W 2.5/20 | NMp 2.5/5 | NMp/W
+    at 2.5 |."""
+    g, doc = _groups(), _doc()
+    for it in ITERATIONS:
+        row = f"| {it} | " + " | ".join(map(_r, _ratios(g, it).values())) + " |"
+        assert row in doc, row
+
+
+def test_the_docs_reading_of_the_ratios_against_eq_1():
+    """The Reading's claims, each against the paired ratios and the components of snr.csv: white's
+    ratio at 2.5 ms lies above eq. (1)'s 0.125 at every policy and its interval holds 1; at 5 ms above
+    0.25 at every policy but the one the doc names; white's squared mean gradient and tr Cov at 2.5 ms
+    over 20 ms span the ranges the doc gives; NMp's 2.5/5 ms ratio is below 1 at every policy, and
+    NMp/W at 2.5 ms below 1 at the policies the doc names and not at the other."""
+    g, doc = _groups(), _doc()
+    section = doc.split("### The gradient's SNR at matched policies", 1)[1].split("###", 1)[0]
+    r = {it: _ratios(g, it) for it in ITERATIONS}
+    assert all(r[it]["W 2.5/20"][1] > 1 / 8 and r[it]["W 2.5/20"][1] < 1 < r[it]["W 2.5/20"][2] for it in ITERATIONS)
+    assert "at 2.5 ms its ratio is " + ", ".join(f"{r[it]['W 2.5/20'][0]:.2f}" for it in ITERATIONS[:3]) + \
+           f" and {r[16]['W 2.5/20'][0]:.2f} after 0, 4, 8 and 16 iterations" in section
+    above = [it for it in ITERATIONS if r[it]["W 5/20"][1] > 1 / 4]
+    (odd,) = set(ITERATIONS) - set(above)
+    assert f"but after {odd} iterations ({_r(r[odd]['W 5/20'])})" in section
+    assert f"the SNR doubles ({_r(r[0]['W 5/20'])})" in section and 1.5 < r[0]["W 5/20"][0] < 2.5 and r[0]["W 5/20"][1] > 1
+    for key, name in (("mean_sq", "squared mean gradient"), ("trcov", "tr Cov")):
+        comp = {}
+        for it in ITERATIONS:
+            num, den = (np.array([float(x[key]) for x in _rows("white", it, dt)]) for dt in (0.0025, 0.02))
+            comp[it] = _paired(num, den)[0]
+        claim = f"{name} at 2.5 ms is {min(comp.values()):.2f}–{max(comp.values()):.2f} of its 20 ms value" \
+            if key == "mean_sq" else f"{name} {min(comp.values()):.2f}–{max(comp.values()):.2f}"
+        assert claim in section, claim
+    nmp = [r[it]["NMp 2.5/5"] for it in ITERATIONS]
+    assert all(x[2] < 1 for x in nmp)
+    assert f"is {min(x[0] for x in nmp):.2f}–{max(x[0] for x in nmp):.2f} of that at 5 ms at every policy" in section
+    below = [it for it in ITERATIONS if r[it]["NMp/W 2.5"][2] < 1]
+    rest = [it for it in ITERATIONS if it not in below]
+    vals = [r[it]["NMp/W 2.5"][0] for it in ITERATIONS]
+    assert f"{min(vals):.2f} to {max(vals):.2f} times white's on the same policy" in section
+    assert f"below 1 after {', '.join(map(str, below[:-1]))} and {below[-1]} iterations; after " + \
+           ", ".join(f"{it}, {_r(r[it]['NMp/W 2.5'])}" for it in rest) in section
+
+
+def test_where_a_ratios_interval_excludes_1_every_seeds_ratio_is_on_its_side():
+    g = _groups()
+    pairs = {"W 5/20": (("white", 0.005), ("white", 0.02)), "W 2.5/20": (("white", 0.0025), ("white", 0.02)),
+             "NMp 2.5/5": (("nmp", 0.0025), ("nmp", 0.005)), "NMp/W 2.5": (("nmp", 0.0025), ("white", 0.0025))}
+    excluding = 0
+    for it in ITERATIONS:
+        for col, (m, lo, hi) in _ratios(g, it).items():
+            (a, da), (b, db) = pairs[col]
+            seeds = g[a, it, da] / g[b, it, db]
+            if lo > 1 or hi < 1:
+                excluding += 1
+                assert (np.all(seeds > 1) if lo > 1 else np.all(seeds < 1)), (it, col, seeds)
+    assert excluding > 0
+    assert "wherever an interval of the ratios excludes 1, every seed's ratio lies on the same side of 1" in _doc()
+
+
+def test_the_readmes_snr_sentence_is_the_ratios():
+    """The README's summary: no fall of white's SNR from 20 to 2.5 ms is detected (every interval
+    holds 1) where eq. (1) predicts an eighth (every interval above it); NMp's 2.5/5 ms ratios, each
+    below 1, span the range it gives; and NMp is below white at 2.5 ms at most policies."""
+    g = _groups()
+    r = {it: _ratios(g, it) for it in ITERATIONS}
+    assert all(r[it]["W 2.5/20"][1] < 1 < r[it]["W 2.5/20"][2] and r[it]["W 2.5/20"][1] > 1 / 8 for it in ITERATIONS)
+    assert sum(r[it]["NMp/W 2.5"][2] < 1 for it in ITERATIONS) > len(ITERATIONS) / 2
+    nmp = [r[it]["NMp 2.5/5"] for it in ITERATIONS]
+    assert all(x[2] < 1 for x in nmp)
+    claim = ("no fall of white's gradient SNR per second is detected from 20 to 2.5 ms, where eq. (1) predicts an "
+             "eighth; nm-periods learned on periods have the lower SNR at 2.5 ms and keep "
+             f"{min(x[0] for x in nmp):.2f}–{max(x[0] for x in nmp):.2f} of it from 5 to 2.5 ms at a fixed period.")
+    assert claim in _readme(), claim
+
+
+def _rows(arm: str, it: int, dt: float) -> list[dict]:
+    """snr.csv's rows of one group, by seed."""
+    got = {int(x["seed"]): x for x in _csv(RECORD / SNR_CSV)
+           if (x["arm"], int(x["iteration"]), float(x["control_dt"])) == (arm, it, dt)}
+    return [got[s] for s in SEEDS]
