@@ -239,10 +239,12 @@ class _OrbaxThread(threading.Thread):
 _OrbaxThread.__module__ = "orbax.checkpoint._src.futures.future"
 
 
-def test_what_a_failed_saves_straggling_thread_logs_later_stays_off_the_log(monkeypatch):
+@pytest.fixture
+def absl_records(monkeypatch):
+    """The records the absl logger passes on while a test runs (its handler and the quiet context's
+    filters removed afterwards)."""
     from nmrl.runs import checkpoint_steps
 
-    monkeypatch.setattr(checkpoint_steps, "_SETTLE_S", 0.05)  # the thread outlives the wait, as under load
     seen: list[logging.LogRecord] = []
 
     class Keep(logging.Handler):
@@ -252,6 +254,18 @@ def test_what_a_failed_saves_straggling_thread_logs_later_stays_off_the_log(monk
     absl = logging.getLogger("absl")
     h = Keep(level=logging.DEBUG)
     absl.addHandler(h)
+    yield seen
+    absl.removeHandler(h)
+    for lg in map(logging.getLogger, ("absl", "orbax", "asyncio")):
+        for f in [f for f in lg.filters if isinstance(f, checkpoint_steps._FromThreads)]:
+            lg.removeFilter(f)
+
+
+def test_what_a_failed_saves_straggling_thread_logs_later_stays_off_the_log(monkeypatch, absl_records):
+    from nmrl.runs import checkpoint_steps
+
+    monkeypatch.setattr(checkpoint_steps, "_SETTLE_S", 0.05)  # the thread outlives the wait, as under load
+    absl = logging.getLogger("absl")
     go = threading.Event()
     late = _OrbaxThread(target=lambda: (go.wait(10), absl.error("_SignalingThread.run() raised an exception")))
     try:
@@ -260,15 +274,11 @@ def test_what_a_failed_saves_straggling_thread_logs_later_stays_off_the_log(monk
                 late.start()
                 raise OSError(28, "No space left on device")
         assert late.is_alive() and absl.level != logging.CRITICAL  # the loggers speak again
+    finally:
         go.set()
         late.join(10)
-        absl.error("the next failure")  # another thread's record is still logged
-    finally:
-        absl.removeHandler(h)
-        for lg in map(logging.getLogger, ("absl", "orbax", "asyncio")):
-            for f in [f for f in lg.filters if isinstance(f, checkpoint_steps._FromThreads)]:
-                lg.removeFilter(f)
-    assert [r.getMessage() for r in seen] == ["the next failure"]
+    absl.error("the next failure")  # another thread's record is still logged
+    assert [r.getMessage() for r in absl_records] == ["the next failure"]
 
 
 class _FailedOrbaxThread(_OrbaxThread):
@@ -282,19 +292,11 @@ class _FailedOrbaxThread(_OrbaxThread):
 _FailedOrbaxThread.__module__ = _OrbaxThread.__module__
 
 
-def test_a_thread_that_raises_from_join_does_not_stop_the_wait_for_the_others(monkeypatch):
+def test_a_thread_that_raises_from_join_does_not_stop_the_wait_for_the_others(monkeypatch, absl_records):
     from nmrl.runs import checkpoint_steps
 
     monkeypatch.setattr(checkpoint_steps, "_SETTLE_S", 30.0)
-    seen: list[logging.LogRecord] = []
-
-    class Keep(logging.Handler):
-        def emit(self, record):
-            seen.append(record)
-
     absl = logging.getLogger("absl")
-    h = Keep(level=logging.DEBUG)
-    absl.addHandler(h)
     failed = _FailedOrbaxThread(target=lambda: time.sleep(0.2))  # enumerated first: waited for first
     late = _OrbaxThread(target=lambda: (time.sleep(0.5), absl.error("_SignalingThread.run() raised an exception")))
     try:
@@ -306,8 +308,7 @@ def test_a_thread_that_raises_from_join_does_not_stop_the_wait_for_the_others(mo
         assert not late.is_alive()  # waited for while the loggers were quiet
     finally:
         threading.Thread.join(late, 10)
-        absl.removeHandler(h)
-    assert seen == []
+    assert absl_records == []
 
 
 def test_partial_saves_are_removed_and_finished_steps_kept(tmp_path):
