@@ -88,7 +88,7 @@ def _join_new_threads(before: set, timeout: float) -> list[threading.Thread]:
     for t in started:
         try:
             t.join(max(0.0, deadline - time.monotonic()))
-        except Exception:  # noqa: BLE001 - orbax's threads re-raise their failure from join(): wait for the rest all the same
+        except Exception:  # noqa: BLE001 - orbax's threads re-raise their failure from join(): wait for the rest
             pass
     return [t for t in started if t.is_alive()]
 
