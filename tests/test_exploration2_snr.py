@@ -29,13 +29,14 @@ ITERATIONS, DTS, SEEDS = (0, 4, 8, 16), (0.02, 0.005, 0.0025), (0, 1, 2)
 ARMS = {"white": "W", "nmp": "NMp"}  #: snr.csv's arm and the doc's name for it
 
 
-def _groups() -> dict[tuple[str, int, float], np.ndarray]:
-    """Each (arm, iteration, control step)'s SNR per second by seed, once snr.csv holds every group."""
+def _groups(key: str = "snr_per_s") -> dict[tuple[str, int, float], np.ndarray]:
+    """Each (arm, iteration, control step)'s column ``key`` of snr.csv by seed (the SNR per second
+    unless asked), once snr.csv holds every group."""
     if not (RECORD / SNR_CSV).is_file():
         pytest.skip("no published SNR of study 2")
     got: dict[tuple[str, int, float], dict[int, float]] = {}
     for r in _csv(RECORD / SNR_CSV):
-        got.setdefault((r["arm"], int(r["iteration"]), float(r["control_dt"])), {})[int(r["seed"])] = float(r["snr_per_s"])
+        got.setdefault((r["arm"], int(r["iteration"]), float(r["control_dt"])), {})[int(r["seed"])] = float(r[key])
     want = {(a, it, dt) for a in ARMS for it in ITERATIONS for dt in DTS}
     if set(got) != want or any(sorted(v) != list(SEEDS) for v in got.values()):
         pytest.skip("the SNR measurement has not finished in the record")
@@ -95,7 +96,6 @@ def test_the_docs_snr_table_is_the_t_interval_of_each_group_over_the_seeds():
             assert row in doc, row
 
 
-
 def _paired(num: np.ndarray, den: np.ndarray) -> tuple[float, float, float]:
     """Paired by seed: the geometric mean of the seeds' ratios num/den and its 95% t interval on the
     log ratios."""
@@ -108,12 +108,14 @@ def _r(x: tuple[float, float, float]) -> str:
     return "{:.2f} [{:.2f}, {:.2f}]".format(*x)
 
 
+#: the doc's table of paired ratios, by column: (arm, control step) over (arm, control step)
+RATIOS = {"W 5/20": (("white", 0.005), ("white", 0.02)), "W 2.5/20": (("white", 0.0025), ("white", 0.02)),
+          "NMp 2.5/5": (("nmp", 0.0025), ("nmp", 0.005)), "NMp/W 2.5": (("nmp", 0.0025), ("white", 0.0025))}
+
+
 def _ratios(g, it: int) -> dict[str, tuple[float, float, float]]:
     """The doc's paired ratios of one policy iteration, by column."""
-    return {"W 5/20": _paired(g["white", it, 0.005], g["white", it, 0.02]),
-            "W 2.5/20": _paired(g["white", it, 0.0025], g["white", it, 0.02]),
-            "NMp 2.5/5": _paired(g["nmp", it, 0.0025], g["nmp", it, 0.005]),
-            "NMp/W 2.5": _paired(g["nmp", it, 0.0025], g["white", it, 0.0025])}
+    return {col: _paired(g[a, it, da], g[b, it, db]) for col, ((a, da), (b, db)) in RATIOS.items()}
 
 
 def test_the_docs_paired_ratios_are_each_seeds_policy_against_itself():
@@ -145,10 +147,8 @@ def test_the_docs_reading_of_the_ratios_against_eq_1():
     assert f"but after {odd} iterations ({_r(r[odd]['W 5/20'])})" in section
     assert f"the SNR doubles ({_r(r[0]['W 5/20'])})" in section and 1.5 < r[0]["W 5/20"][0] < 2.5 and r[0]["W 5/20"][1] > 1
     for key, name in (("mean_sq", "squared mean gradient"), ("trcov", "tr Cov")):
-        comp = {}
-        for it in ITERATIONS:
-            num, den = (np.array([float(x[key]) for x in _rows("white", it, dt)]) for dt in (0.0025, 0.02))
-            comp[it] = _paired(num, den)[0]
+        part = _groups(key)
+        comp = {it: _paired(part["white", it, 0.0025], part["white", it, 0.02])[0] for it in ITERATIONS}
         claim = f"{name} at 2.5 ms is {min(comp.values()):.2f}–{max(comp.values()):.2f} of its 20 ms value" \
             if key == "mean_sq" else f"{name} {min(comp.values()):.2f}–{max(comp.values()):.2f}"
         assert claim in section, claim
@@ -165,12 +165,10 @@ def test_the_docs_reading_of_the_ratios_against_eq_1():
 
 def test_where_a_ratios_interval_excludes_1_every_seeds_ratio_is_on_its_side():
     g = _groups()
-    pairs = {"W 5/20": (("white", 0.005), ("white", 0.02)), "W 2.5/20": (("white", 0.0025), ("white", 0.02)),
-             "NMp 2.5/5": (("nmp", 0.0025), ("nmp", 0.005)), "NMp/W 2.5": (("nmp", 0.0025), ("white", 0.0025))}
     excluding = 0
     for it in ITERATIONS:
         for col, (m, lo, hi) in _ratios(g, it).items():
-            (a, da), (b, db) = pairs[col]
+            (a, da), (b, db) = RATIOS[col]
             seeds = g[a, it, da] / g[b, it, db]
             if lo > 1 or hi < 1:
                 excluding += 1
@@ -194,9 +192,3 @@ def test_the_readmes_snr_sentence_is_the_ratios():
              f"{min(x[0] for x in nmp):.2f}–{max(x[0] for x in nmp):.2f} of it from 5 to 2.5 ms at a fixed period.")
     assert claim in _readme(), claim
 
-
-def _rows(arm: str, it: int, dt: float) -> list[dict]:
-    """snr.csv's rows of one group, by seed."""
-    got = {int(x["seed"]): x for x in _csv(RECORD / SNR_CSV)
-           if (x["arm"], int(x["iteration"]), float(x["control_dt"])) == (arm, it, dt)}
-    return [got[s] for s in SEEDS]
