@@ -27,6 +27,7 @@ import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
+ARCHITECTURE = ROOT / "docs" / "architecture.md"
 PAGES = [README, *sorted((ROOT / "docs").glob("*.md"))]
 #: the results' index and the folders' own notes: their links and named paths are checked as the docs'
 RESULT_PAGES = [ROOT / "results" / "README.md", *sorted((ROOT / "results").glob("*/README.md"))]
@@ -242,12 +243,12 @@ def _section(text: str, title: str) -> str:
 
 
 def test_what_is_where_matches_the_tree():
-    named = {n for n in re.findall(r"`(nmrl/[\w/.]+)`", _section(_text(README), "What is where"))
+    named = {n for n in re.findall(r"`(nmrl/[\w/.]+)`", _section(_text(ARCHITECTURE), "What is where"))
              if not n.endswith("/")}  # a package's name; its files are the rows
     tree = {str(p.relative_to(ROOT)) for p in (ROOT / "nmrl").glob("*/*")
             if p.name not in ("__init__.py", "__pycache__")} | {"nmrl/pytrees.py", "nmrl/options.py"}
-    assert sorted(tree - named) == [], "in the tree, not in the README's What is where"
-    assert sorted(named - tree) == [], "in the README's What is where, not in the tree"
+    assert sorted(tree - named) == [], "in the tree, not in docs/architecture.md"
+    assert sorted(named - tree) == [], "in docs/architecture.md, not in the tree"
 
 
 def test_readme_starts_with_the_two_commands_and_ci_runs_the_second():

@@ -1,0 +1,101 @@
+"""Study 2's audit: the numbers that say what the family does not test, recomputed from the committed
+record (rows.csv and the grid runs' metrics.jsonl) with NumPy, independently of the study's analysis."""
+from __future__ import annotations
+
+import csv
+import json
+import pathlib
+import re
+
+import numpy as np
+import pytest
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+RECORD = REPO / "results" / "exploration2" / "runs"
+
+pytestmark = pytest.mark.skipif(not (RECORD / "rows.csv").is_file(), reason="no published record of study 2")
+
+
+def _text(path: pathlib.Path) -> str:
+    return re.sub(r"\s+", " ", path.read_text().replace("**", ""))
+
+
+def _pages() -> tuple[str, str]:
+    return _text(REPO / "README.md"), _text(REPO / "docs" / "exploration-study-2.md")
+
+
+def _rows(cell: str) -> list[dict]:
+    with open(RECORD / "rows.csv", newline="") as fh:
+        return [r for r in csv.DictReader(fh) if r["cell"] == cell]
+
+
+def _col(cell: str, key: str) -> np.ndarray:
+    return np.array([float(r[key]) for r in _rows(cell)])
+
+
+def _n(x: float, digits: int = 1) -> str:
+    return f"{x:.{digits}f}".replace("-", "\N{MINUS SIGN}")
+
+
+def test_nmp_stands_at_every_control_step_in_every_run():
+    """Every NMp run's deterministic policy stands (forward speed under 0.2 m/s) at 20, 5 and 2.5 ms,
+    while white's cells walk; the pages' range of speeds and the cells' means are the rows'."""
+    readme, doc = _pages()
+    speeds = np.concatenate([_col(f"grid/dt{dt}/nmp", "det_forward_speed") for dt in ("0.02", "0.005", "0.0025")])
+    assert speeds.max() < 0.2
+    claim = f"{speeds.min():.2f}–{speeds.max():.2f} m/s"
+    assert claim in readme and claim.replace(" m/s", "") in doc, claim
+    for dt in ("0.02", "0.005", "0.0025"):
+        assert _col(f"grid/dt{dt}/white", "det_forward_speed").mean() > 1.0
+        nmp = _n(_col(f"grid/dt{dt}/nmp", "det_reward_per_s").mean())
+        assert nmp in readme and nmp in doc, nmp
+
+
+def test_the_floor_effect_is_the_cells_change_from_20_to_2_5_ms():
+    readme, _ = _pages()
+    nmp = _col("grid/dt0.0025/nmp", "det_reward_per_s").mean() - _col("grid/dt0.02/nmp", "det_reward_per_s").mean()
+    white = _col("grid/dt0.0025/white", "det_reward_per_s").mean() - _col("grid/dt0.02/white", "det_reward_per_s").mean()
+    claim = f"NMp moved by {_n(nmp)} while white gained {_n(white)}"
+    assert claim in readme, claim
+
+
+def test_the_screen_did_not_rank_whites_sigma_that_the_full_budget_separates():
+    """W(2.5) at σ 0.4 and 1: their screen means (4 iterations, 2 seeds) are within a fraction of a
+    reward per second, their full-budget means ~200 apart; no screen run walked."""
+    readme, doc = _pages()
+    screen = {s: _col("screen/sigma/dt0.0025/white", "det_reward_per_s")[
+        [r["value"] == s for r in _rows("screen/sigma/dt0.0025/white")]].mean() for s in ("0.4", "1.0")}
+    full = {"0.4": _col("sensitivity/dt0.0025/white_sigma0.4", "det_reward_per_s").mean(),
+            "1.0": _col("grid/dt0.0025/white", "det_reward_per_s").mean()}
+    gap_screen, gap_full = abs(screen["1.0"] - screen["0.4"]), full["1.0"] - full["0.4"]
+    assert gap_screen < 1 and gap_full > 100
+    for page in (readme, doc):
+        assert f"{gap_screen:.2f}" in page and _n(gap_full) in page
+    with open(RECORD / "rows.csv", newline="") as fh:
+        screen_rows = [r for r in csv.DictReader(fh) if r["cell"].startswith("screen/")]
+    assert max(float(r["det_forward_speed"]) for r in screen_rows) < 0.08
+    assert f"{min(float(r['det_reward_per_s']) for r in screen_rows):.0f}".replace("-", "\N{MINUS SIGN}") in doc
+
+
+def _median_kl_per_step(cell: str) -> float:
+    """The median of PPO's logged approximate KL per control step over iterations 2-16 and every seed
+    (the first iteration, where the observation normaliser first moves, left out)."""
+    kl = []
+    for path in sorted((RECORD / "grid" / cell / "points").glob("*/metrics.jsonl")):
+        lines = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+        kl += [line["approx_kl"] for line in lines[1:]]
+    assert len(kl) >= 4 * 15
+    return float(np.median(kl))
+
+
+def test_whites_trust_region_per_second_widens_at_the_fine_step():
+    """The KL per second of behaviour is the KL per control step over δ (a product of per-step
+    policies); the pages' per-step and per-second numbers are the logs'."""
+    readme, doc = _pages()
+    per_step = {dt: _median_kl_per_step(f"dt{dt}/white") for dt in ("0.02", "0.005", "0.0025")}
+    per_s = {dt: kl / float(dt) for dt, kl in per_step.items()}
+    assert per_s["0.0025"] > 3 * per_s["0.02"]
+    for dt in per_step:
+        assert f"{per_step[dt]:.3f}" in doc and f"{per_s[dt]:.1f}" in doc
+    for dt in ("0.02", "0.0025"):
+        assert f"{per_step[dt]:.3f}" in readme and f"{per_s[dt]:.1f}" in readme
