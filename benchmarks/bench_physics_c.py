@@ -11,7 +11,8 @@ interleaved round by round so that a background load touches them alike:
   environments per point, ``nmrl.runs.points.points_program`` over every device) on C against the
   same on MJX, the C sweep laid out on one device with a batch of ``cores`` threads, and the C
   sweep with each device's points vmapped together (``--group``: one callback steps all of a
-  device's environments);
+  device's environments), grouped once with the networks' fast arctan (the default) and once with
+  XLA's (``--arctan xla``, the runs made before the option);
 * (c) the C sweep against MuJoCo C's own throughput at the same batch (32; grouped: 32 x the
   points per device) and threads (``cores``, ``mujoco.batch`` with the PD law): the share of the
   limit the program reaches;
@@ -115,9 +116,9 @@ def _worker(quick: bool, smoke: bool) -> dict:
     num_envs = SMOKE["num_envs"] if smoke else NUM_ENVS
     T = SMOKE["chunk_steps"] if smoke else 10 if quick else 40
 
-    def sweep(physics: str, n_use: int, group: int = 1):
-        cfgs = [TrainConfig(num_envs=num_envs, chunk_steps=T, l=l, seed=s, physics=physics).resolved()
-                for l in ls for s in range(seeds)]
+    def sweep(physics: str, n_use: int, group: int = 1, arctan: str = "fast"):
+        cfgs = [TrainConfig(num_envs=num_envs, chunk_steps=T, l=l, seed=s, physics=physics,
+                            arctan=arctan).resolved() for l in ls for s in range(seeds)]
         env_cfg = dataclasses.replace(cfgs[0].env_config(), threads=max(1, cores // n_use))
         tr = make_train(cfgs[0], HalfCheetah(env_cfg))
         keys = jnp.stack([jax.random.PRNGKey(c.seed) for c in cfgs])
@@ -127,15 +128,19 @@ def _worker(quick: bool, smoke: bool) -> dict:
 
     calls, compiles, work = {}, {}, 0
     per_dev = -(-len(ls) * seeds // n_dev)  # the points one device holds
-    for name, physics, n_use, group in (("c", "c", n_dev, 1), ("mjx", "mjx", n_dev, 1), ("c_one_device", "c", 1, 1),
-                                        ("c_grouped", "c", n_dev, per_dev)):
-        calls[name], compiles[name], work = sweep(physics, n_use, group)
+    for name, physics, n_use, group, arctan in (("c", "c", n_dev, 1, "fast"), ("mjx", "mjx", n_dev, 1, "fast"),
+                                                ("c_one_device", "c", 1, 1, "fast"),
+                                                ("c_grouped", "c", n_dev, per_dev, "fast"),
+                                                ("c_grouped_xla_arctan", "c", n_dev, per_dev, "xla")):
+        calls[name], compiles[name], work = sweep(physics, n_use, group, arctan)
     times = interleave(calls, rounds)
     rates = {k: timing(v, work)["control_steps_per_s"] for k, v in times.items()}
     per_round = [(work / c) / (work / m) for c, m in zip(times["c"], times["mjx"])]
     out["b_sweep"] = {"points": len(ls) * seeds, "num_envs_per_point": num_envs, "chunk_steps": T,
                       "c_grouped_points_per_call": per_dev,
                       "c_grouped_over_c": statistics.median(c / g for c, g in zip(times["c"], times["c_grouped"])),
+                      "fast_over_xla_arctan": statistics.median(x / f for x, f in zip(times["c_grouped_xla_arctan"],
+                                                                                       times["c_grouped"])),
                       "rates": rates, "compile_s": compiles, "c_over_mjx": statistics.median(per_round),
                       "c_over_mjx_per_round": per_round}
 
@@ -145,7 +150,8 @@ def _worker(quick: bool, smoke: bool) -> dict:
     out["c_limit"] = {"batch": num_envs, "threads": cores, "batch_alone": limit,
                       "sweep_c_over_limit": rates["c"] / limit,
                       "grouped_batch": num_envs * per_dev, "grouped_batch_alone": limit_g,
-                      "sweep_c_grouped_over_limit": rates["c_grouped"] / limit_g}
+                      "sweep_c_grouped_over_limit": rates["c_grouped"] / limit_g,
+                      "sweep_c_grouped_xla_arctan_over_limit": rates["c_grouped_xla_arctan"] / limit_g}
 
     # (d) native PPO, one iteration (rollout + update), 64 environments, value 2x64, at 20 and 5 ms
     out["d_ppo"] = {}
@@ -246,7 +252,8 @@ def run(quick: bool = False, smoke: bool = False, timeout: float = 3600) -> dict
           f"{sw['rates']['c']:,.0f} vs MJX {sw['rates']['mjx']:,.0f} ctrl steps/s ({sw['c_over_mjx']:.2f}x), "
           f"C on one device {sw['rates']['c_one_device']:,.0f}, C grouped {sw['rates']['c_grouped']:,.0f}; "
           f"sweep C / MuJoCo C alone {w['c_limit']['sweep_c_over_limit']:.2f} (grouped "
-          f"{w['c_limit']['sweep_c_grouped_over_limit']:.2f}); PPO C/MJX "
+          f"{w['c_limit']['sweep_c_grouped_over_limit']:.2f}, with XLA's arctan "
+          f"{w['c_limit']['sweep_c_grouped_xla_arctan_over_limit']:.2f}); PPO C/MJX "
           + ", ".join(f"{k} {v['c_over_mjx']:.2f}x" for k, v in w["d_ppo"].items())
           + f"; PPO 2.5 ms, 8 seeds grouped / one at a time {w['e_ppo_group']['grouped_over_one_at_a_time']:.2f}x",
           file=sys.stderr, flush=True)

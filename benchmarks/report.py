@@ -162,6 +162,10 @@ def table(res: dict) -> str:
             rows.append(("sweep vs MuJoCo C, --physics c", f"the grouped C sweep vs mujoco.batch alone, "
                          f"B={lim['grouped_batch']}, {lim['threads']} threads", _f(sw["rates"]["c_grouped"]),
                          _f(lim["grouped_batch_alone"]), _f(lim["sweep_c_grouped_over_limit"], 2, "×"), "–"))
+        if "c_grouped_xla_arctan" in sw["rates"]:
+            rows.append(("sweep ctrl steps/s, --physics c", "the grouped C sweep, the networks' fast arctan vs XLA's "
+                         "(--arctan xla)", _f(sw["rates"]["c_grouped"]), _f(sw["rates"]["c_grouped_xla_arctan"]),
+                         _f(sw["fast_over_xla_arctan"], 2, "×"), "–"))
         for k, v in w["d_ppo"].items():
             rows.append((f"native PPO ctrl steps/s, {k}", f"one iteration ({v['num_minibatches']} minibatches), "
                          "64 envs, value 2×64: C vs MJX", _f(v["rates"]["c"]), _f(v["rates"]["mjx"]),

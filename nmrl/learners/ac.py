@@ -122,7 +122,7 @@ def exploration(cfg: TrainConfig, kind: str | None, params: dict, given: frozens
 def policy(cfg: TrainConfig, env) -> Policy:
     """a = a~(s; theta) + xi (eq. (6)) through the environment's :func:`action_map`; xi the piecewise AR
     process (4) with the run's l, alpha, sigma."""
-    actor = networks.make_actor(cfg.hidden_actor, env.act_dim)
+    actor = networks.make_actor(cfg.hidden_actor, env.act_dim, cfg.arctan)
     to_env = action_map(env) or (lambda a: a)
     return Policy(
         act=lambda params, obs, xi: to_env(actor.apply(params["theta"], obs) + xi),

@@ -16,7 +16,7 @@ from typing import Any
 from nmrl import options, tasks
 from nmrl.learners.optimizers import OPT_HELP, canonical_opt, parse_opt
 from nmrl.options import AT_LEAST_ONE, POSITIVE, STEP_SIZE, Range, option, run_option
-from nmrl.paper import noise
+from nmrl.paper import networks, noise
 from nmrl.paper.env import EnvConfig, env_option
 
 #: Named step-size presets. "paper" is Sec. V-C. "fast" is for the budgets this 2-core machine
@@ -66,6 +66,9 @@ class TrainConfig:
                          choices=tuple(sorted(PRESETS)))
     hidden_actor: int = option(100, "hidden units M^A of the actor", range=AT_LEAST_ONE)
     hidden_critic: int = option(200, "hidden units M^C of the critic", range=AT_LEAST_ONE)
+    arctan: str = option("fast", "the hidden units' arctan: fast (Cephes' atanf, within 3 float32 ulp) or xla "
+                                 "(XLA's atan2, ~15x slower on a CPU; the runs made before this option)",
+                         choices=tuple(networks.ARCTANS))
     # environment
     control_dt: float = env_option("control_dt", 0.02)
     stop_prob: float = env_option("stop_prob", 1 / 250)

@@ -152,8 +152,8 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
     REWARD_TERMS = tuple(env.reward_terms)
     #: whether the environment ends trials by a rule of its own (a Gymnasium task's ``terminated``)
     TERMINATES = "terminated" in jax.eval_shape(env.reset, jax.random.PRNGKey(0)).info
-    actor = networks.make_actor(cfg.hidden_actor, ACT_DIM)
-    critic = networks.make_critic(cfg.hidden_critic)
+    actor = networks.make_actor(cfg.hidden_actor, ACT_DIM, cfg.arctan)
+    critic = networks.make_critic(cfg.hidden_critic, cfg.arctan)
     N = cfg.num_envs
     N_local = N // num_shards
     # The update rules of actor and critic (the paper's: sgd; cfg.actor_opt / cfg.critic_opt). Only

@@ -227,10 +227,28 @@ def config_dict(config: Any) -> dict:
     return {KEY: of(config).name, **dataclasses.asdict(config)}
 
 
+#: Config fields added after runs were saved without them, with the value those runs had: a saved
+#: config without such a field gets that value back (:func:`saved_fields`), and a run's identity
+#: leaves a field at that value out (nmrl/runs/identity.py), so older runs keep their digests and
+#: continue as they ran (the paper's rule, plain sgd, the actor-critic, PPO's gradient of a whole
+#: minibatch at once, XLA's arctan).
+LATER_FIELDS: dict[str, object] = {"actor_opt": "sgd", "critic_opt": "sgd", KEY: DEFAULT,
+                                   "physics": "mjx", "trial_s": None,
+                                   "physics_timestep": None, "env": "paper-cheetah",
+                                   "grad_chunks": 1, "arctan": "xla"}
+
+
+def saved_fields(cls: type, d: dict) -> dict:
+    """A saved config's fields ``d`` for the config class ``cls``, with every field of
+    :data:`LATER_FIELDS` that ``cls`` has and ``d`` lacks set to the value runs had before it existed."""
+    names = {f.name for f in dataclasses.fields(cls)}
+    return {**{k: v for k, v in LATER_FIELDS.items() if k in names and k not in d}, **d}
+
+
 def config_from_dict(d: dict, learner: str | None = None) -> Any:
     """The config a dict of :func:`config_dict` (or a plain ``asdict`` of the learner ``learner``,
-    default :data:`DEFAULT`) describes; ValueError for an unknown learner, TypeError for unknown
-    fields (named)."""
+    default :data:`DEFAULT`) describes, fields it predates as :func:`saved_fields` fills them;
+    ValueError for an unknown learner, TypeError for unknown fields (named)."""
     d = dict(d)
     name = d.pop(KEY, None) or learner or DEFAULT
     lr = get(name)
@@ -238,7 +256,7 @@ def config_from_dict(d: dict, learner: str | None = None) -> Any:
     unknown = sorted(set(d) - known)
     if unknown:
         raise TypeError(f"the config of learner {name!r} has no fields {unknown}")
-    return lr.config(**d)
+    return lr.config(**saved_fields(lr.config, d))
 
 
 def replace_state(state: Any, **fields: Any) -> Any:

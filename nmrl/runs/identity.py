@@ -44,7 +44,7 @@ def _config_from_meta(meta: dict) -> Config:
     if unknown:
         raise CheckpointError(f"{path}: the saved config has fields this nmrl does not know: {unknown}")
     try:
-        return cls(**{k: v for k, v in cfg.items() if k != learners.KEY})
+        return cls(**learners.saved_fields(cls, {k: v for k, v in cfg.items() if k != learners.KEY}))
     except TypeError as e:
         raise _err(pathlib.Path(path), "the saved config is invalid", e, CorruptCheckpoint) from e
 
@@ -82,13 +82,8 @@ def _check_config(meta: dict, config: Config) -> None:
 
 
 #: Identity fields that runs with an older identity digest do not record, with the value those runs
-#: had: a field at that value is left out of the identity, so their digests (and identity
-#: comparisons) stay what they are (such runs used the paper's rule, plain sgd, the actor-critic,
-#: and PPO's gradient of a whole minibatch at once).
-LATER_FIELDS: dict[str, object] = {"actor_opt": "sgd", "critic_opt": "sgd", learners.KEY: learners.DEFAULT,
-                                   "physics": "mjx", "trial_s": None,
-                                   "physics_timestep": None, "env": "paper-cheetah",
-                                   "grad_chunks": 1}
+#: had (nmrl/learners/contract.py): a field at that value is left out of the identity.
+LATER_FIELDS = learners.LATER_FIELDS
 
 
 def identity_config(config: Config) -> dict:
@@ -126,7 +121,7 @@ def load_run_config(run_dir: str | os.PathLike) -> Config | None:
     if set(d) - known:
         raise CheckpointError(f"{path}: not a run config (unknown fields {sorted(set(d) - known)})")
     try:
-        cfg = cls(**{k: v for k, v in d.items() if k != learners.KEY})
+        cfg = cls(**learners.saved_fields(cls, {k: v for k, v in d.items() if k != learners.KEY}))
         cfg.resolved()
     except (TypeError, ValueError) as e:
         raise _err(path, "the run's config is invalid", e) from e
