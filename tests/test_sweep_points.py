@@ -95,3 +95,17 @@ def test_bad_points_files_are_one_line_exit_2_nothing_written(tmp_path, capsys, 
     err = capsys.readouterr().err
     assert rc == 2 and needle in err, err
     assert len(err.strip().splitlines()) == 1 and not out.exists()
+
+
+def test_points_that_set_the_environments_fields_run_in_that_environment(tmp_path):
+    """Points may set the environment's own fields (all points alike: one program); the sweep then steps
+    their environment, not the command line's: here a stop probability of 0.3 per control step
+    instead of the base's 1/250, read back from the trials the points counted."""
+    f = tmp_path / "points.json"
+    f.write_text(json.dumps([{"name": "a", "stop_prob": 0.3, "seed": 0}, {"name": "b", "stop_prob": 0.3, "seed": 1}]))
+    out = tmp_path / "sweep"
+    assert cli.main(["sweep", "--points", str(f), *OPTIONS, "--steps", "50", "--physics", "c",
+                     "--out", str(out)]) == 0
+    for r in sweep.load_results(out):
+        steps = r["steps"] * 8
+        assert abs(r["trials"] / steps - 0.3) < 0.1, r  # 1/250 would give ~2 trials of 400 steps

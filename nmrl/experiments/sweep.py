@@ -329,8 +329,12 @@ def _run_sweep(spec, out, resume, progress, keep, max_chunks, plot, checkpoint_e
             draw(out, results)
             last_plot[0] = time.time()
 
-    # the memory of every point before the points are enumerated (a count of billions is refused here)
-    env = driver.preflight_points(base, spec.count())
+    # the memory of every point before the points are enumerated (a count of billions is refused here);
+    # listed points may set the environment's own fields (control step, physics, stop rate): every
+    # point shares the first one's program (nmrl/runs/points.py), so its environment is theirs
+    first = (dataclasses.replace(base, **{k: v for k, v in spec.overrides[0].items() if k != "name"})
+             if spec.overrides else base)
+    env = driver.preflight_points(first, spec.count())
     names = spec.names()
     begun: list[bool] = []
 
