@@ -1,0 +1,201 @@
+"""The third study (docs/thesis-actor-critic.md) on the kit: the paper's actor-critic at 20, 5 and
+2.5 ms, the stationary policy against nm-periods of 0.1 and 0.2 s (cells:
+nmrl/experiments/thesis_ac_cells.py); its registered family, report and command.
+
+    python -m nmrl.experiments.thesis_ac run --out runs/thesis_ac [--published results/thesis_ac]
+    python -m nmrl.experiments.thesis_ac publish --out runs/thesis_ac --dest results/thesis_ac
+    python -m nmrl.experiments.thesis_ac progress --out runs/thesis_ac
+
+The family: the contrasts T1-T7 of the page, each on both co-primary endpoints (the area under the
+learning curve, ``auc_reward_per_s``, and the deterministic endpoint, ``det_reward_per_s``), 14
+Welch tests with Holm over all of them, and TOST at +-25 (AUC) and +-50 (deterministic) reward per
+second with Holm over the same 14; the secondary family the same at 5 ms, Holm apart; the step-size
+check reported with Welch intervals, deciding nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import sys
+
+import numpy as np
+
+from nmrl.experiments import kit, kit_progress
+from nmrl.experiments.thesis_ac_cells import CELLS, CHECK_DT, CHECK_FACTORS, ENDPOINT
+from nmrl.paper.control_step import DELTA_0
+from nmrl.runs import store
+
+#: the co-primary endpoints (rows.csv's columns) and each one's TOST margin [reward/s]
+ENDPOINTS = {"auc_reward_per_s": 25.0, "det_reward_per_s": 50.0}
+ARMS = ("stationary", "p0.1s", "p0.2s")
+
+
+def _c(arm: str, dt: float) -> str:
+    return f"{arm}@{dt:g}"
+
+
+def contrasts(fine: float) -> tuple[tuple[str, dict[str, float]], ...]:
+    """T1-T7 of the page with ``fine`` (2.5 ms; 5 ms for the secondary family) against 20 ms."""
+    s, coarse = "stationary", 0.02
+    out = [("T1", {_c(s, fine): 1.0, _c(s, coarse): -1.0})]
+    out += [(f"T{2 + i}", {_c(a, fine): 1.0, _c(s, fine): -1.0}) for i, a in enumerate(ARMS[1:])]
+    out += [(f"T{4 + i}", {_c(a, fine): 1.0, _c(s, fine): -1.0, _c(a, coarse): -1.0, _c(s, coarse): 1.0})
+            for i, a in enumerate(ARMS[1:])]
+    out += [(f"T{6 + i}", {_c(a, fine): 1.0, _c(a, coarse): -1.0}) for i, a in enumerate(ARMS[1:])]
+    return tuple(out)
+
+
+def arm_of(point: str) -> str:
+    """A point's arm from its name (``p0.1s_s3`` -> ``p0.1s``; ``stationary_x3_s0`` -> ``stationary_x3``)."""
+    return point.rsplit("_s", 1)[0]
+
+
+def ended(r: dict) -> bool:
+    return r["steps"] == r["budget"] or r["diverged"] == "True"
+
+
+def cells(rows: list[dict], key: str) -> dict[str, list[float]]:
+    """Each complete grid or check cell's values of ``key`` by ``arm@dt`` (a cell counts once every
+    point of it has ended: at its budget, or diverged and scored by its last good policy)."""
+    by: dict[str, list[float]] = {}
+    complete: dict[str, bool] = {}
+    for r in rows:
+        if not r["cell"].startswith(("grid/", "check/")):
+            continue
+        k = _c(arm_of(r["point"]), float(r["control_dt"]))
+        complete[r["cell"]] = complete.get(r["cell"], True) and ended(r)
+        if ended(r) and r.get(key, "") != "":
+            by.setdefault(k, []).append(float(r[key]))
+    done = {_c(arm_of(r["point"]), float(r["control_dt"])) for r in rows if complete.get(r["cell"])}
+    return {k: v for k, v in by.items() if k in done}
+
+
+def family(rows: list[dict], fine: float) -> list[dict]:
+    """T1-T7 at ``fine`` on both co-primary endpoints, decided together (module docstring); every
+    decision "pending" while a contrast lacks a complete cell."""
+    from nmrl.analysis import prereg_stats
+
+    out, ok = [], True
+    for key, margin in ENDPOINTS.items():
+        by = cells(rows, key)
+        for name, weights in contrasts(fine):
+            row = {"endpoint": key, "contrast": name, "cells": " ".join(f"{w:+g}*{c}" for c, w in weights.items())}
+            if not all(len(by.get(c, ())) >= 2 for c in weights):
+                ok = False
+                out.append(row)
+                continue
+            samples = [np.asarray(by[c]) for c in weights]
+            r = prereg_stats.contrast(samples, list(weights.values()))
+            e = prereg_stats.contrast_tost(samples, list(weights.values()), margin)
+            out.append({**row, "n": " ".join(str(len(s)) for s in samples), "estimate": r.diff, "lo": r.lo,
+                        "hi": r.hi, "p": r.p, "margin": margin, "tost_p": e.p})
+    if not ok:
+        return [{**r, "decision": "pending"} for r in out]
+    reject = prereg_stats.holm([r["p"] for r in out])
+    equiv = prereg_stats.holm([r["tost_p"] for r in out])
+    for r, pa, rj, pe, eq in zip(out, reject.adjusted, reject.reject, equiv.adjusted, equiv.reject):
+        r.update(p_holm=float(pa), tost_p_holm=float(pe),
+                 decision=("ahead" if r["estimate"] > 0 else "behind") if rj else "equivalent" if eq else "not detected")
+    return out
+
+
+def check(rows: list[dict]) -> list[dict]:
+    """The comparator's step-size check: each scaled stationary cell at 2.5 ms minus the grid's, on
+    both endpoints, with its Welch interval (deciding nothing)."""
+    from nmrl.analysis import prereg_stats
+
+    out = []
+    for key in ENDPOINTS:
+        by = cells(rows, key)
+        base = by.get(_c("stationary", CHECK_DT))
+        for f in CHECK_FACTORS:
+            k = _c(f"stationary_x{f:.3g}", CHECK_DT)
+            row = {"endpoint": key, "contrast": f"step sizes x{f:.3g}", "cells": f"+1*{k} -1*{_c('stationary', CHECK_DT)}"}
+            if base is None or len(by.get(k, ())) < 2:
+                out.append({**row, "decision": "pending"})
+                continue
+            r = prereg_stats.welch(np.asarray(by[k]), np.asarray(base))
+            out.append({**row, "n": f"{len(by[k])} {len(base)}", "estimate": r.diff, "lo": r.lo, "hi": r.hi,
+                        "p": r.p, "decision": "reported"})
+    return out
+
+
+def analysis(rows: list[dict]) -> list[dict]:
+    """The primary family (2.5 ms), the secondary (5 ms) and the check, as ``analysis.csv``'s rows."""
+    return ([{"family": "primary", **r} for r in family(rows, 0.0025)]
+            + [{"family": "secondary", **r} for r in family(rows, 0.005)]
+            + [{"family": "check", **r} for r in check(rows)])
+
+
+def _curve(point: pathlib.Path) -> tuple[np.ndarray, np.ndarray]:
+    """A point's learning curve: simulated seconds per environment, exploring reward per second."""
+    cfg = json.loads((point / "config.json").read_text())
+    m = store.read_metrics(point)
+    return (np.array([r["step"] * cfg["control_dt"] for r in m]), np.array([r["avg_reward"] / DELTA_0 for r in m]))
+
+
+LEARNING_FIGURE, ENDPOINT_FIGURE, CONTRAST_FIGURE = "learning_curves.png", "endpoints.png", "contrasts.png"
+
+
+def report(rows: list[dict], dest: pathlib.Path) -> None:
+    """The learning curves with seed bands (one panel per control step, a line per arm), every ended
+    run's deterministic endpoint with each cell's interval, and the decided contrasts against their
+    margins, from the published points alone."""
+    from nmrl.analysis import cell_curves, contrast_figures
+
+    curves: dict[str, dict[str, list]] = {}
+    for r in rows:
+        point = dest / r["cell"] / "points" / r["point"]
+        if r["cell"].startswith("grid/") and (point / "metrics.jsonl").is_file():
+            panel = f"control step {float(r['control_dt']) * 1000:g} ms"
+            curves.setdefault(panel, {}).setdefault(arm_of(r["point"]), []).append(_curve(point))
+    if curves:
+        cell_curves.figure(curves, dest / LEARNING_FIGURE, "exploring reward per second", "the grid")
+    det: dict[str, dict[str, list[float]]] = {}
+    for r in rows:
+        if r["cell"].startswith("grid/") and ended(r) and r.get("det_reward_per_s", "") != "":
+            det.setdefault(f"control step {float(r['control_dt']) * 1000:g} ms", {}).setdefault(
+                arm_of(r["point"]), []).append(float(r["det_reward_per_s"]))
+    if det:
+        contrast_figures.endpoints(det, dest / ENDPOINT_FIGURE, "deterministic reward per second",
+                                   "every ended run, each cell's mean and 95% t interval")
+    table = [r for r in analysis(rows) if r.get("estimate", "") != "" and r["family"] != "check"
+             and r["endpoint"] == "auc_reward_per_s"]
+    if table:
+        contrast_figures.contrasts(table, ENDPOINTS["auc_reward_per_s"], dest / CONTRAST_FIGURE,
+                                   "difference of the AUC, reward per second (95% Welch interval)",
+                                   "the registered contrasts on the AUC (decisions: Holm over both endpoints)")
+
+
+STUDY = kit.Study(name="thesis_ac", cells=CELLS, endpoint=ENDPOINT, analysis=analysis, report=report)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m nmrl.experiments.thesis_ac", description=__doc__.split("\n\n")[0])
+    ap.add_argument("action", choices=("run", "publish", "rows", "progress"))
+    ap.add_argument("--out", required=True, help="the study's run directory")
+    ap.add_argument("--published", default=None, help="a published copy: cells missing in --out start from it")
+    ap.add_argument("--dest", default=None, help="publish: where the copy goes")
+    ap.add_argument("--only", nargs="*", default=(), help="cells whose names start with one of these")
+    a = ap.parse_args(argv)
+    if a.action == "run":
+        try:
+            kit.run(STUDY, a.out, published=a.published, only=a.only or None)
+        except kit.StudyStopped as e:
+            print(f"thesis_ac: {e}; run again to continue", file=sys.stderr)
+            return e.status
+    elif a.action == "publish":
+        if not a.dest:
+            ap.error("publish needs --dest")
+        kit.publish(STUDY, a.out, a.dest)
+    elif a.action == "progress":
+        print(kit_progress.progress_text(kit_progress.progress(STUDY, pathlib.Path(a.out))))
+    else:
+        kit.write_rows(STUDY, pathlib.Path(a.out))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

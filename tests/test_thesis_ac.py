@@ -1,0 +1,130 @@
+"""The third study's design and analysis (docs/thesis-actor-critic.md, nmrl/experiments/thesis_ac.py)
+against independent computations: the cells against the continuous-time rules written out, the
+family's decisions against scipy's Welch test and Holm's procedure by hand, and the page's numbers
+from Fig. 3's committed metrics and scipy's noncentral t."""
+from __future__ import annotations
+
+import json
+import pathlib
+import re
+
+import numpy as np
+import pytest
+import scipy.stats
+
+from nmrl.experiments import thesis_ac
+from nmrl.experiments.thesis_ac_cells import CELLS, DTS
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+DOC = REPO / "docs" / "thesis-actor-critic.md"
+
+
+def _doc() -> str:
+    return re.sub(r"\s+", " ", DOC.read_text().replace("**", ""))
+
+
+@pytest.mark.parametrize("dt", DTS)
+def test_every_point_is_the_20_ms_learner_held_in_seconds(dt):
+    cell = next(c for c in CELLS if c.name == f"grid/dt{dt:g}")
+    k = dt / 0.02
+    steps = int(cell.budget()[1])
+    assert steps * 32 * dt == pytest.approx(1e5)  # 10^5 simulated seconds per point
+    assert len(cell.points) == 24 and sorted({p["seed"] for p in cell.points}) == list(range(8))
+    for p in cell.points:
+        arm = p["name"].rsplit("_s", 1)[0]
+        period = {"stationary": dt, "p0.1s": 0.1, "p0.2s": 0.2}[arm]
+        assert p.get("l", 10) == round(period / dt)
+        assert p.get("gamma", 0.995) == pytest.approx(0.995 ** k, rel=1e-12)
+        assert p.get("alpha", 0.8) == pytest.approx(0.8 ** k, rel=1e-12)
+        assert p.get("stop_prob", 1 / 250) == pytest.approx(k / 250, rel=1e-12)
+        assert p.get("reward_scale", 1.0) == pytest.approx(k)
+        assert p.get("lam", 0.5) == pytest.approx(0.5 ** k if arm == "stationary" else 0.5)
+        assert p.get("delta", 4) == round(4 / k)
+        assert p["physics"] == "c" and p["physics_timestep"] == 0.0025 and p["num_envs"] == 32
+        assert p.get("chunk_steps", 250) * dt == pytest.approx(10.0)
+        assert "beta_theta" not in p and "beta_v" not in p and "preset" not in p  # the paper's step sizes
+
+
+def _rows(rng, means: dict[tuple[str, float], tuple[float, float]], n: int = 8) -> list[dict]:
+    rows = []
+    for (arm, dt), (auc, det) in means.items():
+        for s in range(n):
+            rows.append({"cell": f"grid/dt{dt:g}", "point": f"{arm}_s{s}", "control_dt": str(dt), "steps": "1",
+                         "budget": "1", "diverged": "False", "auc_reward_per_s": str(auc + 10 * rng.normal()),
+                         "det_reward_per_s": str(det + 40 * rng.normal())})
+    return rows
+
+
+def _holm(p: list[float]) -> list[float]:
+    order = np.argsort(p)
+    adj, running = np.empty(len(p)), 0.0
+    for i, j in enumerate(order):
+        running = max(running, min(1.0, (len(p) - i) * p[j]))
+        adj[j] = running
+    return list(adj)
+
+
+def test_the_family_is_welch_and_holm_over_both_endpoints():
+    rng = np.random.default_rng(0)
+    means = {("stationary", 0.02): (0, 50), ("p0.1s", 0.02): (60, 60), ("p0.2s", 0.02): (50, 55),
+             ("stationary", 0.0025): (-40, 0), ("p0.1s", 0.0025): (60, 60), ("p0.2s", 0.0025): (55, 50)}
+    rows = _rows(rng, means)
+    fam = thesis_ac.family(rows, 0.0025)
+    assert len(fam) == 14 and {r["decision"] for r in fam} <= {"ahead", "behind", "equivalent", "not detected"}
+    by = {}
+    for r in rows:
+        by.setdefault((r["point"].rsplit("_s", 1)[0], float(r["control_dt"])), []).append(r)
+    ps = []
+    for r in fam:
+        x = lambda arm, dt: np.array([float(q[r["endpoint"]]) for q in by[arm, dt]])  # noqa: E731
+        if r["contrast"] == "T1":
+            t = scipy.stats.ttest_ind(x("stationary", 0.0025), x("stationary", 0.02), equal_var=False)
+            assert r["p"] == pytest.approx(t.pvalue, rel=1e-9)
+            assert r["estimate"] == pytest.approx(x("stationary", 0.0025).mean() - x("stationary", 0.02).mean())
+        if r["contrast"] == "T2":
+            t = scipy.stats.ttest_ind(x("p0.1s", 0.0025), x("stationary", 0.0025), equal_var=False)
+            lo, hi = t.confidence_interval(0.95)
+            assert (r["lo"], r["hi"]) == pytest.approx((lo, hi), rel=1e-9)
+        ps.append(r["p"])
+    assert [r["p_holm"] for r in fam] == pytest.approx(_holm(ps))
+    t1 = {r["endpoint"]: r for r in fam if r["contrast"] == "T1"}
+    assert t1["auc_reward_per_s"]["decision"] == "behind"  # -40 against 0, SD 10, 8 seeds
+
+
+def test_a_family_with_an_unfinished_cell_is_pending():
+    rng = np.random.default_rng(1)
+    rows = _rows(rng, {("stationary", 0.02): (0, 0), ("p0.1s", 0.02): (1, 1), ("p0.2s", 0.02): (1, 1),
+                       ("stationary", 0.0025): (0, 0), ("p0.1s", 0.0025): (1, 1), ("p0.2s", 0.0025): (1, 1)})
+    rows[-1]["steps"] = "0"  # the last point of the 2.5 ms cell has not ended
+    assert {r["decision"] for r in thesis_ac.family(rows, 0.0025)} == {"pending"}
+
+
+def test_the_pages_fig3_numbers_are_the_committed_runs():
+    """The mean exploring reward per second over the first 2*10^4 trials of Fig. 3's 20 ms runs."""
+    doc = _doc()
+    for l, name in ((1, "l = 1"), (5, "l = 5"), (10, "l = 10")):
+        auc = []
+        for s in range(3):
+            m = [json.loads(x) for x in (REPO / "results" / "fig3_paper" / "points" / f"l{l}_s{s}" /
+                                         "metrics.jsonl").read_text().splitlines() if x.strip()]
+            auc.append(np.mean([r["avg_reward"] for r in m if r["trials"] <= 20000]) / 0.02)
+        mean, sd = np.mean(auc), np.std(auc, ddof=1)
+        claim = f"{mean:+.1f} ({sd:.1f}".replace("-", "\N{MINUS SIGN}") if l != 1 else \
+            f"{mean:.1f} (SD {sd:.1f}".replace("-", "\N{MINUS SIGN}")
+        assert claim in doc, claim
+
+
+def test_the_pages_detectable_differences_are_the_noncentral_t():
+    """8 seeds, SD 11, 80% power at alpha / 14: the smallest whole difference of two cells and of an
+    interaction of four, by scipy's noncentral t."""
+    doc = _doc()
+    for cells, label in ((2, "a difference of two cells of"), (4, "an interaction of four cells of")):
+        dof = cells * 7
+        tc = scipy.stats.t.ppf(1 - 0.05 / 14 / 2, dof)
+
+        def power(delta):
+            nc = delta / (11 * np.sqrt(cells / 8))
+            return scipy.stats.nct.sf(tc, dof, nc) + scipy.stats.nct.cdf(-tc, dof, nc)
+
+        d = next(d for d in range(1, 200) if power(d) >= 0.8)
+        assert f"{label} {d}" in doc, (label, d)
