@@ -84,3 +84,31 @@ def test_importing_the_command_loads_no_numpy_jax_or_run_store():
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert p.returncode == 0, p.stderr
     assert p.stdout.strip() == ""
+
+
+def test_bare_nmrl_shows_the_commands_and_version_names_the_package(capsys):
+    from importlib import metadata
+
+    assert cli.main([]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("usage: nmrl") and all(c in out for c in ("train", "sweep", "eval", "study", "baseline"))
+    with pytest.raises(SystemExit) as e:
+        cli.main(["--version"])
+    assert e.value.code == 0 and capsys.readouterr().out.strip() == f"nmrl {metadata.version('nmrl')}"
+
+
+@pytest.mark.parametrize("setting, given, want", [
+    (None, None, "~/.cache/nmrl/xla"),  # the default
+    (None, "/elsewhere", "/elsewhere"),  # the user's JAX_COMPILATION_CACHE_DIR wins
+    ("off", None, None), ("0", None, None),  # turned off
+])
+def test_the_command_keeps_compiled_programs_unless_told_not_to(monkeypatch, setting, given, want):
+    import os
+
+    for name, value in (("NMRL_COMPILE_CACHE", setting), ("JAX_COMPILATION_CACHE_DIR", given)):
+        if value is None:
+            monkeypatch.delenv(name, raising=False)
+        else:
+            monkeypatch.setenv(name, value)
+    cli.compile_cache()
+    assert os.environ.get("JAX_COMPILATION_CACHE_DIR") == (None if want is None else os.path.expanduser(want))

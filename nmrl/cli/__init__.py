@@ -74,6 +74,21 @@ def learner_name(argv: list[str]) -> str | None:
     return name if isinstance(name, str) else None
 
 
+#: where compiled programs are kept between commands unless ``JAX_COMPILATION_CACHE_DIR`` says
+#: otherwise; ``NMRL_COMPILE_CACHE=off`` turns the cache off (docs/runs.md)
+COMPILE_CACHE = os.path.join("~", ".cache", "nmrl", "xla")
+
+
+def compile_cache() -> None:
+    """Before JAX is imported: XLA's persistent compile cache in :data:`COMPILE_CACHE` (or the user's
+    ``JAX_COMPILATION_CACHE_DIR``), so a second command of the same shapes skips most compiling;
+    ``NMRL_COMPILE_CACHE`` = off / 0 / false leaves it off. Programs that call back into MuJoCo C
+    (``--physics c``) are not cached by JAX."""
+    if os.environ.get("NMRL_COMPILE_CACHE", "").strip().lower() in ("off", "0", "false", "no"):
+        return
+    os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.expanduser(COMPILE_CACHE))
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the command ``argv``; None: the process's own arguments, ``main`` being the process's
     entry point (which alone may mute stderr after a disk failure's line, nmrl/runs/io_errors.py)."""
@@ -82,6 +97,10 @@ def main(argv: list[str] | None = None) -> int:
 
         io_errors.mute_after_report = True
     argv = sys.argv[1:] if argv is None else list(argv)
+    if not argv:  # bare `nmrl`: the commands, not an error
+        build_parser(None).print_help()
+        return 0
+    compile_cache()
     trains = argv[:1] in (["train"], ["sweep"])
     # this process runs the command (a distributed one's watcher forwards signals instead): from its
     # first line on, before JAX is imported, a signal never raises inside JAX (nmrl/runs/signals.py)

@@ -46,12 +46,23 @@ def _learner_option(p: argparse.ArgumentParser, learner) -> None:
                         f"actor-critic; with --resume: the run's own); its options are listed below")
 
 
+def version() -> str:
+    """The installed package's version (pyproject.toml)."""
+    from importlib import metadata
+
+    try:
+        return metadata.version("nmrl")
+    except metadata.PackageNotFoundError:
+        return "unknown (not installed)"
+
+
 def build_parser(learner=None) -> argparse.ArgumentParser:
     """The command line; ``train`` and ``sweep`` take the options of ``learner`` (default: ac)."""
     from nmrl.options import MAX_EVAL_SECONDS
 
     learner = learner or get_learner()
     ap = OneLineParser(prog="nmrl", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--version", action="version", version=f"nmrl {version()}")
     sub = ap.add_subparsers(dest="cmd", required=True)
 
     p = sub.add_parser("train", help="train one run of a learner (default: the paper's actor-critic, Table II)")

@@ -1,0 +1,45 @@
+"""Period-wise nm-periods in PPO at 20 ms (issue: the NMp arm of study 2 never learned): the same
+cells as study 2's grid (nmrl/experiments/exploration2_cells.py: 64 environments, 16 iterations,
+C physics at a 2.5 ms timestep, trials of 5 s, the deterministic endpoint) for seeds 0-1, with NMp's
+noise scale below the screen's choice and with the noise's covariance independent of the policy
+(``--learn-std false``: std_theta = 1, the paper's C_k), so that each can be set against study 2's
+NMp(20) (sigma 1: every run stands) and W(20) (walks) of the same seeds.
+
+    python scripts/lab/nmp_diagnosis.py --out runs/nmp_diagnosis      # runs what is missing, prints rows
+"""
+
+from __future__ import annotations
+
+import argparse
+import pathlib
+
+from nmrl.experiments import kit
+from nmrl.experiments.exploration2_cells import ARMS, ENDPOINT, GRID_ITERATIONS, base
+
+SEEDS = 2
+VARIANTS = {
+    "nmp_sigma0.4": ("--sigma", "0.4"),
+    "nmp_sigma0.16": ("--sigma", "0.16"),
+    "nmp_sigma1_fixed_std": ("--sigma", "1", "--learn-std", "false"),
+}
+
+
+def cells() -> tuple[kit.Cell, ...]:
+    return tuple(kit.Cell(f"dt0.02/{name}", (*base(0.02, GRID_ITERATIONS), *ARMS["nmp"], *extra, "--seeds", str(SEEDS),
+                                             "--seed0", "0"), run_options=("--group", str(SEEDS)))
+                 for name, extra in VARIANTS.items())
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", required=True)
+    a = ap.parse_args()
+    study = kit.Study(name="nmp_diagnosis", cells=cells(), endpoint=ENDPOINT)
+    kit.run(study, a.out)
+    for r in kit.rows(study, pathlib.Path(a.out)):
+        print(r["cell"], r["point"], f"det {float(r['det_reward_per_s']):.1f} /s at {float(r['det_forward_speed']):.2f} m/s;"
+              f" exploring {float(r['avg_reward_per_s']):.1f} /s at {float(r['forward_speed']):.2f} m/s")
+
+
+if __name__ == "__main__":
+    main()
