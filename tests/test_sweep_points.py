@@ -85,6 +85,8 @@ def test_a_points_sweep_records_its_points_and_equals_separate_train_runs(listed
     ('[{"name": "a", "l": 1}]', ["--seeds", "2"], "without --seeds"),
     ('[{"name": "a", "l": 1}]', ["--vary", "sigma", "1"], "without --vary"),
     ('[{"name": "a", "l": 1}]', ["--checkpoint-every", "0"], "--checkpoint-every=0"),
+    ('[{"name": "a", "sigma": 0.5}, {"name": "b", "sigma": 0.7}]', ["--sigma", "0.3"],
+     "--sigma 0.3 is given and the points file sets sigma too (point 'a': 0.5)"),
 ])
 def test_bad_points_files_are_one_line_exit_2_nothing_written(tmp_path, capsys, content, extra, needle):
     f = tmp_path / "points.json"

@@ -223,8 +223,17 @@ def listed_spec(args: argparse.Namespace, learner, base):
     if other:
         raise ValueError(f"--points lists every point (its seed among its fields): give it without {', '.join(other)}"
                          + (" (a resume continues the saved points)" if "--resume" in other else ""))
-    spec = sweep.SweepSpec(ls=(None,), seeds=1, base=base, field=None,
-                           overrides=read_points(args.points, learner.config))
+    overrides = read_points(args.points, learner.config)
+    fields = {f.name for f in dataclasses.fields(learner.config)}
+    given = {n: getattr(args, n) for n in fields if getattr(args, n, None) is not None}
+    both = [(p["name"], k, p[k]) for p in overrides for k in p
+            if k in given and k not in ("name", "seed", *sweep.BUDGET_FIELDS)]  # the budget: its own message
+    if both:
+        name, k, v = both[0]
+        raise ValueError(f"--{k.replace('_', '-')} {given[k]!r} is given and the points file sets {k} too (point "
+                         f"{name!r}: {v!r}): give each field in one place, the command line (every point) or "
+                         f"the file")
+    spec = sweep.SweepSpec(ls=(None,), seeds=1, base=base, field=None, overrides=overrides)
     spec.validate()
     return spec
 
