@@ -112,3 +112,16 @@ def test_the_command_keeps_compiled_programs_unless_told_not_to(monkeypatch, set
             monkeypatch.setenv(name, value)
     cli.compile_cache()
     assert os.environ.get("JAX_COMPILATION_CACHE_DIR") == (None if want is None else os.path.expanduser(want))
+
+
+@pytest.mark.parametrize("command", ["train", "sweep"])
+def test_a_ppo_budget_below_one_iteration_is_refused_naming_the_iteration(tmp_path, capsys, command):
+    """4 environments, minibatches of 4 unrolls, 2 minibatches: an iteration is 2 unrolls of 0.4 s,
+    40 control steps per environment at 20 ms."""
+    out = tmp_path / "run"
+    argv = [command, "--learner", "ppo", "--num-envs", "4", "--batch-size", "4", "--num-minibatches", "2",
+            "--steps", "39", "--out", str(out)]
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert "--steps 39 is below one iteration of 40 control steps per environment" in err and "--unroll-s" in err
+    assert len(err.strip().splitlines()) == 1 and not out.exists()

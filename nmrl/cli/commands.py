@@ -75,6 +75,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         store.out_path(args.out)
         given, cfg = given_options(args), config_from_args(args)
         run.check_config(cfg)
+        if not args.resume:
+            check_iteration_budget(cfg)
         if args.step is not None and args.step < 0:
             raise ValueError(f"--step={args.step} is invalid: a checkpoint step is >= 0")
         return given, cfg
@@ -104,6 +106,19 @@ def cmd_train(args: argparse.Namespace) -> int:
                           "avg_reward_first_chunk": first["avg_reward"], "avg_reward": last["avg_reward"],
                           "forward_speed": last["forward_speed"]}))
     return status
+
+
+def check_iteration_budget(cfg) -> None:
+    """A learner that learns in whole iterations (PPO: ``iteration_steps`` control steps per
+    environment) refuses a budget below one: ValueError naming the iteration's size and the options
+    that make it smaller."""
+    it = getattr(cfg, "iteration_steps", None)
+    if it is None or cfg.steps is None or cfg.steps >= it:
+        return
+    raise ValueError(f"--steps {cfg.steps} is below one iteration of {it} control steps per environment (batch "
+                     f"{cfg.batch_size} x {cfg.num_minibatches} minibatches / {cfg.num_envs} environments = "
+                     f"{cfg.unrolls_per_env} unrolls of {cfg.unroll_length} steps): give --steps {it} or more, or a "
+                     f"smaller iteration with --batch-size, --num-minibatches or --unroll-s")
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
@@ -160,6 +175,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
     def check() -> "sweep.SweepSpec":
         spec = points()
+        if not args.resume:
+            check_iteration_budget(spec.base.resolved())
         if args.checkpoint_every < 1:
             raise ValueError(f"--checkpoint-every={args.checkpoint_every} is invalid: must be >= 1")
         if args.group < 1:
