@@ -125,3 +125,15 @@ def test_a_ppo_budget_below_one_iteration_is_refused_naming_the_iteration(tmp_pa
     err = capsys.readouterr().err
     assert "--steps 39 is below one iteration of 40 control steps per environment" in err and "--unroll-s" in err
     assert len(err.strip().splitlines()) == 1 and not out.exists()
+
+
+@pytest.mark.parametrize("argv, want", [
+    (["train", "--learning-rate", "0.1"], "--learning-rate: an option of the learner 'ppo', not of 'ac' (give --learner ppo"),
+    (["sweep", "--learner", "ppo", "--hidden-actor", "8"], "--hidden-actor: an option of the learner 'ac', not of 'ppo'"),
+    (["train", "--bogus", "3"], "unknown option(s) --bogus 3"),
+])
+def test_an_option_of_another_learner_names_that_learner(tmp_path, capsys, argv, want):
+    out = tmp_path / "run"
+    assert cli.main([*argv, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert want in err and len(err.strip().splitlines()) == 1 and not out.exists()

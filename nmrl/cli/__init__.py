@@ -145,6 +145,10 @@ def _command(argv: list[str], guard: "_signals.Guard | None") -> int:
         watched = _watch(argv)
         if watched is not None:
             return watched
+    if learner is not None:
+        hint = _option_of_another_learner(argv, learner)
+        if hint is not None:
+            return fail(hint)
     args = build_parser(learner).parse_args(argv)
     args.argv = argv
     if early is not None:
@@ -162,6 +166,32 @@ def _command(argv: list[str], guard: "_signals.Guard | None") -> int:
             os._exit(status)
         distributed.leave()  # every process leaves here together (the end, a signal, a refusal)
     return status
+
+
+def _command_options(parser: argparse.ArgumentParser, cmd: str) -> set[str]:
+    """The option strings the subcommand ``cmd`` of ``parser`` takes."""
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return set(sub.choices[cmd]._option_string_actions)
+
+
+def _option_of_another_learner(argv: list[str], learner) -> str | None:
+    """For ``train``/``sweep``: the line naming an option that ``learner`` does not take but another
+    learner does (``--learning-rate`` without ``--learner ppo``), else None (argparse answers)."""
+    from nmrl import learners
+    from nmrl.cli.config_options import get_learner
+
+    mine = _command_options(build_parser(learner), argv[0])
+    given = [a.split("=", 1)[0] for a in argv[1:] if a.startswith("--")]
+    unknown = [a for a in given if a not in mine]
+    for other in learners.names():
+        if other == learner.name or not unknown:
+            continue
+        theirs = _command_options(build_parser(get_learner(other)), argv[0])
+        belong = [a for a in unknown if a in theirs]
+        if belong:
+            return (f"{', '.join(belong)}: an option of the learner {other!r}, not of {learner.name!r} (give "
+                    f"--learner {other}, see nmrl {argv[0]} --learner {other} --help)")
+    return None
 
 
 def _stopped_early(signum: int) -> str:
