@@ -134,6 +134,9 @@ def test_a_ppo_budget_below_one_iteration_is_refused_naming_the_iteration(tmp_pa
 ])
 def test_an_option_of_another_learner_names_that_learner(tmp_path, capsys, argv, want):
     out = tmp_path / "run"
-    assert cli.main([*argv, "--out", str(out)]) == 2
+    try:
+        rc = cli.main([*argv, "--out", str(out)])
+    except SystemExit as e:  # argparse's own refusal
+        rc = e.code
     err = capsys.readouterr().err
-    assert want in err and len(err.strip().splitlines()) == 1 and not out.exists()
+    assert rc == 2 and want in err and len(err.strip().splitlines()) == 1 and not out.exists()
