@@ -399,3 +399,23 @@ def test_a_task_run_at_another_step_resumes_with_its_env_given_again(tmp_path):
     assert cli.main([*argv, "--control-dt", "0.004", "--steps", "40"]) == 0
     assert cli.main([*argv, "--resume", "--steps", "200"]) == 0
     assert json.loads((out / "config.json").read_text())["control_dt"] == 0.004
+
+
+@pytest.mark.parametrize("name", sorted(TASKS))
+def test_each_tasks_model_is_gymnasiums_field_for_field_without_the_deprecated_attribute(name, capfd):
+    """nmrl's compiled model of each task equals MuJoCo's compile of Gymnasium's file in every array
+    field, and loading it prints no deprecation warning (HalfCheetah's settotalmass is applied after
+    compiling)."""
+    import mujoco
+
+    from nmrl.tasks.gym_v5 import load_model
+
+    capfd.readouterr()
+    got = load_model(TASKS[name])
+    assert "deprecated" not in capfd.readouterr().err
+    ref = mujoco.MjModel.from_xml_path(str(model_path(TASKS[name])))
+    capfd.readouterr()
+    fields = [n for n in dir(ref) if not n.startswith("_") and isinstance(getattr(ref, n, None), np.ndarray)]
+    assert len(fields) > 50
+    for n in fields:
+        np.testing.assert_array_equal(getattr(got, n), getattr(ref, n), err_msg=n)

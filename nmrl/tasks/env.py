@@ -52,7 +52,7 @@ from nmrl.paper import _mjx as mjx  # quiet import (see nmrl/__init__.py)
 from nmrl.paper.env import CData, State
 from nmrl.physics import mujoco_c
 import nmrl.tasks.doubles as doubles  # (not ``from nmrl.tasks``: the package imports this module)
-from nmrl.tasks.gym_v5 import TASKS, TaskSpec, model_path
+from nmrl.tasks.gym_v5 import TASKS, TaskSpec, load_model, model_path
 
 PHYSICS = ("mjx", "c")
 
@@ -107,7 +107,7 @@ class Task:
         self.config = config = config or TaskConfig()
         config.validate()
         path = model_path(self.spec)
-        self.mj_model = mj = mujoco.MjModel.from_xml_path(str(path))
+        self.mj_model = mj = load_model(self.spec)
         self.timestep = float(mj.opt.timestep)
         self.task_dt = self.spec.frame_skip * self.timestep  #: dt0, Gymnasium's ``env.dt``
         if self.timestep != self.spec.timestep:

@@ -24,6 +24,9 @@ from __future__ import annotations
 import dataclasses
 import importlib.util
 import pathlib
+import re
+
+import mujoco
 
 #: the episode length of every task's registration, in its own control steps
 MAX_EPISODE_STEPS = 1000
@@ -92,3 +95,24 @@ def model_path(spec: TaskSpec) -> pathlib.Path:
         raise GymnasiumMissing(f"{path} is missing: the installed gymnasium lacks {spec.gym_id}'s model "
                                "(pip install -e '.[dev]' installs the tested version)")
     return path
+
+
+_TOTAL_MASS = re.compile(r'\s+settotalmass\s*=\s*"([^"]*)"')
+
+
+def load_model(spec: TaskSpec) -> mujoco.MjModel:
+    """The task's compiled model, as Gymnasium compiles it. HalfCheetah's MJCF scales its masses with
+    the compiler attribute ``settotalmass``, which MuJoCo 3 deprecates with a warning at every parse;
+    the model is parsed without it and scaled after compiling by ``mj_setTotalmass`` and
+    ``mj_setConst``, the replacement MuJoCo names, which gives every field of the model bit for bit
+    (tests/test_tasks.py)."""
+    path = model_path(spec)
+    text = path.read_text()
+    m = _TOTAL_MASS.search(text)
+    if m is None:
+        return mujoco.MjModel.from_xml_path(str(path))
+    mj = mujoco.MjSpec.from_string(_TOTAL_MASS.sub("", text, count=1)).compile()
+    mujoco.mj_setTotalmass(mj, float(m.group(1)))
+    mujoco.mj_setConst(mj, mujoco.MjData(mj))
+    return mj
+
