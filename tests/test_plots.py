@@ -30,3 +30,18 @@ def test_a_failed_save_leaves_the_old_picture_and_closes_the_figure(tmp_path):
     assert path.read_bytes() == b"the old picture"
     assert fig.number not in plt.get_fignums()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.png"]
+
+
+@pytest.mark.parametrize("trials, reduced", [(205, True), (100_016, False)])
+def test_fig3_says_when_a_run_is_far_below_the_papers_budget(tmp_path, monkeypatch, trials, reduced):
+    from nmrl.analysis import plots
+
+    seen = {}
+    monkeypatch.setattr(plots, "_save", lambda fig, path: seen.setdefault("labels", [
+        t.get_text() for ax in fig.axes if ax.get_legend() for t in ax.get_legend().get_texts()]))
+    rows = [{"l": l, "seed": s, "trials": trials, "avg_reward": 0.1 * l + s, "diverged": False}
+            for l in (1, 10) for s in (0, 1)]
+    curves = {l: [[{"trials": trials, "avg_reward": 0.1}]] for l in (1, 10)}
+    plots.fig3(rows, curves, tmp_path / "fig3.png")
+    paper = next(t for t in seen["labels"] if t.startswith("paper"))
+    assert ("not comparable" in paper and f"this run: {trials:,}" in paper) == reduced

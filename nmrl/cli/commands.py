@@ -14,6 +14,7 @@ import dataclasses
 import json
 import math
 import os
+import pathlib
 import sys
 import typing
 from collections.abc import Callable
@@ -219,6 +220,11 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         return e.exit_status
     except Exception as e:  # noqa: BLE001 - bad input, the disk, another writer, memory; several processes: a peer gone
         return exit_status(args, e, (sweep.SweepError, driver.RunError, checkpoint.CheckpointError, ValueError))
+    if is_process_zero(args):
+        out = pathlib.Path(args.out)
+        wrote = [str(out / f) for f in (sweep.RESULTS_FILE, "fig3.png") if (out / f).is_file()]
+        if wrote:
+            print(f"sweep: wrote {' and '.join(wrote)}; each point's run is in {out / 'points'}", file=sys.stderr)
     return 0
 
 
