@@ -45,3 +45,19 @@ def saved_figures(monkeypatch):
 
     monkeypatch.setattr(matplotlib.figure.Figure, "savefig", recording_savefig)
     return saved
+
+
+#: ``pytest -m smoke``: a check of an install in a minute or two on 2 cores (README): these files
+#: whole, and these tests (one end-to-end sweep on MuJoCo C among them)
+SMOKE_FILES = {"test_networks.py", "test_structure.py", "test_options.py", "test_noise.py", "test_prereg_stats.py",
+               "test_plots.py"}
+SMOKE_TESTS = {"test_sweep_points.py::test_points_that_set_the_environments_fields_run_in_that_environment",
+               "test_cli.py::test_bare_nmrl_shows_the_commands_and_version_names_the_package",
+               "test_cli.py::test_a_ppo_budget_below_one_iteration_is_refused_naming_the_iteration"}
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        name = item.nodeid.rsplit("/", 1)[-1]
+        if name.split("::")[0] in SMOKE_FILES or name.split("[")[0] in SMOKE_TESTS:
+            item.add_marker(pytest.mark.smoke)
