@@ -473,7 +473,9 @@ def test_a_diverging_run_exits_3_says_so_and_keeps_its_last_good_checkpoint(tmp_
     assert bad["diverged"] is True and not any(r["diverged"] for r in rows[:-1]) and bad["step"] < 500
     assert rc == 3 and out == ""
     (line,) = err.splitlines()
-    assert line.startswith(f"nmrl: training diverged at step {bad['step']} (theta norm "), line
+    assert line.startswith(f"nmrl: training diverged at step {bad['step']}: an update took a parameter norm past "
+                           f"the limit 100000 (or to a non-finite value) and was rejected"), line
+    assert "frozen at their last accepted values (theta norm " in line
     assert f"the last good checkpoint (step {good['step']}) is kept in {d}. Try smaller step sizes." in line
     assert checkpoint.all_steps(d)[-1] == good["step"]
     ts = checkpoint.restore(d, make_train(checkpoint.load_config(d)))

@@ -213,8 +213,10 @@ def drive(ps: Sequence, layout, *, guard: signals.Guard, stages: list[list[int]]
                         kept = (f"the last good checkpoint (step {last}) is kept in {p.dir}" if last is not None
                                 else "no checkpoint was kept (it diverged in its first chunk)")
                         raise Diverged(
-                            f"training diverged at step {row['step']} ({norms}, limit {p.cfg.max_param_norm:g}); "
-                            f"{kept}. Try smaller step sizes.")
+                            f"training diverged at step {row['step']}: an update took a parameter norm past the "
+                            f"limit {p.cfg.max_param_norm:g} (or to a non-finite value) and was rejected, the "
+                            f"parameters frozen at their last accepted values ({norms}); {kept}. Try smaller "
+                            f"step sizes.")
                     continue
                 finished = budget_done(p.cfg, row["step"], row["trials"])
                 want[i] = (finished or checkpoint_every == 1 or stop.signal is not None
