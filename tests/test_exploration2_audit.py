@@ -99,3 +99,36 @@ def test_whites_trust_region_per_second_widens_at_the_fine_step():
         assert f"{per_step[dt]:.3f}" in doc and f"{per_s[dt]:.1f}" in doc
     for dt in ("0.02", "0.0025"):
         assert f"{per_step[dt]:.3f}" in readme and f"{per_s[dt]:.1f}" in readme
+
+
+def test_the_trust_region_table_is_the_grid_logs_per_second_of_behaviour():
+    """trust_region.csv (nmrl/experiments/exploration2_diagnosis.py) recomputed: per cell and
+    iteration the median over seeds of the clipped share and of the KL per ratio over the seconds a
+    ratio covers (NMp: its period, 0.06 s at 20 ms and 0.02 s at 2.5 ms; white: the control step)."""
+    path = RECORD / "trust_region.csv"
+    with open(path, newline="") as fh:
+        table = list(csv.DictReader(fh))
+    for cell, per in (("dt0.02/white", 0.02), ("dt0.02/nmp", 0.06), ("dt0.0025/white", 0.0025), ("dt0.0025/nmp", 0.02)):
+        logs = [[json.loads(x) for x in p.read_text().splitlines() if x.strip()]
+                for p in sorted((RECORD / "grid" / cell / "points").glob("*/metrics.jsonl"))]
+        rows = [r for r in table if r["cell"] == f"grid/{cell}"]
+        assert len(rows) == 16
+        for r in rows:
+            it = int(r["iteration"]) - 1
+            assert float(r["clip_frac"]) == pytest.approx(np.median([m[it]["clip_frac"] for m in logs]))
+            assert float(r["kl_per_s"]) == pytest.approx(np.median([m[it]["approx_kl"] for m in logs]) / per)
+
+
+def test_the_diagnosis_tables_endpoints_are_the_published_runs():
+    """The NMp variants' deterministic endpoints and speeds in the study page are the published
+    diagnosis rows' (results/exploration2/diagnosis/rows.csv), and none of them walks (< 1 m/s)."""
+    _, doc = _pages()
+    with open(RECORD.parent / "diagnosis" / "rows.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 6
+    for variant in ("nmp_sigma0.4", "nmp_sigma0.16", "nmp_sigma1_fixed_std"):
+        rs = sorted((r for r in rows if r["cell"] == f"dt0.02/{variant}"), key=lambda r: int(r["seed"]))
+        det = ", ".join(f"{float(r['det_reward_per_s']):+.1f}".replace("+-", "-").replace("-", "\N{MINUS SIGN}")
+                        for r in rs)
+        assert det.replace("+", "") in doc.replace("+", ""), det
+        assert all(float(r["det_forward_speed"]) < 1.0 for r in rs)
