@@ -237,7 +237,7 @@ def test_ppo_trains_on_a_task(tmp_path):
     out = tmp_path / "r"
     assert cli.main(["train", "--learner", "ppo", "--env", "hopper-v5", "--physics", "c", "--num-envs", "4",
                      "--batch-size", "4", "--num-minibatches", "2", "--epochs", "1", "--policy-layers", "1",
-                     "--value-layers", "1", "--steps", "40", "--out", str(out)]) == 0
+                     "--value-layers", "1", "--steps", "100", "--out", str(out)]) == 0
     assert json.loads((out / "config.json").read_text())["env"] == "hopper-v5"
 
 
@@ -356,7 +356,7 @@ def test_a_task_runs_eval_scores_episodes_as_a_gymnasium_loop_does(tmp_path):
     out = tmp_path / "r"
     assert cli.main(["train", "--learner", "ppo", "--env", "hopper-v5", "--physics", "c", "--num-envs", "4",
                      "--batch-size", "4", "--num-minibatches", "2", "--epochs", "1", "--policy-layers", "1",
-                     "--value-layers", "1", "--steps", "40", "--out", str(out)]) == 0
+                     "--value-layers", "1", "--steps", "100", "--out", str(out)]) == 0
     assert cli.main(["eval", str(out), "--seed", "5"]) == 0
     ev = json.loads((out / "eval" / "eval.json").read_text())
     det = ev["deterministic"]
@@ -396,7 +396,7 @@ def test_a_task_run_at_another_step_resumes_with_its_env_given_again(tmp_path):
     argv = ["train", "--learner", "ppo", "--env", "hopper-v5", "--physics", "c", "--num-envs", "4",
             "--batch-size", "4", "--num-minibatches", "2", "--epochs", "1", "--policy-layers", "1",
             "--value-layers", "1", "--out", str(out)]
-    assert cli.main([*argv, "--control-dt", "0.004", "--steps", "40"]) == 0
+    assert cli.main([*argv, "--control-dt", "0.004", "--steps", "200"]) == 0  # one iteration: 2 unrolls of 100
     assert cli.main([*argv, "--resume", "--steps", "200"]) == 0
     assert json.loads((out / "config.json").read_text())["control_dt"] == 0.004
 

@@ -12,12 +12,11 @@ report (nmrl/experiments/exploration2_analysis.py), and its command.
 
 from __future__ import annotations
 
-import argparse
 import json
 import pathlib
 import sys
 
-from nmrl.experiments import kit, kit_progress
+from nmrl.experiments import kit, kit_cli
 from nmrl.experiments.exploration2_analysis import analysis, report
 from nmrl.experiments.exploration2_cells import (ENDPOINT, SIGMA_SCREEN, SNR_CSV, SNR_POLICY_ITERATIONS, SNR_SEEDS,
                                                  grid_name, snr_name)
@@ -61,28 +60,7 @@ STUDY = kit.Study(name="exploration2", cells=SIGMA_SCREEN, endpoint=ENDPOINT, la
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m nmrl.experiments.exploration2", description=__doc__.split("\n\n")[0])
-    ap.add_argument("action", choices=("run", "publish", "rows", "progress"))
-    ap.add_argument("--out", required=True, help="the study's run directory")
-    ap.add_argument("--published", default=None, help="a published copy: cells missing in --out start from it")
-    ap.add_argument("--dest", default=None, help="publish: where the copy goes")
-    ap.add_argument("--only", nargs="*", default=(), help="cells whose names start with one of these")
-    a = ap.parse_args(argv)
-    if a.action == "run":
-        try:
-            kit.run(STUDY, a.out, published=a.published, only=a.only or None)
-        except kit.StudyStopped as e:
-            print(f"exploration2: {e}; run again to continue", file=sys.stderr)
-            return e.status
-    elif a.action == "publish":
-        if not a.dest:
-            ap.error("publish needs --dest")
-        kit.publish(STUDY, a.out, a.dest)
-    elif a.action == "progress":
-        print(kit_progress.progress_text(kit_progress.progress(STUDY, pathlib.Path(a.out))))
-    else:
-        kit.write_rows(STUDY, pathlib.Path(a.out))
-    return 0
+    return kit_cli.main(STUDY, argv, "python -m nmrl.experiments.exploration2", __doc__.split("\n\n")[0])
 
 
 if __name__ == "__main__":

@@ -15,14 +15,13 @@ check reported with Welch intervals, deciding nothing.
 
 from __future__ import annotations
 
-import argparse
 import json
 import pathlib
 import sys
 
 import numpy as np
 
-from nmrl.experiments import kit, kit_progress
+from nmrl.experiments import kit, kit_cli
 from nmrl.experiments.thesis_ac_cells import CELLS, CHECK_DT, CHECK_FACTORS, ENDPOINT
 from nmrl.paper.control_step import DELTA_0
 from nmrl.runs import store
@@ -173,28 +172,7 @@ STUDY = kit.Study(name="thesis_ac", cells=CELLS, endpoint=ENDPOINT, analysis=ana
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m nmrl.experiments.thesis_ac", description=__doc__.split("\n\n")[0])
-    ap.add_argument("action", choices=("run", "publish", "rows", "progress"))
-    ap.add_argument("--out", required=True, help="the study's run directory")
-    ap.add_argument("--published", default=None, help="a published copy: cells missing in --out start from it")
-    ap.add_argument("--dest", default=None, help="publish: where the copy goes")
-    ap.add_argument("--only", nargs="*", default=(), help="cells whose names start with one of these")
-    a = ap.parse_args(argv)
-    if a.action == "run":
-        try:
-            kit.run(STUDY, a.out, published=a.published, only=a.only or None)
-        except kit.StudyStopped as e:
-            print(f"thesis_ac: {e}; run again to continue", file=sys.stderr)
-            return e.status
-    elif a.action == "publish":
-        if not a.dest:
-            ap.error("publish needs --dest")
-        kit.publish(STUDY, a.out, a.dest)
-    elif a.action == "progress":
-        print(kit_progress.progress_text(kit_progress.progress(STUDY, pathlib.Path(a.out))))
-    else:
-        kit.write_rows(STUDY, pathlib.Path(a.out))
-    return 0
+    return kit_cli.main(STUDY, argv, "python -m nmrl.experiments.thesis_ac", __doc__.split("\n\n")[0])
 
 
 if __name__ == "__main__":
