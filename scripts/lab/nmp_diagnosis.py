@@ -2,7 +2,9 @@
 cells as study 2's grid (nmrl/experiments/exploration2_cells.py: 64 environments, 16 iterations,
 C physics at a 2.5 ms timestep, trials of 5 s, the deterministic endpoint) for seeds 0-1, with NMp's
 noise scale below the screen's choice and with the noise's covariance independent of the policy
-(``--learn-std false``: std_theta = 1, the paper's C_k), so that each can be set against study 2's
+(``--learn-std false``: std_theta = 1, the paper's C_k), and with the clip of a period's ratio widened
+to a trust region per second (``--clip-eps`` 0.52 = 0.3 sqrt(3) and 0.9 = 0.3 x 3 for 3-step
+periods), so that each can be set against study 2's
 NMp(20) (sigma 1: every run stands) and W(20) (walks) of the same seeds.
 
     python scripts/lab/nmp_diagnosis.py --out runs/nmp_diagnosis      # runs what is missing, prints rows
@@ -21,6 +23,11 @@ VARIANTS = {
     "nmp_sigma0.4": ("--sigma", "0.4"),
     "nmp_sigma0.16": ("--sigma", "0.16"),
     "nmp_sigma1_fixed_std": ("--sigma", "1", "--learn-std", "false"),
+    # a trust region per second: a period of 0.06 s is 3 control steps, so the clip of its ratio is
+    # widened by sqrt(3) (KL grows as the log-ratio squared) or by 3 (the log-ratio bound per second)
+    "nmp_sigma1_clip0.52": ("--sigma", "1", "--clip-eps", "0.52"),
+    "nmp_sigma1_clip0.9": ("--sigma", "1", "--clip-eps", "0.9"),
+    "nmp_sigma1_fixed_std_clip0.9": ("--sigma", "1", "--learn-std", "false", "--clip-eps", "0.9"),
 }
 
 
