@@ -255,7 +255,7 @@ def test_readme_starts_with_the_two_commands_and_ci_runs_the_second():
     first = FENCE.search(_text(README))[1].splitlines()
     head = _text(README).lstrip()
     assert head.startswith("# nmrl\n\n") and "```bash\n" in head[:400]  # a line of what it is, then the commands
-    assert len(first) == 2 and first[0].startswith("python3 -m venv .venv && .venv/bin/pip install -e '.[dev]' && ")
+    assert len(first) == 2 and first[0].startswith("python3 -m venv .venv && .venv/bin/pip install -c requirements.lock -e '.[dev]' && ")
     assert first[1] == ".venv/bin/python -m pytest -q"
     ci = [l.strip() for l in (ROOT / ".ci" / "run").read_text().splitlines()]
     assert first[1] in ci
