@@ -493,6 +493,7 @@ def test_progress_eta_after_resume_uses_this_sessions_speed(capsys):
     bar.update(row)
     line = capsys.readouterr().err.strip()
     assert line.startswith("[ 75.0%]") and line.endswith("ETA 10s"), line
+    assert "step 75 of 100 per env (600 in all" in line, line  # --steps counts per environment
 
 
 @pytest.mark.parametrize("argv,message", [

@@ -384,3 +384,15 @@ def test_eval_numbers_equal_an_independent_c_mujoco_rollout(moving_run, capsys):
     mujoco.mj_kinematics(m, d)
     x0 = 0.5 * (d.site("joint3").xpos[0] + d.site("joint4").xpos[0])
     assert det["distance"] == pytest.approx(rows[-1]["x"] - x0, abs=5e-5)
+
+
+@pytest.mark.parametrize("span", [1.0, 3.0, 10.0, 60.0])
+def test_the_strobe_covers_the_evaluated_seconds(span):
+    """``nmrl eval --seconds S`` draws a strobe over all S seconds: the paper's 0.1 s spacing up to 3 s,
+    wider beyond so that it stays at most 30 poses, the last pose within one spacing of the end."""
+    from nmrl.analysis.gait_pictures import strobe_every, strobe_frames
+
+    every = strobe_every(span)
+    frames = strobe_frames(np.zeros((round(span / 0.02) + 1, 10, 2)), 0.02, every, span)
+    assert len(frames) <= 31 and frames[-1] * 0.02 >= span - every - 1e-9
+    assert every == 0.1 if span <= 3.0 else every > 0.1

@@ -42,7 +42,7 @@ import numpy as np
 
 from nmrl import learners, tasks
 from nmrl.analysis import eval_env, task_eval
-from nmrl.analysis.gait_pictures import plot_strobe, write_gif
+from nmrl.analysis.gait_pictures import plot_strobe, strobe_every, write_gif
 from nmrl.paper.env import REWARD_TERMS, EnvConfig
 from nmrl.paper.robot import forward_kinematics
 from nmrl.runs import checkpoint, io_errors
@@ -298,8 +298,10 @@ def evaluate(
     stage.mkdir()
     try:
         if render:
-            title = f"{run.name}, step {step}, deterministic policy"
-            plot_strobe(det["pos"], config.control_dt, stage / STROBE, title=title)
+            span = (len(det["pos"]) - 1) * config.control_dt  # the whole rollout (--seconds)
+            every = strobe_every(span)
+            title = f"{run.name}, step {step}, deterministic policy, a pose every {every:g} s of {span:g} s"
+            plot_strobe(det["pos"], config.control_dt, stage / STROBE, every_s=every, span_s=span, title=title)
             write_gif(det["pos"], config.control_dt, stage / GIF)
             with atomic_path(stage / TRAJECTORY) as tmp:
                 np.savez(tmp, pos=np.asarray(det["pos"], np.float32), control_dt=np.float64(config.control_dt))

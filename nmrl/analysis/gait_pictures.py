@@ -38,6 +38,16 @@ def strobe_frames(pos: np.ndarray, control_dt: float, every_s: float = 0.1, span
     return [i for i in range(0, last + 1, k) if np.all(np.isfinite(pos[i]))] or [0]
 
 
+#: the most poses one strobe draws (beyond it they overlap into a smear)
+STROBE_POSES = 30
+
+
+def strobe_every(span_s: float) -> float:
+    """The spacing [s] of a strobe over ``span_s`` seconds: the paper's Fig. 4 spacing of 0.1 s up to
+    3 s, beyond it the next multiple of 0.05 s that draws at most :data:`STROBE_POSES` poses."""
+    return max(0.1, math.ceil(span_s / STROBE_POSES * 20 - 1e-9) / 20)
+
+
 def strobe_extent(pos: np.ndarray, frames: Sequence[int]) -> tuple[float, float, float]:
     """``(x_lo, x_hi, y_hi)`` [m] that hold the given frames' poses with a margin."""
     P = pos[list(frames)]

@@ -137,8 +137,9 @@ class Progress:
             return
         cfg = self.cfg
         done = row["step"] if cfg.steps is not None else row["trials"]
-        text = (f"trials {row['trials']:,}  steps {row['total_steps']:,}  {row['steps_per_s']:,.0f} steps/s  "
-                f"avg reward {row['avg_reward']:+.3f}  speed {row['forward_speed']:+.2f} m/s")
+        of = f" of {cfg.steps:,}" if cfg.steps is not None else ""
+        text = (f"trials {row['trials']:,}  step {row['step']:,}{of} per env ({row['total_steps']:,} in all, "
+                f"{row['steps_per_s']:,.0f}/s)  avg reward {row['avg_reward']:+.3f}  speed {row['forward_speed']:+.2f} m/s")
         if self.rich:
             self.bar.update(self.task, completed=min(done, self.total), description=text)
         else:
