@@ -485,3 +485,28 @@ def test_a_minibatch_gradient_taken_in_parts_is_the_whole_minibatchs(period_wise
 def test_grad_chunks_must_divide_each_environments_unrolls_of_a_minibatch():
     with pytest.raises(ValueError, match=r"grad_chunks=3 is invalid: must divide the 4 unrolls"):
         ppo_config.PPOConfig(**dict(TINY, batch_size=8), grad_chunks=3).validate()
+
+
+def test_a_ppo_chunk_beats_each_unroll_and_epoch_without_changing_its_numbers(tmp_path, capsys, monkeypatch):
+    """The progress line inside a long PPO iteration (nmrl/learners/heartbeat.py): one beat per unroll
+    of the rollout and per epoch of the update, in order, and the run's metrics equal a run without a
+    listener (the callback feeds nothing back); traced in only where the program calls the host anyway
+    (C physics), so that an MJX program stays in the persistent compile cache."""
+    from nmrl.learners import heartbeat
+    from nmrl.runs import driver, loop
+
+    cfg = ppo_config.PPOConfig(**TINY, env="paper-cheetah", physics="c", seed=3)
+    cfg = dataclasses.replace(cfg, steps=cfg.resolved().iteration_steps, chunk_steps=cfg.resolved().iteration_steps)
+    beats = []
+    with heartbeat.listening(lambda *b: beats.append(b)):
+        rows = driver.train(cfg, tmp_path / "a", progress=False)
+    U, E = cfg.resolved().unrolls_per_env, cfg.epochs
+    assert beats == [("rollout", u, U) for u in range(1, U + 1)] + [("update", e, E) for e in range(1, E + 1)]
+    monkeypatch.setattr(loop, "BEAT_S", 0.0)
+    quiet = driver.train(cfg, tmp_path / "b", progress=True)
+    lines = [l for l in capsys.readouterr().err.splitlines() if "in the chunk:" in l]
+    assert lines[0].endswith(f"rollout 1/{U} (unrolls)") and lines[-1].endswith(f"update {E}/{E} (epochs)")
+    assert [r["avg_reward"] for r in rows] == [r["avg_reward"] for r in quiet]
+    assert [r["policy_norm"] for r in rows] == [r["policy_norm"] for r in quiet]
+    mjx = driver.train(dataclasses.replace(cfg, physics="mjx"), tmp_path / "c", progress=True)
+    assert mjx and "in the chunk:" not in capsys.readouterr().err  # MJX's program stays cacheable: no beats

@@ -46,6 +46,7 @@ import optax
 from flax import struct
 
 from nmrl import explore, options, tasks
+from nmrl.learners import heartbeat
 from nmrl.learners import ppo_losses as L
 from nmrl.learners import ppo_networks as nn_
 from nmrl.learners.contract import Learner, register
@@ -224,7 +225,6 @@ def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None
         vl = L.value_loss(values, vs, h.vf_coef)
         if cfg.period_wise:
             pl, vl = pl * w, vl * w
-        if cfg.period_wise:
             total = (jnp.sum(pl) + jnp.sum(vl)) / n - h.entropy_cost * jnp.sum(ent) / count
         else:
             total = (jnp.sum(pl) + jnp.sum(vl) - h.entropy_cost * jnp.sum(ent)) / count
@@ -288,10 +288,13 @@ def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None
         tr = (es.obs, x, logp, fresh, new.reward, term.astype(jnp.float32), (done & ~term).astype(jnp.float32))
         return (new, ns, policy, stats, h, acc), tr
 
-    def unroll(carry, key):
-        es, ns, policy, stats, h, acc = carry
+    shard = (lambda: jax.lax.axis_index(axis_name)) if num_shards > 1 else (lambda: 0)  # heartbeats' source
+
+    def unroll(carry, inp):
+        (key, u), (es, ns, policy, stats, h, acc) = inp, carry
         mean0, cov0, _ = explore.belief(ns)
         carry, tr = jax.lax.scan(rollout_step, carry, jax.random.split(key, T))
+        heartbeat.beat("rollout", u, U, shard())
         # (T, NL, ...) -> (NL, T, ...)
         tr = jax.tree.map(tm, tr)
         return carry, Batch(*tr, next_obs=carry[0].obs, mean0=mean0, cov0=cov0)
@@ -323,17 +326,19 @@ def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None
         """One epoch's minibatches of ``data`` (NL, U, T, ...), stacked: (M, NL * UM, T, ...)."""
         return jax.vmap(lambda i: take(data, i))(minibatch_indices(key))
 
-    def epoch(carry, key, data: Batch, h: Hyper):
-        k_perm, k_mb = jax.random.split(key)
-        return jax.lax.scan(lambda c, i: minibatch(c, i, data, h), carry,
-                            (minibatch_indices(k_perm), jax.random.split(k_mb, M)))
+    def epoch(carry, inp, data: Batch, h: Hyper):
+        (k_perm, k_mb), e = jax.random.split(inp[0]), inp[1]
+        out = jax.lax.scan(lambda c, i: minibatch(c, i, data, h), carry,
+                           (minibatch_indices(k_perm), jax.random.split(k_mb, M)))
+        heartbeat.beat("update", e, E, shard())
+        return out
 
     def rollout(st: PPOState, key: jax.Array):
         """One iteration's unrolls: ``((env, noise, sums), data)`` with ``data`` (NL, U, T, ...)."""
         acc0 = {k: jnp.zeros((), jnp.float32) for k in ("reward", "forward_speed", *TERMS)}
         acc0.update(trials=jnp.zeros((), jnp.int32), nonfinite=jnp.zeros((), jnp.int32))
         (es, ns, _, _, _, acc), data = jax.lax.scan(
-            unroll, (st.env, st.noise, st.policy, st.obs_stats, st.hyper, acc0), jax.random.split(key, U))
+            unroll, (st.env, st.noise, st.policy, st.obs_stats, st.hyper, acc0), (jax.random.split(key, U), jnp.arange(U)))
         return (es, ns, acc), jax.tree.map(tm, data)  # (U, NL) -> (NL, U)
 
     def learn(st: PPOState, data: Batch, key: jax.Array):
@@ -342,7 +347,7 @@ def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None
         stats = nn_.obs_update(st.obs_stats, data.obs, psum) if cfg.normalize_obs else st.obs_stats
         params = {"policy": st.policy, "value": st.value}
         (params, opt, _), sums = jax.lax.scan(lambda c, k: epoch(c, k, data, st.hyper), (params, st.opt, stats),
-                                              jax.random.split(key, E))
+                                              (jax.random.split(key, E), jnp.arange(E)))
         return params, opt, stats, sums
 
     def iteration(st: PPOState, _):

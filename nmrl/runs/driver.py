@@ -28,6 +28,7 @@ The names other modules reach through the driver are imported here: the exceptio
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import os
@@ -40,6 +41,7 @@ import jax
 import jax.numpy as jnp
 
 from nmrl import learners
+from nmrl.learners import heartbeat
 from nmrl.runs import checkpoint, distributed as dist, lock, sharding, store
 from nmrl.runs import points as pts
 from nmrl.runs.errors import Diverged, OutOfMemory, RunError, Stopped  # noqa: F401
@@ -84,7 +86,7 @@ def train(cfg: Config, out: str | os.PathLike, *, resume: bool = False, progress
     if step is not None and not resume:
         raise RunError(f"--step={step} picks the checkpoint to resume from and needs --resume "
                        f"(the budget is --steps)")
-    with guarded() as guard:
+    with guarded() as guard, contextlib.ExitStack() as cleanup:
         held = None
         started = False  # whether anything of the run was written in this call
         try:
@@ -125,6 +127,10 @@ def train(cfg: Config, out: str | os.PathLike, *, resume: bool = False, progress
                 print(f"train: {cfg.num_envs} environments on {n_dev} device(s), {cfg.num_envs // n_dev} per device "
                       f"({len(jax.local_devices())} local {jax.local_devices()[0].platform} device(s){procs})",
                       file=sys.stderr, flush=True)
+            # a chunk's heartbeats where its program calls the host anyway (nmrl/learners/heartbeat.py)
+            beat_to: list = []  # the progress line, once it exists
+            if progress and getattr(cfg, "physics", None) == "c":  # where the program calls the host anyway
+                cleanup.enter_context(heartbeat.listening(lambda *b: beat_to and beat_to[-1](*b)))
             compile_or_stop(guard, layout, cfg, step=int(p.ts.step),
                             chunk=(f"the training chunk ({cfg.num_envs} environments on {n_dev} device(s))"
                                    if progress else None),
@@ -138,6 +144,7 @@ def train(cfg: Config, out: str | os.PathLike, *, resume: bool = False, progress
                     store.write_config(out, cfg)
             bar = Progress(cfg, progress, int(p.ts.step) if cfg.steps is not None else int(p.ts.trials))
             try:
+                beat_to.append(bar.beat)
                 return drive([p], layout, guard=guard, stages=[[0]], checkpoint_every=1, keep=keep,
                              freeze_diverged=False, compact=False, on_chunk=lambda new: bar.update(new[0]),
                              max_chunks=max_chunks,

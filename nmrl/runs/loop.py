@@ -105,6 +105,10 @@ def budget_text(cfg: Config) -> str:
     return f"steps={cfg.steps}" if cfg.steps is not None else f"trials={cfg.trials}"
 
 
+#: the least time between two lines of a chunk's heartbeat [s]
+BEAT_S = 10.0
+
+
 class Progress:
     """A rich progress bar on a terminal, one plain line per chunk otherwise.
 
@@ -116,7 +120,7 @@ class Progress:
         self.cfg = cfg
         self.enabled = enabled
         self.rich = enabled and sys.stderr.isatty()
-        self.t0 = time.time()
+        self.t0 = self.t_beat = time.time()
         self.total = cfg.steps if cfg.steps is not None else cfg.trials
         self.frac0 = min(done0 / self.total, 1.0)
         if self.rich:
@@ -145,6 +149,19 @@ class Progress:
         else:
             frac = min(done / self.total, 1.0)
             print(f"[{100 * frac:5.1f}%] {text}  ETA {self.eta(frac):,.0f}s", file=sys.stderr, flush=True)
+
+    def beat(self, stage: str, done: int, n: int) -> None:
+        """Where the chunk in flight is (nmrl/learners/heartbeat.py: a PPO iteration's unrolls and
+        epochs): a line at most every :data:`BEAT_S` seconds, so a chunk of minutes shows it moves."""
+        now = time.time()
+        if not self.enabled or now - self.t_beat < BEAT_S:
+            return
+        self.t_beat = now
+        text = f"in the chunk: {stage} {done}/{n} ({'unrolls' if stage == 'rollout' else 'epochs'})"
+        if self.rich:
+            self.bar.update(self.task, description=text)
+        else:
+            print(f"  {text}", file=sys.stderr, flush=True)
 
     def close(self) -> None:
         if self.rich:
