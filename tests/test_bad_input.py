@@ -494,6 +494,16 @@ def test_progress_eta_after_resume_uses_this_sessions_speed(capsys):
     line = capsys.readouterr().err.strip()
     assert line.startswith("[ 75.0%]") and line.endswith("ETA 10s"), line
     assert "step 75 of 100 per env (600 in all" in line, line  # --steps counts per environment
+    assert "reward -0.500/step (-25.0/s)" in line, line  # per control step of 0.02 s and per second
+
+
+def test_return_per_trial_is_the_chunks_reward_over_its_ended_trials():
+    """A chunk of 25 steps of 8 environments at -0.5 per step collects -100 over the 4 trials that
+    ended in it: -25 per trial (the renewal estimate of the episode return); None without a trial."""
+    cfg = TrainConfig(num_envs=8, chunk_steps=25, steps=100)
+    m = {"step": 75, "trials": 9, "avg_reward": -0.5, "forward_speed": 0.0, "trials_in_chunk": 4}
+    assert loop.metrics_row(cfg, m, wall=2.0)["return_per_trial"] == pytest.approx(-25.0)
+    assert loop.metrics_row(cfg, {**m, "trials_in_chunk": 0}, wall=2.0)["return_per_trial"] is None
 
 
 @pytest.mark.parametrize("argv,message", [

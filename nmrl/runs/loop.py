@@ -89,9 +89,17 @@ def compile_or_stop(guard: signals.Guard, layout, cfg: Config, *, chunk: str | N
 
 
 def metrics_row(cfg: Config, m: dict, wall: float, points: int = 1) -> dict:
-    """One metrics.jsonl object from a chunk's metrics (``points`` programs shared the wall time)."""
+    """One metrics.jsonl object from a chunk's metrics (``points`` programs shared the wall time).
+
+    ``return_per_trial`` is the chunk's reward over the trials (episodes) that ended in it, None
+    without one: by the renewal-reward theorem the mean episode return of a policy that stays put,
+    what a Gymnasium user reads as the return; biased while the policy moves within a chunk and when
+    a chunk ends few trials."""
+    trials = int(m.get("trials_in_chunk", 0))
+    total = float(m["avg_reward"]) * cfg.chunk_steps * cfg.num_envs
     return {"chunk": m["step"] // cfg.chunk_steps, **m, "total_steps": m["step"] * cfg.num_envs,
-            "wall_s": wall, "steps_per_s": points * cfg.chunk_steps * cfg.num_envs / wall}
+            "wall_s": wall, "steps_per_s": points * cfg.chunk_steps * cfg.num_envs / wall,
+            "return_per_trial": total / trials if trials > 0 else None}
 
 
 def budget_done(cfg: Config, ts_step: int, ts_trials: int) -> bool:
@@ -142,8 +150,11 @@ class Progress:
         cfg = self.cfg
         done = row["step"] if cfg.steps is not None else row["trials"]
         of = f" of {cfg.steps:,}" if cfg.steps is not None else ""
+        per = row.get("return_per_trial")
+        ret = f", {per:+.1f}/trial" if per is not None else ""
         text = (f"trials {row['trials']:,}  step {row['step']:,}{of} per env ({row['total_steps']:,} in all, "
-                f"{row['steps_per_s']:,.0f}/s)  avg reward {row['avg_reward']:+.3f}  speed {row['forward_speed']:+.2f} m/s")
+                f"{row['steps_per_s']:,.0f}/s)  reward {row['avg_reward']:+.3f}/step "
+                f"({row['avg_reward'] / cfg.control_dt:+.1f}/s{ret})  speed {row['forward_speed']:+.2f} m/s")
         if self.rich:
             self.bar.update(self.task, completed=min(done, self.total), description=text)
         else:
