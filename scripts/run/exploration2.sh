@@ -1,46 +1,5 @@
 #!/usr/bin/env bash
 # The second exploration study (docs/exploration-study-2.md, nmrl/experiments/exploration2.py) in
 # the background, resumable on any machine.
-#
-#   scripts/run/exploration2.sh start    # start or resume (a fresh clone seeds from results/exploration2/runs)
-#   scripts/run/exploration2.sh status   # what runs, the log's last lines, each cell's progress and time left
-#   scripts/run/exploration2.sh stop     # SIGTERM, wait for the sweep in flight to save, publish
-#
-# start runs `python -m nmrl.experiments.exploration2 run` in its own session at the lowest CPU
-# share (scripts/run/lower_priority.sh), logging to runs/exploration2.log. stop sends SIGTERM to that
-# session (the sweep saves every active point after its chunk: up to one PPO iteration, minutes at
-# 2.5 ms), then publishes the compact states and rows to results/exploration2/runs (commit it).
-set -euo pipefail
-cd "$(dirname "$0")/../.."
-PY=${PY:-.venv/bin/python}
-OUT=${OUT:-runs/exploration2}
-PUB=${PUB:-results/exploration2/runs}
-PAT="nmrl.experiments.exploration2 run --out $OUT"
-STOP_TIMEOUT=${STOP_TIMEOUT:-1800}
-
-case "${1:-}" in
-  start)
-    if pgrep -f "$PAT" > /dev/null; then echo "already running"; exit 0; fi
-    mkdir -p runs
-    setsid bash -c "source scripts/run/lower_priority.sh; lower_priority; exec nice -n \${NICE:-19} $PY -m $PAT \
-      --published $PUB" >> runs/exploration2.log 2>&1 < /dev/null &
-    echo "started (log: runs/exploration2.log)"
-    ;;
-  status)
-    pgrep -af "$PAT|nmrl.cli sweep" || echo "not running"
-    tail -n 5 runs/exploration2.log 2>/dev/null || true
-    [ -d "$OUT" ] && "$PY" -m nmrl.experiments.exploration2 progress --out "$OUT" || true
-    ;;
-  stop)
-    pids=$(pgrep -f "$PAT" || true)
-    for p in $pids; do kill -TERM -- "-$(ps -o sid= -p "$p" | tr -d ' ')" 2>/dev/null || kill -TERM "$p"; done
-    for _ in $(seq "$STOP_TIMEOUT"); do
-      pgrep -f "$PAT|nmrl.cli sweep .*--out $OUT" > /dev/null || break
-      sleep 1
-    done
-    if pgrep -f "$PAT|nmrl.cli sweep .*--out $OUT" > /dev/null; then echo "still running after ${STOP_TIMEOUT}s"; exit 1; fi
-    [ -d "$OUT" ] && "$PY" -m nmrl.experiments.exploration2 publish --out "$OUT" --dest "$PUB"
-    echo "stopped and published to $PUB"
-    ;;
-  *) echo "usage: $0 start|status|stop" >&2; exit 2 ;;
-esac
+# start | status | stop, as scripts/run/study.sh exploration2 describes.
+exec "$(dirname "$0")/study.sh" exploration2 "$@"
