@@ -135,13 +135,13 @@ def test_runs_without_env_keep_their_identity():
 
 # ----------------------------------------------------------------------------- refusals
 @pytest.mark.parametrize("argv, why", [
-    (["train", "--env", "ant-v5"], "env='ant-v5' is unknown: choose one of paper-cheetah, halfcheetah-v5, "
+    (["train", "--env", "ant-v5"], "env='ant-v5' is invalid: choose one of paper-cheetah, halfcheetah-v5, "
                                    "hopper-v5, walker2d-v5"),
     (["train", "--env", "hopper-v5", "--trial-s", "5"], "trial_s is an option of paper-cheetah only"),
     (["train", "--env", "halfcheetah-v5", "--control-dt", "0.015"], "0.015"),
     (["sweep", "--env", "walker2d-v5", "--stop-prob", "0.01", "--l", "1", "2"], "stop_prob is an option of paper-cheetah only"),
-    (["sweep", "--env", "ant-v5", "--l", "1"], "env='ant-v5' is unknown"),
-    (["study", "--env", "ant-v5"], "env='ant-v5' is unknown"),
+    (["sweep", "--env", "ant-v5", "--l", "1"], "env='ant-v5' is invalid"),
+    (["study", "--env", "ant-v5"], "env='ant-v5' is invalid"),
     (["study", "--env", "halfcheetah-v5"], "0.005"),  # the study's default 5 ms step is not HalfCheetah's
     # colored's default band (to 25 Hz) needs a step of at most 0.02 s: HalfCheetah's 0.05 s is refused
     (["train", "--learner", "ppo", "--env", "halfcheetah-v5", "--exploration", "colored"],

@@ -224,7 +224,7 @@ def test_ppo_takes_env_into_its_config_and_identity(tmp_path, capsys):
     out = tmp_path / "r"
     assert cli.main(["train", "--learner", "ppo", "--env", "ant-v5", "--steps", "10", "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert err == ["nmrl: error: env='ant-v5' is unknown: choose one of paper-cheetah, halfcheetah-v5, hopper-v5, "
+    assert err == ["nmrl: error: env='ant-v5' is invalid: choose one of paper-cheetah, halfcheetah-v5, hopper-v5, "
                    "walker2d-v5"] and not out.exists()
 
 

@@ -14,25 +14,11 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import typing
 
 from nmrl.cli.exploration_options import with_exploration
+from nmrl.runs.parser import add_declared, field_type
 
-
-def field_type(cls: type, f: dataclasses.Field) -> type:
-    """The type of the config field ``f`` of ``cls`` (``X`` for ``X | None``)."""
-    hints = typing.get_type_hints(cls)
-    t = hints[f.name]
-    args = [a for a in typing.get_args(t) if a is not type(None)]
-    return args[0] if args else t
-
-
-def _bool(text: str) -> bool:
-    if text.lower() in ("1", "true", "yes", "on"):
-        return True
-    if text.lower() in ("0", "false", "no", "off"):
-        return False
-    raise argparse.ArgumentTypeError(f"{text!r} is not a boolean (true or false)")
+__all__ = ["add_config_options", "config_from_args", "field_type", "get_learner", "given_options", "learner_names"]
 
 
 def get_learner(name: str | None = None):
@@ -60,19 +46,17 @@ def _options(learner, skip: set[str] = frozenset(), group: str | None = None) ->
 
 def add_config_options(p: argparse.ArgumentParser, skip: set[str] = frozenset(), learner=None) -> None:
     """One option per field of the learner's config (nmrl/learners/contract.py), spelled and explained
-    by the field's declaration (nmrl/options.py), with its default unless the help names it."""
-    from nmrl import options
+    by the field's declaration (nmrl/options.py), with its default unless the help names it: the
+    learner's own fields, then the environment's (nmrl.tasks.EnvFields, their own group)."""
+    from nmrl import tasks
 
     learner = learner or get_learner()
-    g = p.add_argument_group(f"options of the learner {learner.name!r} ({learner.doc})" if learner.doc
-                             else f"options of the learner {learner.name!r}")
-    for f in _options(learner, skip):
-        t = field_type(learner.config, f)
-        t = _bool if t is bool else t
-        doc = learner.help.get(f.name, "")
-        default = f.default if f.default is not dataclasses.MISSING else "?"
-        g.add_argument("--" + options.flag(learner.config, f.name), dest=f.name, type=t, default=None,
-                       help=doc if "(default:" in doc else f"{doc} (default: {default})".strip())
+    own = p.add_argument_group(f"options of the learner {learner.name!r} ({learner.doc})" if learner.doc
+                               else f"options of the learner {learner.name!r}")
+    env = p.add_argument_group("the environment (nmrl/tasks/, docs/tasks.md)")
+    for group, g in ((None, own), (tasks.GROUP, env)):
+        for f in _options(learner, skip, group):
+            add_declared(g, learner.config, f.name, help=learner.help.get(f.name, ""))
 
 
 def given_options(args: argparse.Namespace, skip: set[str] = frozenset()) -> dict:

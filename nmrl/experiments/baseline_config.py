@@ -81,8 +81,10 @@ class BaselineConfig:
     control_dt: float = DELTA_0
     stop_prob: float = 1 / 250
     eval_seconds: float = 10.0
-    physics: str = "mjx"  #: the environment's physics engine (nmrl/paper/env.py PHYSICS)
-    env: str = tasks.PAPER  #: the environment (nmrl.tasks.ENVS): the paper's robot or a v5 task
+    #: the environment's physics engine and the environment (the paper's robot or a v5 task), as a
+    #: learner's run declares them (nmrl.tasks.EnvFields, which checks them)
+    physics: str = "mjx"
+    env: str = tasks.PAPER
 
     @property
     def is_task(self) -> bool:
@@ -125,6 +127,7 @@ class BaselineConfig:
             v = getattr(self, name)
             if not v or any(not isinstance(h, int) or h < 1 for h in v):
                 raise ValueError(f"{name}={v!r} is invalid: layer sizes must be integers >= 1")
+        tasks.check_fields(env=self.env, physics=self.physics)
         env_config = EnvConfig(control_dt=self.control_dt, stop_prob=self.stop_prob, physics=self.physics)
         env_config.validate()
         tasks.check_env(self.env, env_config)

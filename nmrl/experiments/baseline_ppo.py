@@ -55,11 +55,10 @@ from typing import Any
 import jax
 import numpy as np
 
-from nmrl import tasks
+from nmrl import options, tasks
 from nmrl.adapters import brax_env
 from nmrl.experiments import baseline_brax
 from nmrl.experiments.baseline_config import BaselineConfig, check_resume, load_config, stored, task_config
-from nmrl.paper.env import PHYSICS_HELP
 from nmrl.options import MAX_EVAL_SECONDS
 from nmrl.runs import checkpoint, command, driver, parser, store
 
@@ -233,9 +232,9 @@ def main(argv: list[str] | None = None) -> int:
                        help=f"layer sizes (default {' '.join(map(str, getattr(d, name)))})")
     p.add_argument("--max-iterations", type=parser.integer, default=None,
                    help="stop after this many PPO iterations of this call (continue with --resume)")
-    p.add_argument("--physics", default=None, help=f"{PHYSICS_HELP} (default {d.physics})")
-    p.add_argument("--env", default=None, help=f"one of {', '.join(tasks.ENVS)} (default {d.env}; a task runs at "
-                   "its own control step with its time limit: docs/tasks.md)")
+    parser.add_declared(p, tasks.EnvFields, "physics")
+    parser.add_declared(p, tasks.EnvFields, "env", help=f"{options.helps(tasks.EnvFields)['env']}; a task runs at its "
+                        f"own control step with its time limit (default: {d.env})")
     p.add_argument("--devices", default="auto", help="CPU devices Brax splits the environments over")
     p.add_argument("--quiet", action="store_true")
     e = sub.add_parser("eval", help="evaluate a PPO baseline checkpoint like nmrl eval (JSON, strobe, GIF)")

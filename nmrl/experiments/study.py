@@ -52,10 +52,10 @@ from nmrl.experiments import kit
 from nmrl.experiments.kit import StudyError
 from nmrl.experiments.timescale import TimescaleSpec
 from nmrl.experiments.timescale_cells import final_cells, grid_cells
-from nmrl.experiments.timescale_tables import (FINAL, FINAL_CSV, GRADVAR_CSV, GRID, GRID_CSV, LEARNER, figures,
+from nmrl.experiments.timescale_tables import (FINAL, FINAL_CSV, GRADVAR_CSV, GRID, GRID_CSV, figures,
                                                grid_rows, measure, tables)
-from nmrl.paper.env import PHYSICS_HELP
 from nmrl.runs import command, lock, parser, store
+from nmrl.tasks import EnvFields
 from nmrl.runs.store import read_csv
 
 SPEC_FILE = "study.json"
@@ -155,8 +155,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--gradvar-batches", type=int, default=d.gradvar_batches)
     ap.add_argument("--beta-theta-cap", type=float, default=None,
                     help="choose only among grid pairs with beta_theta <= this (every arm)")
-    ap.add_argument("--physics", default=d.physics, help=PHYSICS_HELP)
-    ap.add_argument("--env", default=d.base.env, help=LEARNER.help["env"])
+    parser.add_declared(ap, EnvFields, "physics", default=d.physics)
+    parser.add_declared(ap, EnvFields, "env", default=d.base.env)
     ap.add_argument("--phases", nargs="+", default=list(PHASES), help=f"any of {list(PHASES)}")
     ap.add_argument("--quiet", action="store_true")
     a = ap.parse_args(argv)

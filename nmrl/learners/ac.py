@@ -55,7 +55,6 @@ def check(cfg: TrainConfig) -> None:
         v = getattr(cfg, name)
         if isinstance(v, float) and not math.isfinite(v):
             raise ValueError(f"{name}={v!r} is invalid: must be a finite number")
-    tasks.check_env(cfg.env, cfg.env_config())
 
 
 def action_map(env):

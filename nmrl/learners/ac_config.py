@@ -13,11 +13,11 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from nmrl import options, tasks
+from nmrl import options
 from nmrl.learners.optimizers import OPT_HELP, canonical_opt, parse_opt
 from nmrl.options import AT_LEAST_ONE, POSITIVE, STEP_SIZE, Range, option, run_option
 from nmrl.paper import networks, noise
-from nmrl.paper.env import EnvConfig, env_option
+from nmrl.tasks import EnvFields
 
 #: Named step-size presets. "paper" is Sec. V-C. "fast" is for the budgets this 2-core machine
 #: allows (10^3-10^4 trials instead of the paper's 10^5): with the paper's step sizes and 16-64
@@ -45,9 +45,10 @@ PRESETS: dict[str, dict[str, Any]] = {
 
 
 @dataclasses.dataclass(frozen=True)
-class TrainConfig:
+class TrainConfig(EnvFields):
     """Everything that defines a training run. Defaults are the paper's (Sec. V-C, Table II). Every
-    field is declared once (nmrl/options.py); ``traced`` ones are :class:`Hyper`'s leaves."""
+    field is declared once (nmrl/options.py); ``traced`` ones are :class:`Hyper`'s leaves. The
+    environment's fields (``env``, ``control_dt``, ``physics``, ...) are :class:`nmrl.tasks.EnvFields`'s."""
 
     # Table II / Sec. V-C
     l: int = option(10, "nm-period length l [control steps]", traced=True, range=AT_LEAST_ONE)
@@ -69,13 +70,6 @@ class TrainConfig:
     arctan: str = option("fast", "the hidden units' arctan: fast (Cephes' atanf, within 3 float32 ulp) or xla "
                                  "(XLA's atan2, ~15x slower on a CPU; the runs made before this option)",
                          choices=tuple(networks.ARCTANS))
-    # environment
-    control_dt: float = env_option("control_dt", 0.02)
-    stop_prob: float = env_option("stop_prob", 1 / 250)
-    trial_s: float | None = env_option("trial_s", None)
-    physics: str = env_option("physics", "mjx")
-    physics_timestep: float | None = env_option("physics_timestep", None)
-    env: str = option(tasks.PAPER, f"the environment: {', '.join(tasks.ENVS)} (docs/tasks.md)")
     # batching and budget
     num_envs: int = option(256, "N environments in lock-step", range=AT_LEAST_ONE)
     chunk_steps: int = option(250, "control steps per environment in one jitted chunk", range=AT_LEAST_ONE)
@@ -108,7 +102,7 @@ class TrainConfig:
     def validate(self) -> None:
         """Eq. (4)'s alpha and the period lengths (nmrl.paper.noise), every field by its declaration
         (type, finiteness, range, choices; nmrl/options.py), the update rules, one budget, the
-        environment."""
+        environment's relations (:meth:`nmrl.tasks.EnvFields.check_env`)."""
         noise.validate(alpha=self.alpha, l=self.l, delta=self.delta)
         options.check(self, limits=False)
         for name in ("actor_opt", "critic_opt"):
@@ -116,11 +110,7 @@ class TrainConfig:
                 parse_opt(getattr(self, name), name)
         if self.steps is not None and self.trials is not None:
             raise ValueError("give the budget as steps or as trials, not both")
-        self.env_config().validate()
-
-    def env_config(self) -> EnvConfig:
-        return EnvConfig(control_dt=self.control_dt, stop_prob=self.stop_prob, auto_reset=True,
-                         physics=self.physics, trial_s=self.trial_s, timestep=self.physics_timestep)
+        self.check_env()
 
 
 #: the traced hyperparameters: one leaf per traced field of :class:`TrainConfig` (l, Delta, alpha,

@@ -25,10 +25,10 @@ from typing import Callable
 import jax
 import jax.numpy as jnp
 
-from nmrl import explore, options, tasks
+from nmrl import explore, options
 from nmrl.options import AT_LEAST_ONE, NON_NEGATIVE, POSITIVE, Range, option, run_option
 from nmrl.paper import noise
-from nmrl.paper.env import EnvConfig, env_option
+from nmrl.tasks import EnvFields
 
 #: the horizon (s) of Brax's discounting 0.95 (and GAE lambda 0.95) at the baseline's 0.02 s step
 BRAX_HORIZON_S = -0.02 / math.log(0.95)
@@ -49,9 +49,10 @@ _TIME = Range(0.0, open_lo=True, why="seconds, at least the control step")
 
 
 @dataclasses.dataclass(frozen=True)
-class PPOConfig:
+class PPOConfig(EnvFields):
     """A PPO run. Defaults at control_dt = 0.02 s are the Brax baseline's (module docstring). Every
-    field is declared once (nmrl/options.py); ``traced`` ones are :class:`Hyper`'s leaves."""
+    field is declared once (nmrl/options.py); ``traced`` ones are :class:`Hyper`'s leaves. The
+    environment's fields (``env``, ``control_dt``, ``physics``, ...) are :class:`nmrl.tasks.EnvFields`'s."""
 
     # exploration: an nmrl.explore.ExplorationSpec, flat (parameters in seconds and Hz)
     exploration: str = _X("exploration", "white")
@@ -98,13 +99,7 @@ class PPOConfig:
     policy_width: int = option(32, "units per policy layer", range=AT_LEAST_ONE)
     value_layers: int = option(5, "hidden layers of the value net", range=AT_LEAST_ONE)
     value_width: int = option(256, "units per value layer", range=AT_LEAST_ONE)
-    # environment, batching, budget (common to every learner)
-    env: str = option(tasks.PAPER, f"the environment: {', '.join(tasks.ENVS)} (docs/tasks.md)")
-    control_dt: float = env_option("control_dt", 0.02)
-    stop_prob: float = env_option("stop_prob", 1 / 250)
-    trial_s: float | None = env_option("trial_s", None)
-    physics: str = env_option("physics", "mjx")
-    physics_timestep: float | None = env_option("physics_timestep", None)
+    # batching, budget (common to every learner)
     num_envs: int = option(64, "environments in lock-step (must divide --batch-size)", range=AT_LEAST_ONE)
     chunk_steps: int | None = option(None, "control steps per environment per chunk, a multiple of one iteration's "
                                            "(default: one)", range=AT_LEAST_ONE)
@@ -132,15 +127,11 @@ class PPOConfig:
         """Control steps per environment in one iteration (U T)."""
         return self.unrolls_per_env * self.unroll_length
 
-    def env_config(self) -> EnvConfig:
-        return EnvConfig(control_dt=self.control_dt, stop_prob=self.stop_prob, auto_reset=True,
-                         physics=self.physics, trial_s=self.trial_s, timestep=self.physics_timestep)
-
     def validate(self) -> None:
         """Every field by its declaration (type, finiteness, range, choices; nmrl/options.py), then
         what relates fields: the exploration at the control step, the period-wise learning's process,
         times of at least one control step, minibatches of whole environments, chunks of whole
-        iterations, one budget, the environment."""
+        iterations, one budget, the environment's relations (:meth:`nmrl.tasks.EnvFields.check_env`)."""
         options.check(self, limits=False)
         self.spec().validate(self.control_dt)
         if self.period_wise and self.exploration != "nm-periods":
@@ -162,8 +153,7 @@ class PPOConfig:
                                                         f"{self.iteration_steps} control steps per environment")
         if self.steps is not None and self.trials is not None:
             raise ValueError("give the budget as steps or as trials, not both")
-        self.env_config().validate()
-        tasks.check_env(self.env, self.env_config())
+        self.check_env()
 
     def resolved(self) -> "PPOConfig":
         """Validated, with the exploration's defaults, one iteration per chunk and a budget of

@@ -47,7 +47,6 @@ import numpy as np
 from flax import struct
 from nmrl.paper import _mjx as mjx  # quiet import (see nmrl/__init__.py)
 
-from nmrl.options import Range, option
 from nmrl.paper import c_plant
 from nmrl.paper.control_step import DELTA_0
 from nmrl.paper.robot import kinematics, observation, pd_torque, state_rewards
@@ -58,9 +57,6 @@ OBS_DIM = 31
 ACT_DIM = 6
 #: Actuator order of the MJCF (= qpos order of the hinges) mapped to the action index j - 1.
 _ACT_OF_CTRL = c_plant.ACT_OF_CTRL
-PHYSICS = ("mjx", "c")
-PHYSICS_HELP = ("physics engine: mjx (MuJoCo-MJX, any device) or c (MuJoCo C on the CPU, float64; "
-                "docs/performance.md)")
 REWARD_TERMS = ("r8_speed", "r9_torque", "r10_limit", "r11_lift", "r12_heel", "r13_knee", "r14_head")
 
 
@@ -78,14 +74,14 @@ class EnvConfig:
     solver_iterations: int | None = None  #: None = the MJCF's (4)
     ls_iterations: int | None = None  #: None = the MJCF's (4)
     auto_reset: bool = True  #: reset a stopped trial inside ``step`` (batched training)
-    physics: str = "mjx"  #: "mjx" (MJX, any device) or "c" (MuJoCo C on the CPU)
+    #: "mjx" (MJX, any device) or "c" (MuJoCo C on the CPU): one of nmrl.physics.PHYSICS, checked where
+    #: a run declares it (nmrl/tasks/__init__.py's ``EnvFields``)
+    physics: str = "mjx"
     #: threads of each device's C batch (physics "c"; results are bit-identical at any count);
     #: None: this process's cores divided by its JAX devices
     threads: int | None = None
 
     def validate(self) -> None:
-        if self.physics not in PHYSICS:
-            raise ValueError(f"physics={self.physics!r} is invalid: choose one of {', '.join(PHYSICS)}")
         if self.threads is not None and not (isinstance(self.threads, int) and self.threads >= 1):
             raise ValueError(f"threads must be an integer >= 1 or None, got {self.threads!r}")
         if not self.control_dt > 0:
@@ -102,7 +98,6 @@ class EnvConfig:
             if v is not None and (not isinstance(v, int) or v < 1):
                 raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
 
-
     @property
     def step_stop_prob(self) -> float:
         """The probability of stopping the trial after a control step (see ``trial_s``)."""
@@ -110,27 +105,6 @@ class EnvConfig:
 
 
 DEFAULT_STOP_PROB = EnvConfig.stop_prob
-TRIAL_S_HELP = ("mean trial length [s]: the stop probability per step becomes control_dt / trial_s, "
-                "the same trial length at every control step (default: --stop-prob per step)")
-#: the declarations (nmrl/options.py) of the environment fields every learner's config has: a control
-#: step of at most 1 s (the robot's joints move in tenths of seconds; nmrl/runs/preflight.py checks the
-#: multiple of the physics timestep), a stop probability, a mean trial length, the engine, its timestep
-_ENV_OPTIONS: dict[str, dict[str, Any]] = {
-    "control_dt": dict(help="control step [s]", range=Range(0.0, 1.0, open_lo=True,
-                                                           why="seconds per control step, at most 1 s", cap=True)),
-    "stop_prob": dict(help="probability of stopping a trial after each step",
-                      range=Range(0.0, 1.0, why="a probability per control step")),
-    "trial_s": dict(help=TRIAL_S_HELP, range=Range(0.0, 1e6, open_lo=True, why="a mean trial length in seconds", cap=True)),
-    "physics": dict(help=PHYSICS_HELP, choices=PHYSICS),
-    "physics_timestep": dict(help="MuJoCo's timestep [s] (default: the model's 0.005 s); the control step must be "
-                                  "a multiple",
-                             range=Range(0.0, 0.1, open_lo=True, why="MuJoCo's timestep in seconds", cap=True)),
-}
-
-
-def env_option(name: str, default: Any) -> Any:
-    """The declared field ``name`` of :data:`_ENV_OPTIONS` with a learner's ``default``."""
-    return option(default, **_ENV_OPTIONS[name])
 
 
 def check_trial_s(trial_s, stop_prob, control_dt) -> None:

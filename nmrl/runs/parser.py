@@ -7,14 +7,18 @@ parsing and rewrites only its error: ``nmrl train: error: --num-envs='1.5' is in
 integer`` (an unknown option: ``... unknown option(s) --trials -5; see nmrl train --help``).
 Subparsers made by ``add_subparsers`` are of the same class, so every command answers alike.
 :func:`integer` is a strict ``type=`` for integer options (``1e3``, ``nan``, ``1.0`` are refused by
-name; ``int()`` would refuse them too, this says what is allowed).
+name; ``int()`` would refuse them too, this says what is allowed). :func:`add_declared` makes the
+option of a field declared with ``nmrl.options.option`` (its spelling, type and help from the
+declaration), for every command that takes such a field.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import re
 import sys
+import typing
 from typing import NoReturn
 
 _INVALID = re.compile(r"argument (\S+?)(?:/\S+)?: invalid (\w+) value: (.*)$")
@@ -57,3 +61,33 @@ class OneLineParser(argparse.ArgumentParser):
     def error(self, message: str) -> NoReturn:
         print(f"{self.prog}: error: {one_line(message)} (see {self.prog} --help)", file=sys.stderr, flush=True)
         self.exit(2)
+
+
+def field_type(cls: type, f: dataclasses.Field) -> type:
+    """The type of the config field ``f`` of ``cls`` (``X`` for ``X | None``)."""
+    hints = typing.get_type_hints(cls)
+    t = hints[f.name]
+    args = [a for a in typing.get_args(t) if a is not type(None)]
+    return args[0] if args else t
+
+
+def _bool(text: str) -> bool:
+    if text.lower() in ("1", "true", "yes", "on"):
+        return True
+    if text.lower() in ("0", "false", "no", "off"):
+        return False
+    raise argparse.ArgumentTypeError(f"{text!r} is not a boolean (true or false)")
+
+
+def add_declared(p, cls: type, name: str, default=None, help: str | None = None) -> None:
+    """The option ``--<flag>`` of the field ``name`` of the dataclass ``cls``, spelled, typed and explained
+    by its declaration (nmrl/options.py), parsed into ``name`` with ``default`` (None: the field's own is
+    applied later, by the config); the field's default is named unless the help names one."""
+    from nmrl import options
+
+    f = cls.__dataclass_fields__[name]
+    t = field_type(cls, f)
+    doc = options.declaration(cls, name).help if help is None else help
+    shown = f.default if f.default is not dataclasses.MISSING else "?"
+    p.add_argument("--" + options.flag(cls, name), dest=name, type=_bool if t is bool else t, default=default,
+                   help=doc if "(default:" in doc else f"{doc} (default: {shown})".strip())

@@ -54,19 +54,17 @@ def check_config(cfg: Config) -> None:
     if not (isinstance(cfg.seed, int) and not isinstance(cfg.seed, bool) and 0 <= cfg.seed <= SEED_MAX):
         raise ValueError(f"seed={cfg.seed!r} is invalid: must be an integer in [0, {SEED_MAX}] "
                          f"(JAX's PRNG seeds are 32-bit; others wrap around to another seed)")
-    ts = getattr(cfg, "physics_timestep", None) or physics_timestep()
-    n = cfg.control_dt / ts
-    paper = getattr(cfg, "env", tasks.PAPER) == tasks.PAPER  # a task checks its own (nmrl.tasks)
-    if paper and (abs(n - round(n)) > 1e-6 or round(n) < 1):
-        raise ValueError(f"control_dt={cfg.control_dt!r} is invalid: must be a whole multiple of the physics "
-                         f"timestep {ts:g} s (e.g. {ts:g}, {2 * ts:g}, {4 * ts:g}; --physics-timestep sets it)")
-    if getattr(cfg, "physics", "mjx") == "c":
-        import mujoco
-
-        from nmrl.paper.env import MODEL_PATH
+    env = getattr(cfg, "env", tasks.PAPER)  # a config without nmrl.tasks.EnvFields runs the paper's robot
+    if env == tasks.PAPER:  # a task checks its own step (nmrl.tasks.check_env)
+        ts = getattr(cfg, "physics_timestep", None) or physics_timestep()
+        n = cfg.control_dt / ts
+        if abs(n - round(n)) > 1e-6 or round(n) < 1:
+            raise ValueError(f"control_dt={cfg.control_dt!r} is invalid: must be a whole multiple of the physics "
+                             f"timestep {ts:g} s (e.g. {ts:g}, {2 * ts:g}, {4 * ts:g}; --physics-timestep sets it)")
+    if getattr(cfg, "physics", "mjx") == "c":  # the model the run steps: the paper's or the task's
         from nmrl.physics.mujoco_c import check_supported
 
-        check_supported(mujoco.MjModel.from_xml_path(str(MODEL_PATH)))
+        check_supported(tasks.mj_model(env))
     if cfg.trials is not None and cfg.stop_prob == 0:
         raise ValueError(f"trials={cfg.trials} is invalid with stop_prob=0: no trial would ever end; "
                          f"give the budget as --steps")

@@ -5,26 +5,83 @@ checked against Gymnasium itself.
 
 :func:`make_env` is the one way a learner builds its environment by name (``--env``): the paper's
 robot or one of the tasks, from the learner's ``nmrl.paper.env.EnvConfig``.
+
+:class:`EnvFields` declares a run's environment once (nmrl/options.py): which environment
+(``--env``), its physics engine (``--physics``) and timestep, its control step and its end of a
+trial. Every learner's config has these fields by inheriting it; the command line makes one option
+of each (the group :data:`GROUP`), ``options.check`` validates each by its declaration (the only check
+of a name such as ``--env`` or ``--physics``), and :meth:`EnvFields.check_env` what relates them.
 """
 
 from __future__ import annotations
 
-from nmrl.paper.env import DEFAULT_STOP_PROB, EnvConfig, HalfCheetah
+import dataclasses
+from typing import Any
+
+from nmrl import options
+from nmrl.options import Range, option
+from nmrl.paper.env import DEFAULT_STOP_PROB, MODEL_PATH, EnvConfig, HalfCheetah
+from nmrl.physics import PHYSICS
 from nmrl.tasks.env import Task, TaskConfig, control_steps
-from nmrl.tasks.gym_v5 import TASKS
+from nmrl.tasks.gym_v5 import TASKS, load_model
 
 #: the paper's robot (nmrl/paper/env.py), the default environment
 PAPER = "paper-cheetah"
 #: every environment a learner can be given, by name
 ENVS = (PAPER, *TASKS)
+#: the option group (nmrl/options.py) of the environment's fields on the command line
+GROUP = "environment"
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvFields:
+    """A run's environment, the fields every learner's config has (it inherits them): each declared
+    here once, with its help, its choices or range (a control step of at most 1 s: the robot's joints
+    move in tenths of seconds; nmrl/runs/preflight.py checks the multiple of the physics timestep)."""
+
+    env: str = option(PAPER, f"the environment: {', '.join(ENVS)} (docs/tasks.md)", choices=ENVS, group=GROUP)
+    control_dt: float = option(0.02, "control step [s]", group=GROUP,
+                               range=Range(0.0, 1.0, open_lo=True, why="seconds per control step, at most 1 s",
+                                           cap=True))
+    stop_prob: float = option(DEFAULT_STOP_PROB, "probability of stopping a trial after each step", group=GROUP,
+                              range=Range(0.0, 1.0, why="a probability per control step"))
+    trial_s: float | None = option(None, "mean trial length [s]: the stop probability per step becomes control_dt / "
+                                         "trial_s, the same trial length at every control step (default: --stop-prob "
+                                         "per step)", group=GROUP,
+                                   range=Range(0.0, 1e6, open_lo=True, why="a mean trial length in seconds", cap=True))
+    physics: str = option("mjx", "physics engine: mjx (MuJoCo-MJX, any device) or c (MuJoCo C on the CPU, float64; "
+                                 "docs/performance.md)", choices=PHYSICS, group=GROUP)
+    physics_timestep: float | None = option(None, "MuJoCo's timestep [s] (default: the model's 0.005 s); the control "
+                                                  "step must be a multiple", group=GROUP,
+                                            range=Range(0.0, 0.1, open_lo=True, why="MuJoCo's timestep in seconds",
+                                                        cap=True))
+
+    def env_config(self) -> EnvConfig:
+        """The environment's own config (batched training: ``auto_reset``)."""
+        return EnvConfig(control_dt=self.control_dt, stop_prob=self.stop_prob, auto_reset=True,
+                         physics=self.physics, trial_s=self.trial_s, timestep=self.physics_timestep)
+
+    def check_env(self) -> None:
+        """What relates the environment's fields (each field is checked by its declaration, with the
+        config's others): the stop rule given once, and what a task does not take (:func:`check_env`)."""
+        env_config = self.env_config()
+        env_config.validate()
+        check_env(self.env, env_config)
+
+
+def check_fields(**values: Any) -> None:
+    """ValueError (one line) for the first of ``values`` (field name -> value) that :class:`EnvFields`'s
+    declaration of that field does not allow: the check of a config that names these fields without
+    being a learner's (the Brax baseline's)."""
+    for name, value in values.items():
+        options.check_value(name, value, options.kind(EnvFields, name), options.declaration(EnvFields, name),
+                            limits=False)
 
 
 def check_env(name: str, env_config: EnvConfig) -> None:
-    """ValueError in one line for an unknown ``name`` (listing the known ones) or, for a task, an
-    option of the paper's robot (its stop rule, its timestep) that the task does not have, or a control
-    step that is not a multiple of the task's physics timestep."""
-    if name not in ENVS:
-        raise ValueError(f"env={name!r} is unknown: choose one of {', '.join(ENVS)}")
+    """ValueError in one line when the task ``name`` (one of :data:`ENVS`, checked by its declaration)
+    is given an option of the paper's robot (its stop rule, its timestep) that the task does not have,
+    or a control step that is not a multiple of the task's physics timestep."""
     if name == PAPER:
         return
     paper_only = {"stop_prob": env_config.stop_prob != DEFAULT_STOP_PROB, "trial_s": env_config.trial_s is not None,
@@ -36,11 +93,21 @@ def check_env(name: str, env_config: EnvConfig) -> None:
     control_steps(TASKS[name], env_config.control_dt)
 
 
+def mj_model(name: str):
+    """The MuJoCo model the environment ``name`` (:data:`ENVS`) steps: the paper's MJCF or the task's,
+    as its environment compiles it."""
+    if name == PAPER:
+        import mujoco
+
+        return mujoco.MjModel.from_xml_path(str(MODEL_PATH))
+    return load_model(TASKS[name])
+
+
 def make_env(name: str, env_config: EnvConfig):
     """The environment ``name`` (:data:`ENVS`): the paper's HalfCheetah with ``env_config``, or the task
     with ``env_config``'s control step, physics, threads and auto-reset (docs/tasks.md)."""
-    check_env(name, env_config)
     if name == PAPER:
         return HalfCheetah(env_config)
+    check_env(name, env_config)
     return Task(name, TaskConfig(control_dt=env_config.control_dt, physics=env_config.physics,
                                  threads=env_config.threads, auto_reset=env_config.auto_reset))
