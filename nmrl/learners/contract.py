@@ -14,7 +14,8 @@ nothing else; the shape is Stoix's ``LearnerFn: state -> (state, metrics)`` and 
   float`` [s], ``stop_prob: float`` (per control step) and ``max_param_norm: float``, and the methods
   ``validate()`` (ValueError naming the value and what is allowed), ``resolved()`` (validated, every
   default filled in, e.g. a default budget: what the run records) and ``env_config()`` (the
-  ``nmrl.paper.env.EnvConfig`` of its Half-Cheetah, ``auto_reset=True``); ``config()`` (every field
+  ``nmrl.paper.env.EnvConfig`` of its Half-Cheetah, ``auto_reset=True``; a config that inherits
+  ``nmrl.tasks.EnvFields`` has the environment's fields and this method, declared once); ``config()`` (every field
   at its default) is valid, and a resolved config has ``chunk_steps`` and a budget set. Field types
   are written as ``int``, ``float``, ``str``, ``bool`` or ``X | None``, each field declared once with
   :func:`nmrl.options.option` (help, traced or static, range or choices, option spelling): the
