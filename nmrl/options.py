@@ -119,6 +119,13 @@ _RUN_OPTIONS: dict[str, dict[str, Any]] = {
 }
 
 
+def check_seed(value: Any, name: str = "seed") -> None:
+    """ValueError (one line, ``name`` naming the value) unless ``value`` is a seed the run field ``seed``
+    allows: the one seed range, for a command's seed outside a learner's config (``nmrl eval --seed``,
+    the Brax baseline's)."""
+    check_value(name, value, int, Option(**_RUN_OPTIONS["seed"]))
+
+
 def run_option(name: str, default: Any, help: str | None = None) -> Any:
     """The declared run field ``name`` of :data:`_RUN_OPTIONS` with a learner's ``default`` (and help)."""
     meta = dict(_RUN_OPTIONS[name])

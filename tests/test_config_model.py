@@ -102,3 +102,30 @@ def test_physics_c_checks_the_model_of_the_environment_the_run_steps(monkeypatch
     model = tasks.mj_model(env)
     assert seen == [(model.nq, model.nu)]
     assert env == tasks.PAPER or (model.nq, model.nu) != (tasks.mj_model(tasks.PAPER).nq, tasks.mj_model(tasks.PAPER).nu)
+
+
+# ------------------------------------------------------------------- the seed, --devices
+SEED_ALLOWED = "is invalid: must be an integer in [0, 4294967295] (JAX's PRNG seeds are 32-bit; others wrap around " \
+               "to another seed)"
+
+
+@pytest.mark.parametrize("argv", [
+    ["train", "--seed", "4294967296"],
+    ["train", "--learner", "ppo", "--seed", "-1"],
+    ["baseline", "ppo", "--seed", "-1"],
+    ["eval", "no-such-run", "--seed", "4294967296"],
+])
+def test_every_command_refuses_a_seed_by_the_one_seed_range(tmp_path, capsys, argv):
+    out = tmp_path / "r"
+    assert cli.main([*argv, *([] if argv[0] == "eval" else ["--out", str(out)])]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].endswith(SEED_ALLOWED), err
+    assert not out.exists()
+
+
+def test_train_and_sweep_take_the_same_devices_option():
+    p = cli.build_parser()
+    sub = next(a for a in p._actions if isinstance(a, argparse._SubParsersAction))
+    train, sweep = (sub.choices[c]._option_string_actions["--devices"] for c in ("train", "sweep"))
+    assert (train.help, train.default) == (sweep.help, sweep.default)
+    assert sub.choices["train"].parse_args(["--out", "r", "--devices", "2"]).devices == "2"

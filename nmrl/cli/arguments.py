@@ -46,6 +46,12 @@ def _learner_option(p: argparse.ArgumentParser, learner) -> None:
                         f"actor-critic; with --resume: the run's own); its options are listed below")
 
 
+def _devices_option(p: argparse.ArgumentParser) -> None:
+    """``--devices``: how many host devices ``train`` and ``sweep`` split their work over (nmrl/runs/devices.py)."""
+    p.add_argument("--devices", default=_devices.AUTO,
+                   help="host (CPU) devices to split the work over: 'auto' = every core (default), 1 = off")
+
+
 def version() -> str:
     """The installed package's version (pyproject.toml)."""
     from importlib import metadata
@@ -76,8 +82,7 @@ def build_parser(learner=None) -> argparse.ArgumentParser:
                         "(only --steps/--trials may change)")
     p.add_argument("--step", type=int, default=None,
                    help="with --resume: the checkpoint step to continue from (default: the newest)")
-    p.add_argument("--devices", default=_devices.AUTO,
-                   help="host (CPU) devices to split the work over: 'auto' = every core (default), 1 = off")
+    _devices_option(p)
     p.add_argument("--quiet", action="store_true", help="no progress display")
     add_distributed_options(p)
     p.set_defaults(func=cmd_train)
@@ -111,8 +116,7 @@ def build_parser(learner=None) -> argparse.ArgumentParser:
                    help=f"{field or 'the'} values whose points (all seeds) run to the budget before the others start")
     p.add_argument("--group", type=int, default=1,
                    help="points vmapped together on one device (default 1: one after another)")
-    p.add_argument("--devices", default=_devices.AUTO,
-                   help="host (CPU) devices to split the work over: 'auto' = every core (default), 1 = off")
+    _devices_option(p)
     p.add_argument("--out", required=True)
     p.add_argument("--resume", action="store_true")
     p.add_argument("--quiet", action="store_true")

@@ -129,10 +129,12 @@ def cmd_eval(args: argparse.Namespace) -> int:
     if not (math.isfinite(s) and 0 < s <= MAX_EVAL_SECONDS):
         return fail(f"--seconds={s!r} is invalid: must be a finite number of simulated seconds in "
                              f"(0, {MAX_EVAL_SECONDS:g}]")
-    from nmrl.options import SEED_MAX
+    from nmrl import options
 
-    if not 0 <= args.seed <= SEED_MAX:
-        return fail(f"--seed={args.seed} is invalid: must be an integer in [0, {SEED_MAX}]")
+    try:
+        options.check_seed(args.seed, "--seed")
+    except ValueError as e:
+        return fail(str(e))
     if args.step is not None and args.step < 0:
         return fail(f"--step={args.step} is invalid: a checkpoint step is >= 0")
     from nmrl.runs import checkpoint, io_errors, lock, store

@@ -24,8 +24,7 @@ import os
 import pathlib
 from typing import Any
 
-from nmrl import tasks
-from nmrl.options import SEED_MAX
+from nmrl import options, tasks
 from nmrl.paper.control_step import DELTA_0
 from nmrl.paper.env import EnvConfig
 from nmrl.runs import errors, store
@@ -106,9 +105,7 @@ class BaselineConfig:
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v < 1:
                 raise ValueError(f"{name}={v!r} is invalid: must be an integer >= 1")
-        if not (isinstance(self.seed, int) and not isinstance(self.seed, bool) and 0 <= self.seed <= SEED_MAX):
-            raise ValueError(f"seed={self.seed!r} is invalid: must be an integer in [0, {SEED_MAX}] (Brax's train "
-                             f"makes jax.random.PRNGKey(seed), as nmrl's learners do)")
+        options.check_seed(self.seed)  # Brax's train makes jax.random.PRNGKey(seed), as nmrl's learners do
         if (self.batch_size * self.num_minibatches) % self.num_envs:
             raise ValueError(f"num_envs={self.num_envs} is invalid: batch_size x num_minibatches = "
                              f"{self.batch_size * self.num_minibatches} must be a multiple of it")

@@ -8,8 +8,8 @@ of a config (any learner, nmrl/learners/contract.py) is checked by its type and 
 
 * ``float``: finite once rounded to float32 (``|x| <~ 3.40e38``) and, when not 0, not below
   float32's smallest normal number (``1.18e-38``; it would become 0 or lose its precision);
-* ``int``: within int32 (``< 2**31``), as the step and trial counters and the traced integers are
-  (the seed is checked apart: nmrl/runs/preflight.py, 32-bit unsigned);
+* ``int``: within int32 (``< 2**31``), as the step and trial counters and the traced integers are,
+  unless the field's range says otherwise (the seed: 32-bit unsigned, nmrl.options.SEED_MAX);
 * the range or choices the field declares (e.g. the control step at most 1 s, a stop probability in
   [0, 1], a noise standard deviation in (0, 10], step sizes in [0, 1]).
 
@@ -30,7 +30,7 @@ def check_value(name: str, value: Any, kind: type = float) -> None:
     options.check_value(name, value, kind)
 
 
-def check(config: Any, skip: frozenset[str] = frozenset({"seed"})) -> None:
+def check(config: Any, skip: frozenset[str] = frozenset()) -> None:
     """Every field of the dataclass ``config`` (but ``skip``) by its type and declaration, in field
     order: ValueError for the first that is out of bounds (:func:`nmrl.options.check`)."""
     options.check(config, skip)

@@ -22,7 +22,7 @@ from typing import Callable
 import jax
 
 from nmrl import learners, tasks
-from nmrl.options import SEED_MAX
+from nmrl.options import SEED_MAX  # noqa: F401 - the seeds of a sweep (nmrl.runs.driver)
 from nmrl.runs import bounds, distributed as dist, io_errors, lock, memory, store
 from nmrl.runs.errors import OutOfMemory, RunError
 from nmrl.runs.store import RUN_FILES
@@ -50,10 +50,7 @@ def check_config(cfg: Config) -> None:
     except TypeError as e:
         raise ValueError(str(e)) from e
     learner.validate(cfg)
-    bounds.check(cfg)  # float32-finite floats, int32 integers, the ranges of shared fields
-    if not (isinstance(cfg.seed, int) and not isinstance(cfg.seed, bool) and 0 <= cfg.seed <= SEED_MAX):
-        raise ValueError(f"seed={cfg.seed!r} is invalid: must be an integer in [0, {SEED_MAX}] "
-                         f"(JAX's PRNG seeds are 32-bit; others wrap around to another seed)")
+    bounds.check(cfg)  # float32-finite floats, int32 integers, the declared ranges (the seed's: 32 bits)
     env = getattr(cfg, "env", tasks.PAPER)  # a config without nmrl.tasks.EnvFields runs the paper's robot
     if env == tasks.PAPER:  # a task checks its own step (nmrl.tasks.check_env)
         ts = getattr(cfg, "physics_timestep", None) or physics_timestep()
