@@ -129,3 +129,20 @@ def test_train_and_sweep_take_the_same_devices_option():
     train, sweep = (sub.choices[c]._option_string_actions["--devices"] for c in ("train", "sweep"))
     assert (train.help, train.default) == (sweep.help, sweep.default)
     assert sub.choices["train"].parse_args(["--out", "r", "--devices", "2"]).devices == "2"
+
+
+# ----------------------------------------------------- the other learners' options, on failure only
+def test_the_other_learners_parsers_are_built_only_when_an_option_is_unknown(tmp_path, capsys, monkeypatch):
+    """A command whose options parse builds its own learner's parser only (building every learner's
+    costs every start); an unknown option builds the others' to name the learner it belongs to."""
+    import nmrl.cli as cli_module
+
+    built = []
+    real = cli_module.build_parser
+    monkeypatch.setattr(cli_module, "build_parser", lambda learner=None: built.append(learner.name) or real(learner))
+    assert cli.main(["train", "--num-envs", "0", "--out", str(tmp_path / "r")]) == 2  # parsed, then refused
+    assert built == ["ac"] and "num_envs=0 is invalid" in capsys.readouterr().err
+    built.clear()
+    assert cli.main(["train", "--learning-rate", "0.1", "--out", str(tmp_path / "r")]) == 2
+    assert built[0] == "ac" and "ppo" in built
+    assert "--learning-rate: an option of the learner 'ppo', not of 'ac'" in capsys.readouterr().err

@@ -145,11 +145,13 @@ def _command(argv: list[str], guard: "_signals.Guard | None") -> int:
         watched = _watch(argv)
         if watched is not None:
             return watched
-    if learner is not None:
-        hint = _option_of_another_learner(argv, learner)
+    parser = build_parser(learner)
+    args, unknown = parser.parse_known_args(argv)
+    if unknown:  # only then the other learners' parsers are built, for the hint
+        hint = _option_of_another_learner(argv, learner, parser) if learner is not None else None
         if hint is not None:
             return fail(hint)
-    args = build_parser(learner).parse_args(argv)
+        parser.parse_args(argv)  # argparse's one line naming the unknown option(s)
     args.argv = argv
     if early is not None:
         early.raise_if_stopped(_stopped_early)
@@ -174,13 +176,15 @@ def _command_options(parser: argparse.ArgumentParser, cmd: str) -> set[str]:
     return set(sub.choices[cmd]._option_string_actions)
 
 
-def _option_of_another_learner(argv: list[str], learner) -> str | None:
-    """For ``train``/``sweep``: the line naming an option that ``learner`` does not take but another
-    learner does (``--learning-rate`` without ``--learner ppo``), else None (argparse answers)."""
+def _option_of_another_learner(argv: list[str], learner, parser: argparse.ArgumentParser) -> str | None:
+    """For ``train``/``sweep`` whose ``parser`` (of ``learner``) found unknown options: the line naming
+    one that ``learner`` does not take but another learner does (``--learning-rate`` without
+    ``--learner ppo``), else None (argparse answers). It builds every other learner's parser, so
+    it runs only when parsing has failed."""
     from nmrl import learners
     from nmrl.cli.config_options import get_learner
 
-    mine = _command_options(build_parser(learner), argv[0])
+    mine = _command_options(parser, argv[0])
     given = [a.split("=", 1)[0] for a in argv[1:] if a.startswith("--")]
     unknown = [a for a in given if a not in mine]
     for other in learners.names():
