@@ -11,8 +11,10 @@ not the field name with dashes, and whether it is an option at all. From the dec
 
 * :func:`helps`: the help of every option (``Learner.help``; nmrl/cli/config_options.py builds one option per field);
 * :func:`traced`: the traced fields (``Learner.hyper_fields``, what ``nmrl sweep --vary`` takes);
-* :func:`hyper_type`: the ``Hyper`` NamedTuple, its leaves the traced fields in declaration order,
-  cast to float32 or int32 by the field's type; a field whose traced value needs code (PPO's
+* :func:`hyper_leaves` and :func:`hyper_values`: the leaves of the learner's ``Hyper`` NamedTuple
+  (a class written out beside the config, so that editors and type checkers read it; a test checks
+  it against the declarations) are the traced fields in declaration order, cast to float32 or int32
+  by the field's type; a field whose traced value needs code (PPO's
   ``gamma = exp(-control_dt / discount_horizon_s)``) names its leaf (``traced="gamma"``) and the
   learner gives that leaf's function once;
 * :func:`check`: the type, finiteness and range or choices of every field (one line
@@ -28,7 +30,6 @@ says otherwise (the seed: JAX's PRNG keys take 32-bit unsigned seeds, :data:`SEE
 
 from __future__ import annotations
 
-import collections
 import dataclasses
 import functools
 import math
@@ -92,7 +93,7 @@ class Option:
 
     help: str = ""
     #: False: static (compiled into the program); True: a ``Hyper`` leaf of the same name; a name:
-    #: the derived ``Hyper`` leaf the field feeds (its function given to :func:`hyper_type`)
+    #: the derived ``Hyper`` leaf the field feeds (its function given to :func:`hyper_values`)
     traced: bool | str = False
     range: Range | None = None
     choices: tuple | None = None
@@ -227,29 +228,30 @@ def check(config: Any, skip: frozenset[str] = frozenset(), limits: bool = True) 
             check_value(name, getattr(config, name), kind(cls, name), decl, limits)
 
 
-def hyper_type(cls: type, derived: Mapping[str, Callable[[Any], Any]] = {},  # noqa: B006 - read only
-               name: str = "Hyper", module: str | None = None) -> type:
-    """The NamedTuple of ``cls``'s traced values with ``from_config(config)``: one leaf per traced
-    field (``traced=True``: the field's value as float32 or int32) or per derived leaf (a field
-    declared ``traced="leaf"``: ``derived["leaf"](config)``), in the order of the fields."""
+def hyper_leaves(cls: type) -> tuple[str, ...]:
+    """The leaves of ``cls``'s ``Hyper``: one per traced field (``traced=True``: the field's name) or per
+    derived leaf (a field declared ``traced="leaf"``), in the order of the fields."""
     leaves: list[str] = []
     for field, decl in declarations(cls).items():
         leaf = field if decl.traced is True else decl.traced
         if leaf and leaf not in leaves:
             leaves.append(leaf)
+    return tuple(leaves)
+
+
+def hyper_values(hyper: type, config: Any, derived: Mapping[str, Callable[[Any], Any]] = {}) -> Any:  # noqa: B006
+    """``hyper`` (a NamedTuple whose fields are :func:`hyper_leaves` of the config's class) of
+    ``config``'s traced values: a traced field's value as float32 or int32 by its type, a derived
+    leaf as ``derived[leaf](config)``. TypeError naming a leaf that is not declared or has no value."""
+    import jax.numpy as jnp  # not at import: the command line sets JAX's devices first
+
+    cls = type(config)
+    leaves = hyper_leaves(cls)
+    if tuple(hyper._fields) != leaves:
+        raise TypeError(f"{hyper.__name__}{tuple(hyper._fields)} is not the traced values {leaves} of {cls.__name__}")
     missing = sorted(set(leaves) - set(traced(cls)) - set(derived))
     if missing:
         raise TypeError(f"{cls.__name__}: no function for the derived traced value(s) {missing}")
-
-    def from_config(config: Any) -> Any:
-        import jax.numpy as jnp  # not at import: the command line sets JAX's devices first
-
-        dtype = {int: jnp.int32, float: jnp.float32}
-        return hyper(**{leaf: derived[leaf](config) if leaf in derived
-                        else jnp.asarray(getattr(config, leaf), dtype[kind(cls, leaf)]) for leaf in leaves})
-
-    hyper = type(name, (collections.namedtuple(name, leaves),), {
-        "__slots__": (), "__module__": module or cls.__module__, "from_config": staticmethod(from_config),
-        "__doc__": f"The traced values of a {cls.__name__} ({', '.join(leaves)}): one compiled program serves "
-                   f"every value (nmrl/options.py)."})
-    return hyper
+    dtype = {int: jnp.int32, float: jnp.float32}
+    return hyper(**{leaf: derived[leaf](config) if leaf in derived
+                    else jnp.asarray(getattr(config, leaf), dtype[kind(cls, leaf)]) for leaf in leaves})

@@ -5,12 +5,16 @@
   and the study's and the baseline's options are made from them;
 * a bad ``--env`` or ``--physics`` is refused in one line naming the value and what is allowed, exit
   status 2, nothing written, by every command, for the paper's robot and for a Gymnasium task;
-* ``--physics c`` checks the model the run steps: a task's own, not the paper's.
+* ``--physics c`` checks the model the run steps: a task's own, not the paper's;
+* one seed range, one ``--devices``; the other learners' options are read only when an option is unknown;
+* each learner's ``Hyper`` is a class written out, whose leaves are its config's traced declarations.
 """
 
 from __future__ import annotations
 
 import argparse
+import typing
+from typing import Any, NamedTuple
 
 import pytest
 
@@ -146,3 +150,21 @@ def test_the_other_learners_parsers_are_built_only_when_an_option_is_unknown(tmp
     assert cli.main(["train", "--learning-rate", "0.1", "--out", str(tmp_path / "r")]) == 2
     assert built[0] == "ac" and "ppo" in built
     assert "--learning-rate: an option of the learner 'ppo', not of 'ac'" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------- typed Hyper
+@pytest.mark.parametrize("name", learners.names())
+def test_each_learners_written_hyper_holds_the_traced_values_its_config_declares(name):
+    lr = learners.get(name)
+    hyper = type(lr.hyper(lr.config().resolved()))
+    assert hyper._fields == options.hyper_leaves(lr.config)
+    assert set(typing.get_type_hints(hyper)) == set(hyper._fields)  # every leaf typed, for editors
+
+
+def test_a_hyper_that_is_not_the_declared_traced_values_is_refused():
+    class Wrong(NamedTuple):
+        delta: Any
+        l: Any
+
+    with pytest.raises(TypeError, match="is not the traced values"):
+        options.hyper_values(Wrong, TrainConfig())

@@ -11,7 +11,9 @@ chains of nmrl/learners/optimizers.py, recorded in canonical form.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import Any, NamedTuple
+
+import jax
 
 from nmrl import options
 from nmrl.learners.optimizers import OPT_HELP, canonical_opt, parse_opt
@@ -113,7 +115,20 @@ class TrainConfig(EnvFields):
         self.check_env()
 
 
-#: the traced hyperparameters: one leaf per traced field of :class:`TrainConfig` (l, Delta, alpha,
-#: sigma, gamma, lambda, beta^theta, beta^v), int32 or float32 by the field's type; one program serves
-#: every value (the sweep vmaps over them)
-Hyper = options.hyper_type(TrainConfig)
+class Hyper(NamedTuple):
+    """The traced values of a :class:`TrainConfig`: one leaf per field declared ``traced``, in their
+    order (``options.hyper_leaves``; tests/test_config_model.py checks it), int32 or float32 by the
+    field's type. One compiled program serves every value (the sweep vmaps over them)."""
+
+    l: jax.Array  #: int32, the nm-period length
+    delta: jax.Array  #: int32, Delta
+    alpha: jax.Array
+    sigma: jax.Array
+    gamma: jax.Array
+    lam: jax.Array
+    beta_theta: jax.Array
+    beta_v: jax.Array
+
+    @staticmethod
+    def from_config(config: TrainConfig) -> "Hyper":
+        return options.hyper_values(Hyper, config)

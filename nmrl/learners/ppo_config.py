@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -170,6 +170,26 @@ class PPOConfig(EnvFields):
 
 #: the exploration parameters of the config, as nmrl.explore.ExplorationSpec names them
 SPEC_FIELDS = explore.PARAMETERS
-#: the traced values, per control step (from the config's seconds) and the noise process
-Hyper = options.hyper_type(PPOConfig, {"gamma": _per_step("discount_horizon_s"), "lam": _per_step("gae_horizon_s"),
-                                       "process": lambda c: c.spec().process(c.control_dt)})
+#: the derived traced values: the discount and GAE factors per control step (from the config's
+#: seconds) and the noise process
+_DERIVED = {"gamma": _per_step("discount_horizon_s"), "lam": _per_step("gae_horizon_s"),
+            "process": lambda c: c.spec().process(c.control_dt)}
+
+
+class Hyper(NamedTuple):
+    """The traced values of a :class:`PPOConfig`, in the order of the fields that feed them
+    (``options.hyper_leaves``; tests/test_config_model.py checks it): one compiled program serves
+    every value."""
+
+    process: explore.Process  #: the exploration noise process at the control step (``sigma`` and the spec's)
+    gamma: jax.Array  #: float32, exp(-control_dt / discount_horizon_s)
+    lam: jax.Array  #: float32, exp(-control_dt / gae_horizon_s)
+    learning_rate: jax.Array
+    entropy_cost: jax.Array
+    clip_eps: jax.Array
+    vf_coef: jax.Array
+    reward_scale: jax.Array
+
+    @staticmethod
+    def from_config(config: PPOConfig) -> "Hyper":
+        return options.hyper_values(Hyper, config, _DERIVED)
