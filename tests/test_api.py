@@ -53,3 +53,10 @@ def test_train_writes_the_run_of_the_command_line(tmp_path):
     ts = jax.jit(trainer.init)(jax.random.PRNGKey(cfg.seed))
     _, m = jax.jit(trainer.chunk)(ts)
     np.testing.assert_allclose(float(m["avg_reward"]), rows[0]["avg_reward"], rtol=1e-6)
+
+
+def test_python_m_nmrl_exits_with_the_commands_status(tmp_path):
+    out = subprocess.run([sys.executable, "-m", "nmrl", "train", "--physics", "gpu", "--out", str(tmp_path / "r")],
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 2 and out.stderr.strip().splitlines() == [
+        "nmrl: error: physics='gpu' is invalid: choose one of mjx, c"] and not (tmp_path / "r").exists()
