@@ -32,11 +32,11 @@ def seconds_per_ratio(config: dict) -> float:
     return float(config["period_s"]) if config.get("period_wise") else float(config["control_dt"])
 
 
-def trust_region(record: pathlib.Path) -> list[dict]:
-    """Per cell of :data:`CELLS` and iteration: the median over seeds of the clipped share and of the
-    KL per ratio and per second of behaviour."""
+def trust_region(record: pathlib.Path, cells: tuple[str, ...] = CELLS) -> list[dict]:
+    """Per cell (default :data:`CELLS`) and iteration: the median over seeds of the clipped share and
+    of the KL per ratio and per second of behaviour."""
     out = []
-    for cell in CELLS:
+    for cell in cells:
         points = sorted((record / cell / "points").glob("*/metrics.jsonl"))
         if not points:
             continue
@@ -74,6 +74,18 @@ def figure(rows: list[dict], path: pathlib.Path) -> pathlib.Path:
     fig.suptitle("study 2: white (per control step) against NMp (per period), the grid's logs")
     plots.save(fig, path, dpi=110, bbox_inches="tight")
     return path
+
+
+def summary(rows: list[dict], first: int = 2) -> dict[str, dict]:
+    """Per cell: the median over iterations ``first``.. of the (per-iteration median) clipped share
+    and KL per second, leaving out the first iteration's jump of the observation statistics."""
+    out = {}
+    for cell in dict.fromkeys(r["cell"] for r in rows):
+        rs = [r for r in rows if r["cell"] == cell and r["iteration"] >= first]
+        if rs:
+            out[cell] = {"clip_frac": float(np.median([r["clip_frac"] for r in rs])),
+                         "kl_per_s": float(np.median([r["kl_per_s"] for r in rs])), "iterations": len(rs)}
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -15,7 +15,7 @@ from __future__ import annotations
 import argparse
 import pathlib
 
-from nmrl.experiments import kit
+from nmrl.experiments import exploration2_diagnosis, kit
 from nmrl.experiments.exploration2_cells import ARMS, ENDPOINT, GRID_ITERATIONS, base
 
 SEEDS = 2
@@ -43,6 +43,9 @@ def main() -> None:
     a = ap.parse_args()
     study = kit.Study(name="nmp_diagnosis", cells=cells(), endpoint=ENDPOINT)
     kit.run(study, a.out)
+    tr = exploration2_diagnosis.trust_region(pathlib.Path(a.out), tuple(c.name for c in cells()))
+    for cell, t in exploration2_diagnosis.summary(tr).items():
+        print(cell, f"iterations 2-{t['iterations'] + 1}: KL {t['kl_per_s']:.2f} per s, {t['clip_frac']:.3f} clipped")
     for r in kit.rows(study, pathlib.Path(a.out)):
         print(r["cell"], r["point"], f"det {float(r['det_reward_per_s']):.1f} /s at {float(r['det_forward_speed']):.2f} m/s;"
               f" exploring {float(r['avg_reward_per_s']):.1f} /s at {float(r['forward_speed']):.2f} m/s")
