@@ -4,7 +4,7 @@ C physics at a 2.5 ms timestep, trials of 5 s, the deterministic endpoint) for s
 noise scale below the screen's choice and with the noise's covariance independent of the policy
 (``--learn-std false``: std_theta = 1, the paper's C_k), and with the clip of a period's ratio widened
 to a trust region per second (``--clip-eps`` 0.52 = 0.3 sqrt(3) and 0.9 = 0.3 x 3 for 3-step
-periods), so that each can be set against study 2's
+periods), and with the noise nearly white inside the periods (``--corr-time-s`` 0.01), so that each can be set against study 2's
 NMp(20) (sigma 1: every run stands) and W(20) (walks) of the same seeds.
 
     python scripts/lab/nmp_diagnosis.py --out runs/nmp_diagnosis      # runs what is missing, prints rows
@@ -26,8 +26,10 @@ VARIANTS = {
     # a trust region per second: a period of 0.06 s is 3 control steps, so the clip of its ratio is
     # widened by sqrt(3) (KL grows as the log-ratio squared) or by 3 (the log-ratio bound per second)
     "nmp_sigma1_clip0.52": ("--sigma", "1", "--clip-eps", "0.52"),
+    # the noise nearly white (AR coefficient exp(-0.02 / 0.01) = 0.14 per step) with the period-wise
+    # ratio kept: separates learning on periods as wholes from the noise's correlation
+    "nmp_sigma1_corr0.01": ("--sigma", "1", "--corr-time-s", "0.01"),
     "nmp_sigma1_clip0.9": ("--sigma", "1", "--clip-eps", "0.9"),
-    "nmp_sigma1_fixed_std_clip0.9": ("--sigma", "1", "--learn-std", "false", "--clip-eps", "0.9"),
 }
 
 
