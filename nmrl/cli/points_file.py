@@ -17,6 +17,7 @@ import json
 import math
 
 from nmrl.cli.config_options import field_type
+from nmrl.runs.signals import setting_up
 
 #: the largest points file read (a list of a few thousand points is far below it)
 MAX_BYTES = 16 * 2**20
@@ -61,7 +62,7 @@ def read_points(path: str, config: type) -> tuple[dict, ...]:
                          f"e.g. [{{\"name\": \"a\", \"beta_theta\": 1e-05}}]")
     fields = {f.name: f for f in dataclasses.fields(config)}
     out = []
-    for i, p in enumerate(data):
+    for i, p in enumerate(setting_up(data, len(data), step="reading the points file")):
         name = p.get("name")
         label = name if isinstance(name, str) else f"#{i}"
         q = {"name": name}

@@ -105,15 +105,26 @@ def budget_text(cfg: Config) -> str:
     return f"steps={cfg.steps}" if cfg.steps is not None else f"trials={cfg.trials}"
 
 
+def next_save(step: int, chunk_steps: int, every: int, wall_s: float) -> str:
+    """When the next checkpoint is due after a chunk that ended at ``step`` and took ``wall_s``
+    seconds, saves falling at multiples of ``every`` chunks: what a supervisor's signal would keep
+    (the progress line shows it)."""
+    period = every * chunk_steps
+    at = (step // period + 1) * period
+    return f"next save at step {at:,} in ~{(at - step) // chunk_steps * wall_s:,.0f} s"
+
+
 class Progress:
     """A rich progress bar on a terminal, one plain line per chunk otherwise.
 
     ``done0`` is where this session started (a resumed run): the ETA extrapolates this session's
-    own speed, not the run's whole progress over this session's time.
+    own speed, not the run's whole progress over this session's time. Each line also says when the
+    next checkpoint is due (a save every ``every`` chunks, :func:`next_save`).
     """
 
-    def __init__(self, cfg: Config, enabled: bool, done0: int = 0):
+    def __init__(self, cfg: Config, enabled: bool, done0: int = 0, every: int = 1):
         self.cfg = cfg
+        self.every = every
         self.enabled = enabled
         self.rich = enabled and sys.stderr.isatty()
         self.t0 = time.time()
@@ -139,6 +150,8 @@ class Progress:
         done = row["step"] if cfg.steps is not None else row["trials"]
         text = (f"trials {row['trials']:,}  steps {row['total_steps']:,}  {row['steps_per_s']:,.0f} steps/s  "
                 f"avg reward {row['avg_reward']:+.3f}  speed {row['forward_speed']:+.2f} m/s")
+        if done < self.total and "wall_s" in row:  # the last chunk's save is the end
+            text += f"  {next_save(row['step'], cfg.chunk_steps, self.every, row['wall_s'])}"
         if self.rich:
             self.bar.update(self.task, completed=min(done, self.total), description=text)
         else:
@@ -268,8 +281,10 @@ def _agreed(signum: int | None, want: np.ndarray, name: str) -> tuple[int | None
     return (s or None), table[0, 1:].astype(bool)
 
 
-def progress_table(names: Sequence[str], rows_by_point: dict, elapsed: float) -> str:
-    lines = [f"sweep: {len(names)} points, {elapsed:,.0f} s"]
+def progress_table(names: Sequence[str], rows_by_point: dict, elapsed: float, due: str = "") -> str:
+    """The sweep's progress: a head line (the points, the time, ``due``: when the next save is due)
+    and every point's latest metrics."""
+    lines = [f"sweep: {len(names)} points, {elapsed:,.0f} s" + (f"; {due}" if due else "")]
     w = max(len(n) for n in names)
     for name in names:
         r = rows_by_point.get(name)
