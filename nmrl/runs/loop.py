@@ -204,7 +204,8 @@ def drive(ps: Sequence, layout, *, guard: signals.Guard, stages: list[list[int]]
             active = np.zeros(len(ps), bool)
             active[[i for i in stage if not done[i]]] = True
             t0 = time.time()
-            ms = allocate(lambda: layout.run(active), "running a chunk", ps[0].cfg)
+            with guard.chunk():  # what a supervisor's grace may cut (nmrl/runs/signals.py)
+                ms = allocate(lambda: layout.run(active), "running a chunk", ps[0].cfg)
             wall = time.time() - t0
             n_active = int(active.sum())
             new: dict[int, dict] = {}

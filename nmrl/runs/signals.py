@@ -22,10 +22,11 @@ there can crash in the runtime's teardown (a segfault), after a message meant fo
 * a supervisor's grace (:attr:`Guard.grace_s`, ``--grace-s`` or ``NMRL_GRACE_S``: :func:`grace_of`):
   SLURM and most schedulers send SIGTERM and, a fixed time later, SIGKILL (KillWait, 30 s by
   default), so waiting for a long chunk would lose it all to the SIGKILL with no clean stop. When
-  the first signal came during training and the chunk in flight has not been saved within the
-  grace, the process stops at once (``os._exit``) with the last completed chunk's checkpoint on
-  disk; a save in progress is never cut: a grace that runs out during a save ends the process
-  when that save is complete;
+  the first signal came during training and the chunk in flight (:meth:`Guard.chunk`) is still
+  computing at the grace's end, the process stops at once (``os._exit``) with the last completed
+  chunk's checkpoint on disk; what is written is never cut: a chunk that has returned goes on to
+  its clean stop, and a grace that runs out during a save ends the process when that save is
+  complete;
 * the exit status is the shell's ``128 + signal``: 130 for SIGINT, 143 for SIGTERM.
 
 Only the main thread may install it (``signal.signal``); :meth:`Guard.restore` puts the previous
@@ -34,6 +35,7 @@ handlers and wakeup descriptor back.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import signal
@@ -124,6 +126,7 @@ class Guard:
         self._on_grace = on_grace
         self._since: float | None = None  # time.monotonic() of the first signal
         self._expired = False  # the grace ran out during a save: stop when it is complete
+        self._in_chunk = False  # a chunk is computing (:meth:`chunk`): what a grace that ran out cuts
         self._grace_thread: threading.Thread | None = None
         #: one process (not one of a distributed run's, which stop together at agreed points): a
         #: signal during set-up stops the command there (:meth:`stop_setup`)
@@ -209,7 +212,7 @@ class Guard:
             with self._lock:
                 if self.grace_s is None or self._since is None or time.monotonic() < self._since + self.grace_s:
                     continue
-                if self.moment in GRACE_MOMENTS:
+                if self.moment in GRACE_MOMENTS and self._in_chunk:
                     self._exit(self.signal, self.grace_message(self.signal))
                 if self.moment == "saving":
                     self._expired = True
@@ -302,11 +305,17 @@ class Guard:
                 self._exit(self.signal, self.grace_message(self.signal))
             self.moment = moment
 
-    def remaining_s(self) -> float | None:
-        """Seconds left of the grace after a first signal (None: no signal, or no grace)."""
-        if self.grace_s is None or self._since is None:
-            return None
-        return max(0.0, self._since + self.grace_s - time.monotonic())
+    @contextlib.contextmanager
+    def chunk(self) -> Iterator[None]:
+        """The block computes a chunk: what a grace that ran out cuts (nothing is written meanwhile;
+        the bookkeeping after it, its metrics row, saves and results, runs to the stop)."""
+        with self._lock:
+            self._in_chunk = True
+        try:
+            yield
+        finally:
+            with self._lock:
+                self._in_chunk = False
 
     def raise_if_stopped(self, message: Callable[[int], str] | None = None) -> None:
         """Raise :class:`Interrupted` when a signal came (``message(signum)`` its text)."""
