@@ -15,7 +15,9 @@ process 0 writes.
 SIGINT/SIGTERM at any moment go through one :class:`nmrl.runs.signals.Guard` (:func:`guarded`: the
 command's, else one of the caller's own): during the compile the run stops when the compile
 returns, before anything of it is written (:func:`compile_or_stop`); during the chunk loop after
-the chunk in flight, every active point saved (:class:`Stopped`); a second signal stops at once
+the chunk in flight, every active point saved (:class:`Stopped`), or, when the chunk is still
+computing at the end of the supervisor's grace, at once with the last saved chunk kept
+(:meth:`nmrl.runs.signals.Guard.chunk`); a second signal stops at once
 (the last checkpoints are intact because checkpoints are written atomically). A loop of another
 kind (the Brax PPO baseline) takes the same guard and stops after its iteration's save.
 """
