@@ -142,6 +142,14 @@ def test_a_bad_grace_is_one_line_and_writes_nothing(tmp_path, monkeypatch, optio
         assert not out.exists()
 
 
+def test_a_study_refuses_a_bad_grace_in_the_environment_in_one_line(tmp_path, monkeypatch):
+    monkeypatch.setenv(signals.GRACE_ENV, "later")
+    rc, _, err = _main(["study", "--dt", "0.02", "--out", str(tmp_path / "S")])
+    lines = [x for x in err.splitlines() if x.strip()]
+    assert rc == 2 and len(lines) == 1 and signals.GRACE_ENV in lines[0] and "later" in lines[0], err
+    assert not (tmp_path / "S").exists()
+
+
 def test_the_grace_option_wins_over_the_environment(tmp_path, monkeypatch):
     monkeypatch.setenv(signals.GRACE_ENV, "abc")
     rc, _, err = _main(["train", "--num-envs", "0", "--grace-s", "5", "--quiet", "--out", str(tmp_path / "R")])
