@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 
 from nmrl import cli
-from nmrl.runs import checkpoint, driver as run, loop
+from nmrl.runs import checkpoint, driver as run, loop, signals
 from nmrl.analysis import evaluate
 from nmrl.learners.ac_config import TrainConfig
 from nmrl.learners.ac_train import make_train
@@ -409,7 +409,8 @@ def test_a_signal_stops_after_the_saved_chunk_with_its_own_status(base, tmp_path
     rc, out, err = _main(["train", "--resume", "--out", str(d), "--steps", "150", "--quiet"])
     assert rc == 128 + sig == {signal.SIGINT: 130, signal.SIGTERM: 143}[sig]
     assert err.splitlines() == [
-        "", f"signal {int(sig)}: stopping after the chunk in flight is saved (again to stop now)",
+        "", f"signal {int(sig)}: stopping after the chunk in flight is saved, or in "
+            f"{signals.DEFAULT_GRACE_S:g} s with the last saved chunk kept (again to stop now)",
         f"stopped by signal {int(sig)} at step 100 (saved); continue with: nmrl train --resume --out {d}"]
     assert json.loads(out)["step"] == 100
     assert checkpoint.latest_step(d) == 100 and run.read_metrics(d)[-1]["step"] == 100

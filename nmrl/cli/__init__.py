@@ -30,8 +30,9 @@ from nmrl.runs import signals as _signals
 
 def _guard(what: str, out: str | None, resume: bool) -> "_signals.Guard":
     """The command's signal handling for its whole life (nmrl/runs/signals.py), installed before JAX
-    is imported; a second signal exits at once naming what is intact: before the run's files are
-    written (a fresh run), nothing; else the newest checkpoint."""
+    is imported; a second signal, or a first one whose grace ran out during a chunk, exits at once
+    naming what is intact: before the run's files are written (a fresh run), nothing; else the
+    newest checkpoint."""
     def second(signum: int, moment: str) -> str:
         head = f"nmrl: stopped at once by a second signal {signum} while {moment}"
         written = out and any(os.path.exists(os.path.join(out, f)) for f in ("config.json", "sweep.json"))
@@ -41,7 +42,12 @@ def _guard(what: str, out: str | None, resume: bool) -> "_signals.Guard":
         return (f"{head}; the newest checkpoint{where} is intact (saves are atomic); continue with: nmrl {what} "
                 f"--resume --out {out}")
 
-    return _signals.Guard(on_second=second).install()
+    def grace(signum: int, grace_s: float) -> str:
+        return (f"nmrl: stopped by signal {signum}: the chunk in flight was not saved within the grace of "
+                f"{grace_s:g} s (--grace-s, {_signals.GRACE_ENV}); what was saved before is intact (saves are "
+                f"atomic); continue with: nmrl {what} --resume --out {out}")
+
+    return _signals.Guard(on_second=second, on_grace=grace).install()
 
 
 def _flag(argv: list[str], name: str) -> str | None:
@@ -120,6 +126,8 @@ def _command(argv: list[str], guard: "_signals.Guard | None") -> int:
     the command starts its run stops it there (one process; several processes stop together at the
     driver's agreed points)."""
     early = guard if guard is not None and _flag(argv, "--coordinator") is None else None
+    if guard is not None and early is None:  # several processes stop together, at agreed points
+        guard.alone = False
     if early is not None:
         early.raise_if_stopped(_stopped_early)
     if argv[:1] in (["train"], ["sweep"], ["baseline"]):

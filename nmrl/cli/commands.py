@@ -55,16 +55,23 @@ def join(args: argparse.Namespace, cluster: "_launch.Cluster | None") -> int | N
 
 
 def ready(args: argparse.Namespace, check: Callable[[], T]) -> tuple[T, int | None] | int:
-    """The common prologue of ``train`` and ``sweep``: ``check()`` (the command's own argument checks,
-    returning what the command needs), the device count and the cluster; then, with several
+    """The common prologue of ``train`` and ``sweep``: the grace of the command's signal guard
+    (``--grace-s``, ``NMRL_GRACE_S``: nmrl/runs/signals.py), ``check()`` (the command's own argument
+    checks, returning what the command needs), the device count and the cluster; then, with several
     processes, join the run (:func:`join`). Returns ``(check(), devices)``, or the exit status when
     an argument is bad (the value named, status 2) or joining fails; nothing is written either way."""
     try:
+        grace_s = _signals.grace_of(getattr(args, "grace_s", None))
         value = check()
         n_dev = _devices.parse(args.devices)
         cluster = cluster_of(args)
     except (ValueError, TypeError) as e:
         return fail(str(e))
+    guard = _signals.active()
+    if guard is not None:
+        guard.grace_s = grace_s
+        guard.show_setup = not getattr(args, "quiet", False)
+        guard.stop_setup()  # a signal during the checks (one process): nothing is written
     joined = join(args, cluster)
     return joined if joined is not None else (value, n_dev)
 

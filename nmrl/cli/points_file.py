@@ -17,6 +17,7 @@ import json
 import math
 
 from nmrl.cli.config_options import field_type
+from nmrl.runs.signals import setting_up
 
 #: the largest points file read (a list of a few thousand points is far below it)
 MAX_BYTES = 16 * 2**20
@@ -60,8 +61,9 @@ def read_points(path: str, config: type) -> tuple[dict, ...]:
         raise ValueError(f"--points={path!r} is invalid: give a non-empty JSON list of objects, one per point, "
                          f"e.g. [{{\"name\": \"a\", \"beta_theta\": 1e-05}}]")
     fields = {f.name: f for f in dataclasses.fields(config)}
+    types = {n: field_type(config, f) for n, f in fields.items()}  # once: typing's hints are slow per point
     out = []
-    for i, p in enumerate(data):
+    for i, p in enumerate(setting_up(data, len(data), step="reading the points file")):
         name = p.get("name")
         label = name if isinstance(name, str) else f"#{i}"
         q = {"name": name}
@@ -71,6 +73,6 @@ def read_points(path: str, config: type) -> tuple[dict, ...]:
             if k not in fields:
                 raise ValueError(f"--points: point {label!r} sets {k!r}, which is not a field of the learner's "
                                  f"config")
-            q[k] = _value(label, k, v, field_type(config, fields[k]))
+            q[k] = _value(label, k, v, types[k])
         out.append(q)
     return tuple(out)

@@ -41,6 +41,7 @@ and keeps its metrics.
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import json
 import os
@@ -51,6 +52,7 @@ from typing import Sequence
 from nmrl import learners
 from nmrl.analysis import plots, stats
 from nmrl.runs import distributed as dist, driver, lock, store
+from nmrl.runs.signals import setting_up, stop_setup
 from nmrl.runs.driver import Stopped  # noqa: F401  (raised by run_sweep after a signal)
 from nmrl.runs.points import slot_order, stack_trees  # noqa: F401  (the sweep's layout, nmrl/runs/points.py)
 
@@ -138,7 +140,7 @@ class SweepSpec:
             raise ValueError("a sweep of listed points has no swept field, values, first values or seed0")
         fields = {f.name for f in dataclasses.fields(self.base)}
         names = []
-        for i, o in enumerate(self.overrides):
+        for i, o in enumerate(setting_up(self.overrides, len(self.overrides), step="checking the names")):
             n = o.get("name") if isinstance(o, dict) else None
             if not isinstance(n, str) or not n or n.startswith(".") or "/" in n or "\\" in n or len(n) > 200:
                 raise ValueError(f"point {i}: name={n!r} is invalid: every point needs a \"name\", a plain "
@@ -148,16 +150,17 @@ class SweepSpec:
                 raise ValueError(f"point {n!r} sets {bad}: a point sets fields of the learner's config other "
                                  f"than the budget ({', '.join(BUDGET_FIELDS)}: the sweep's options)")
             names.append(n)
-        dup = sorted({n for n in names if names.count(n) > 1})
+        dup = sorted(n for n, k in collections.Counter(names).items() if k > 1)
         if dup:
             raise ValueError(f"duplicate point names {dup}: each point needs its own name")
         configs = self.point_configs()
-        for n, c in zip(names, configs):
+        for n, c in setting_up(zip(names, configs), len(names), step="checking the configs"):
             try:
                 driver.check_config(c)  # the bounds of ``nmrl train``
             except ValueError as e:
                 raise ValueError(f"point {n!r}: {e}") from None
-        pts.check_one_program(names, [c.resolved() for c in configs])
+        pts.check_one_program(names, [c.resolved() for c in setting_up(configs, len(configs), step="resolving the "
+                                                                                                  "configs")])
 
     def stages(self) -> list[list[int]] | None:
         """Point indices by stage: the points of ``first`` (every seed), then the rest."""
@@ -182,7 +185,7 @@ class SweepSpec:
     def point_configs(self) -> list:
         if self.overrides:
             return [dataclasses.replace(self.base, **{k: v for k, v in o.items() if k != "name"})
-                    for o in self.overrides]
+                    for o in setting_up(self.overrides, len(self.overrides), step="making the configs")]
         if self.field is None:
             return [dataclasses.replace(self.base, seed=s) for _, s in self.points()]
         return [dataclasses.replace(self.base, **{self.field: v}, seed=s) for v, s in self.points()]
@@ -334,7 +337,9 @@ def _run_sweep(spec, out, resume, progress, keep, max_chunks, plot, checkpoint_e
     # point shares the first one's program (nmrl/runs/points.py), so its environment is theirs
     first = (dataclasses.replace(base, **{k: v for k, v in spec.overrides[0].items() if k != "name"})
              if spec.overrides else base)
+    stop_setup()
     env = driver.preflight_points(first, spec.count())
+    stop_setup()
     names = spec.names()
     begun: list[bool] = []
 

@@ -8,7 +8,9 @@ file system (5, through nmrl/runs/io_errors.py), memory (7) and a damaged metric
 Nothing here imports JAX, so a command answers before JAX starts.
 
 ``nmrl study`` runs many sweeps under one signal guard (nmrl/runs/signals.py, :func:`run`): a
-signal stops it after the chunk in flight with every active point saved.
+signal stops it after the chunk in flight with every active point saved, or, when the chunk is
+still computing at the end of the grace (``NMRL_GRACE_S``, default 25 s), at once with the last
+saved chunk kept.
 """
 
 from __future__ import annotations
@@ -67,6 +69,7 @@ def run(prog: str, body: Callable[[], object], bad_input: tuple[type[BaseExcepti
     the driver's and checkpoints' errors)."""
     guard = signals.Guard().install()
     try:
+        guard.grace_s = signals.grace_of(None)  # a batch script's NMRL_GRACE_S, else the default
         body()
     except errors.Stopped as e:
         print(f"{prog}: {e}; every active point was saved; run the same command again to continue", file=sys.stderr)

@@ -38,16 +38,16 @@ import time
 from typing import Callable, Sequence
 
 import jax
-import jax.numpy as jnp
+import numpy as np
 
 from nmrl import learners
 from nmrl.learners import heartbeat
-from nmrl.runs import checkpoint, distributed as dist, lock, sharding, store
+from nmrl.runs import checkpoint, distributed as dist, lock, sharding, signals, store
 from nmrl.runs import points as pts
 from nmrl.runs.errors import Diverged, OutOfMemory, RunError, Stopped  # noqa: F401
 from nmrl.runs.layout import OneRun, Point, Points, begin_fresh, begin_resumed, num_shards
 from nmrl.runs.loop import (Progress, budget_done, budget_text, compile_chunk, compile_or_stop, drive,  # noqa: F401
-                            guarded, metrics_row, progress_table)
+                            guarded, metrics_row, next_save, progress_table)
 from nmrl.runs.preflight import (SEED_MAX, allocate, check_config, create_dir, fresh_out, hold,  # noqa: F401
                                  physics_timestep, preflight, preflight_points)
 from nmrl.runs.resume import BUDGET_FIELDS, existing_step, given_changes, load_resume  # noqa: F401
@@ -115,6 +115,7 @@ def train(cfg: Config, out: str | os.PathLike, *, resume: bool = False, progress
                 ts = allocate(lambda: jax.jit(trainer.init)(jax.random.PRNGKey(cfg.seed)), "allocating the state", cfg)
                 p = Point(out.name, out, cfg, trainer, ts)
             dist.barrier("train-checked")  # several processes: all have read the run before process 0 writes
+            guard.stop_setup()
             if cfg.steps is not None and cfg.steps % cfg.chunk_steps:
                 end = math.ceil(cfg.steps / cfg.chunk_steps) * cfg.chunk_steps
                 print(f"note: the budget of {cfg.steps} steps is not a whole number of chunks of {cfg.chunk_steps}: "
@@ -195,8 +196,9 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[C
     if len(names) != len(configs) or len(set(names)) != len(names) or not names:
         raise ValueError(f"need one distinct name per config, got {len(names)} names for {len(configs)} configs")
     out = pathlib.Path(out)
-    configs = [c.resolved() for c in configs]
+    configs = [c.resolved() for c in signals.setting_up(configs, len(configs), step="resolving the configs")]
     pts.check_one_program(names, configs)
+    signals.stop_setup()
     P_ = len(names)
     stages = pts.stages(priority, P_)
     n_avail = len(jax.local_devices())
@@ -222,7 +224,7 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[C
             holds += [hold(d, create=False) for d in dirs if d.is_dir()]  # each existing point, too
             ps: list[Point] = []
             if resume:
-                for n, d, c in zip(names, dirs, configs):
+                for n, d, c in signals.setting_up(zip(names, dirs, configs), P_, step="reading the points"):
                     if not any((d / f).exists() for f in RUN_FILES):  # deleted, or never begun: a fresh point
                         if writer:
                             print(f"nmrl: note: point {n} has no run in {d}: it starts fresh", file=sys.stderr,
@@ -254,15 +256,19 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[C
                 trainers = [learner.make(configs[0], env=env)] * len(configs)
                 preflight(configs[0], trainers[0], points=P_)
                 init = jax.jit(jax.vmap(trainers[0].init))
-                keys = jnp.stack([jax.random.PRNGKey(c.seed) for c in configs])
+                # one vmapped call: a PRNGKey per point is ~10 dispatched ops each (minutes for 10,000 points)
+                keys = jax.vmap(jax.random.PRNGKey)(np.array([c.seed for c in configs], np.uint32))
+                signals.stop_setup()
                 ts = allocate(lambda: init(keys, pts.stack_trees([learner.hyper(c) for c in configs])),
                               "allocating the states", configs[0])
                 host = jax.device_get(ts)  # each point's entry a view of one host copy, not a device slice each
                 ps = [Point(n, d, c, tr, pts.unstack(host, i))
-                      for i, (n, d, c, tr) in enumerate(zip(names, dirs, configs, trainers))]
+                      for i, (n, d, c, tr) in enumerate(signals.setting_up(zip(names, dirs, configs, trainers), P_,
+                                                                           step="making the states"))]
                 del host
                 del ts
             dist.barrier("points-checked")  # several processes: all have read the points before process 0 writes
+            signals.stop_setup()
             layout = Points(ps, n_dev, group, [i for st in stages for i in st], devices=mesh_devices)
             for p in ps:
                 p.ts = None  # the layout holds the states now
@@ -298,7 +304,9 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[C
                 if on_chunk is not None:
                     on_chunk()
                 if progress and table:
-                    print(progress_table(names, last_rows, time.time() - t_start), file=sys.stderr, flush=True)
+                    r = min(new.values(), key=lambda r: r["step"], default=None)  # the point furthest behind
+                    due = next_save(r["step"], configs[0].chunk_steps, checkpoint_every, r["wall_s"]) if r else ""
+                    print(progress_table(names, last_rows, time.time() - t_start, due), file=sys.stderr, flush=True)
 
             return drive(ps, layout, guard=guard, stages=stages, checkpoint_every=checkpoint_every, keep=keep,
                          freeze_diverged=True, compact=True, on_chunk=chunk_done, max_chunks=max_chunks,

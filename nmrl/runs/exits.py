@@ -35,7 +35,8 @@ TABLE: dict[int, str] = {
             "written",
     OUT_OF_MEMORY: "the machine ran out of memory allocating the run (its sizes passed the pre-flight estimate); "
                    "nothing of the run is left",
-    SIGINT: "stopped by SIGINT: after the chunk in flight was saved (`--resume` continues), or before the "
-            "first chunk with nothing of the run written; a second signal stops at once",
+    SIGINT: "stopped by SIGINT: after the chunk in flight was saved (`--resume` continues), or at the end of "
+            "the grace with the last saved chunk kept, or before the first chunk with nothing of the run "
+            "written; a second signal stops at once",
     SIGTERM: "stopped by SIGTERM, as for SIGINT",
 }

@@ -154,9 +154,12 @@ def hold(directory: str | os.PathLike, *, create: bool = True) -> Hold:
     OSError when the directory or its lock file cannot be created (the caller names the cause:
     nmrl/runs/io_errors.py). The lock lasts until the last hold is released or the process ends."""
     d = pathlib.Path(directory)
-    created = False
+    made: list[pathlib.Path] = []  # the directories made here, deepest first
     if create and not d.is_dir():
-        created = not d.exists()
+        p = d
+        while not p.exists() and p != p.parent:
+            made.append(p)
+            p = p.parent
         d.mkdir(parents=True, exist_ok=True)
     key = os.path.realpath(d)
     h = _HELD.get(key)
@@ -164,6 +167,20 @@ def hold(directory: str | os.PathLike, *, create: bool = True) -> Hold:
         h.count += 1
         return Hold(d, key)
     path = d / LOCK_FILE
+    try:
+        return _take(d, key, path, existed=path.exists(), created=bool(made))
+    except OSError as e:
+        for m in made:  # a failed hold leaves nothing behind (the lock file went in _take)
+            with contextlib.suppress(OSError):
+                m.rmdir()
+        if e.filename is None:  # a write to a descriptor names no file: name the lock file
+            raise OSError(e.errno, e.strerror, str(path)) from None
+        raise
+
+
+def _take(d: pathlib.Path, key: str, path: pathlib.Path, existed: bool, created: bool) -> Hold:
+    """Lock ``path`` (created unless it ``existed``; removed again when writing it fails) and write
+    the holder into it."""
     while True:
         fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
         try:
@@ -188,6 +205,9 @@ def hold(directory: str | os.PathLike, *, create: bool = True) -> Hold:
         os.pwrite(fd, info.encode(), 0)
     except OSError:
         os.close(fd)
+        if not existed:
+            with contextlib.suppress(OSError):
+                path.unlink()
         raise
     _HELD[key] = _Held(fd, 1, created)
     return Hold(d, key)

@@ -15,7 +15,9 @@ process 0 writes.
 SIGINT/SIGTERM at any moment go through one :class:`nmrl.runs.signals.Guard` (:func:`guarded`: the
 command's, else one of the caller's own): during the compile the run stops when the compile
 returns, before anything of it is written (:func:`compile_or_stop`); during the chunk loop after
-the chunk in flight, every active point saved (:class:`Stopped`); a second signal stops at once
+the chunk in flight, every active point saved (:class:`Stopped`), or, when the chunk is still
+computing at the end of the supervisor's grace, at once with the last saved chunk kept
+(:meth:`nmrl.runs.signals.Guard.chunk`); a second signal stops at once
 (the last checkpoints are intact because checkpoints are written atomically). A loop of another
 kind (the Brax PPO baseline) takes the same guard and stops after its iteration's save.
 """
@@ -113,6 +115,15 @@ def budget_text(cfg: Config) -> str:
     return f"steps={cfg.steps}" if cfg.steps is not None else f"trials={cfg.trials}"
 
 
+def next_save(step: int, chunk_steps: int, every: int, wall_s: float) -> str:
+    """When the next checkpoint is due after a chunk that ended at ``step`` and took ``wall_s``
+    seconds, saves falling at multiples of ``every`` chunks: what a supervisor's signal would keep
+    (the progress line shows it)."""
+    period = every * chunk_steps
+    at = (step // period + 1) * period
+    return f"next save at step {at:,} in ~{(at - step) // chunk_steps * wall_s:,.0f} s"
+
+
 #: the least time between two lines of a chunk's heartbeat [s]
 BEAT_S = 10.0
 
@@ -121,11 +132,13 @@ class Progress:
     """A rich progress bar on a terminal, one plain line per chunk otherwise.
 
     ``done0`` is where this session started (a resumed run): the ETA extrapolates this session's
-    own speed, not the run's whole progress over this session's time.
+    own speed, not the run's whole progress over this session's time. Each line also says when the
+    next checkpoint is due (a save every ``every`` chunks, :func:`next_save`).
     """
 
-    def __init__(self, cfg: Config, enabled: bool, done0: int = 0):
+    def __init__(self, cfg: Config, enabled: bool, done0: int = 0, every: int = 1):
         self.cfg = cfg
+        self.every = every
         self.enabled = enabled
         self.rich = enabled and sys.stderr.isatty()
         self.t0 = self.t_beat = time.time()
@@ -155,6 +168,8 @@ class Progress:
         text = (f"trials {row['trials']:,}  step {row['step']:,}{of} per env ({row['total_steps']:,} in all, "
                 f"{row['steps_per_s']:,.0f}/s)  reward {row['avg_reward']:+.3f}/step "
                 f"({row['avg_reward'] / cfg.control_dt:+.1f}/s{ret})  speed {row['forward_speed']:+.2f} m/s")
+        if done < self.total and "wall_s" in row:  # the last chunk's save is the end
+            text += f"  {next_save(row['step'], cfg.chunk_steps, self.every, row['wall_s'])}"
         if self.rich:
             self.bar.update(self.task, completed=min(done, self.total), description=text)
         else:
@@ -220,7 +235,8 @@ def drive(ps: Sequence, layout, *, guard: signals.Guard, stages: list[list[int]]
             active = np.zeros(len(ps), bool)
             active[[i for i in stage if not done[i]]] = True
             t0 = time.time()
-            ms = allocate(lambda: layout.run(active), "running a chunk", ps[0].cfg)
+            with guard.chunk():  # what a supervisor's grace may cut (nmrl/runs/signals.py)
+                ms = allocate(lambda: layout.run(active), "running a chunk", ps[0].cfg)
             wall = time.time() - t0
             n_active = int(active.sum())
             new: dict[int, dict] = {}
@@ -297,8 +313,10 @@ def _agreed(signum: int | None, want: np.ndarray, name: str) -> tuple[int | None
     return (s or None), table[0, 1:].astype(bool)
 
 
-def progress_table(names: Sequence[str], rows_by_point: dict, elapsed: float) -> str:
-    lines = [f"sweep: {len(names)} points, {elapsed:,.0f} s"]
+def progress_table(names: Sequence[str], rows_by_point: dict, elapsed: float, due: str = "") -> str:
+    """The sweep's progress: a head line (the points, the time, ``due``: when the next save is due)
+    and every point's latest metrics."""
+    lines = [f"sweep: {len(names)} points, {elapsed:,.0f} s" + (f"; {due}" if due else "")]
     w = max(len(n) for n in names)
     for name in names:
         r = rows_by_point.get(name)

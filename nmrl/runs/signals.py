@@ -9,14 +9,24 @@ there can crash in the runtime's teardown (a segfault), after a message meant fo
 :class:`Guard` replaces that for the life of a command:
 
 * the Python handlers only record the signal (nothing is raised); the command checks
-  :attr:`Guard.signal` where stopping is safe: after the compile (nothing of the run written yet:
-  :meth:`Guard.raise_if_stopped`), after each chunk's saves (the driver's loop), after a save;
+  :attr:`Guard.signal` where stopping is safe: during set-up, between the steps of its loops over
+  points (:func:`setting_up`, :func:`stop_setup`: nothing of the run written yet; a long set-up
+  also says how far it is), after the compile (:meth:`Guard.raise_if_stopped`), after each chunk's
+  saves (the driver's loop), after a save;
 * a watcher thread reads the signal numbers C's handler writes to a pipe (``signal.set_wakeup_fd``),
   so it sees a signal at once even while the main thread is inside C++: it prints the message that
   fits the :attr:`Guard.moment` (compiling, training, saving, ...) and, on a second signal, stops the
   process at once with ``os._exit(128 + signal)`` -- no Python teardown, no exception in XLA; what
   is on disk stays consistent (config and checkpoints are replaced atomically, a partial metrics row
   is dropped on resume: nmrl/runs/jsonl.py);
+* a supervisor's grace (:attr:`Guard.grace_s`, ``--grace-s`` or ``NMRL_GRACE_S``: :func:`grace_of`):
+  SLURM and most schedulers send SIGTERM and, a fixed time later, SIGKILL (KillWait, 30 s by
+  default), so waiting for a long chunk would lose it all to the SIGKILL with no clean stop. When
+  the first signal came during training and the chunk in flight (:meth:`Guard.chunk`) is still
+  computing at the grace's end, the process stops at once (``os._exit``) with the last completed
+  chunk's checkpoint on disk; what is written is never cut: a chunk that has returned goes on to
+  its clean stop, and a grace that runs out during a save ends the process when that save is
+  complete;
 * the exit status is the shell's ``128 + signal``: 130 for SIGINT, 143 for SIGTERM.
 
 Only the main thread may install it (``signal.signal``); :meth:`Guard.restore` puts the previous
@@ -25,13 +35,28 @@ handlers and wakeup descriptor back.
 
 from __future__ import annotations
 
+import contextlib
+import math
 import os
 import signal
 import sys
 import threading
-from typing import Callable
+import time
+from typing import Callable, Iterable, Iterator, Mapping, TypeVar
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
+T = TypeVar("T")
+
+#: the environment variable a batch script sets the grace with (``--grace-s`` wins over it)
+GRACE_ENV = "NMRL_GRACE_S"
+#: seconds between a first signal during training and the stop that keeps the last saved chunk:
+#: 25 s fits inside SLURM's default KillWait of 30 s (SIGTERM, then SIGKILL 30 s later) with 5 s
+#: left for the process to exit
+DEFAULT_GRACE_S = 25.0
+#: the moments during which a grace that ran out stops the process at once (a chunk in flight)
+GRACE_MOMENTS = ("training",)
+#: a set-up that has taken this long says how far it is, at most once per this many seconds
+SETUP_EVERY_S = 5.0
 
 #: moment -> what a first signal does then (printed at once)
 MOMENTS = {
@@ -44,6 +69,28 @@ MOMENTS = {
 
 
 _ACTIVE: list = [None]  # the installed Guard (the command's), else None
+
+
+def grace_of(option: str | float | None, environ: Mapping[str, str] | None = None) -> float:
+    """The grace in seconds: ``option`` (``--grace-s``) when given, else :data:`GRACE_ENV` from
+    ``environ`` (default: the process's), else :data:`DEFAULT_GRACE_S`. A value that is not a
+    positive finite number raises ValueError, one line naming it and what is allowed."""
+    environ = os.environ if environ is None else environ
+    if option is not None:
+        where, raw = "--grace-s", option
+    elif environ.get(GRACE_ENV, "").strip():
+        where, raw = GRACE_ENV, environ[GRACE_ENV]
+    else:
+        return DEFAULT_GRACE_S
+    try:
+        value = float(raw)
+    except (TypeError, ValueError):
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"{where}={str(raw)!r} is invalid: the grace is a positive, finite number of seconds (the "
+                         f"time a first SIGTERM/SIGINT leaves the chunk in flight before the run stops with its "
+                         f"last saved chunk; default {DEFAULT_GRACE_S:g})")
+    return value
 
 
 def active() -> "Guard | None":
@@ -68,15 +115,31 @@ class Guard:
     """The signal handling of one command (see the module docstring); a context manager.
 
     ``on_second`` gives the line printed before the immediate exit of a second signal (default: one
-    naming the moment); ``write`` prints a line (default: stderr)."""
+    naming the moment); ``on_grace(signum, grace_s)`` the line printed when the grace runs out;
+    ``write`` prints a line (default: stderr)."""
 
     def __init__(self, on_second: Callable[[int, str], str] | None = None,
-                 write: Callable[[str], None] | None = None):
+                 write: Callable[[str], None] | None = None,
+                 on_grace: Callable[[int, float], str] | None = None):
+        #: the grace in seconds (module docstring); None: a first signal waits for the chunk in flight
+        self.grace_s: float | None = None
+        self._on_grace = on_grace
+        self._since: float | None = None  # time.monotonic() of the first signal
+        self._expired = False  # the grace ran out during a save: stop when it is complete
+        self._in_chunk = False  # a chunk is computing (:meth:`chunk`): what a grace that ran out cuts
+        self._grace_thread: threading.Thread | None = None
+        #: one process (not one of a distributed run's, which stop together at agreed points): a
+        #: signal during set-up stops the command there (:meth:`stop_setup`)
+        self.alone = True
+        #: print a line at most every :data:`SETUP_EVERY_S` s during a long set-up (:func:`setting_up`)
+        self.show_setup = False
+        self._t0 = time.monotonic()
+        self._last_setup_line: float | None = None
         self.signal: int | None = None
         self.moment = "starting"
         self.count = 0
         self._printed = False
-        self._lock = threading.Lock()
+        self._lock = threading.RLock()  # the Python handler may run while the main thread holds it
         self._on_second = on_second
         self._write = write
         self._old: dict = {}
@@ -99,7 +162,16 @@ class Guard:
             pass
 
     def first_message(self, signum: int) -> str:
-        return f"\nsignal {signum}: {MOMENTS.get(self.moment, 'stopping at the next safe point')} (again to stop now)"
+        what = MOMENTS.get(self.moment, "stopping at the next safe point")
+        if self.grace_s is not None and self.moment in GRACE_MOMENTS:
+            what += f", or in {self.grace_s:g} s with the last saved chunk kept"
+        return f"\nsignal {signum}: {what} (again to stop now)"
+
+    def grace_message(self, signum: int) -> str:
+        if self._on_grace is not None:
+            return self._on_grace(signum, self.grace_s)
+        return (f"nmrl: stopped by signal {signum}: the chunk in flight was not saved within the grace of "
+                f"{self.grace_s:g} s; the last saved chunk is kept (saves are atomic)")
 
     def second_message(self, signum: int) -> str:
         if self._on_second is not None:
@@ -109,13 +181,41 @@ class Guard:
 
     # ---------------------------------------------------------------- delivery
     def _note(self, signum: int) -> None:
-        """Record ``signum`` and print the first signal's message (once, whoever sees it first)."""
+        """Record ``signum`` and print the first signal's message (once, whoever sees it first); the
+        first one starts the grace's clock."""
         with self._lock:
             if self.signal is None:
                 self.signal = signum
             if not self._printed:
                 self._printed = True
+                self._since = time.monotonic()
                 self._say(self.first_message(signum))
+                if self._grace_thread is None and self._old:
+                    self._grace_thread = threading.Thread(target=self._grace, name="nmrl-grace", daemon=True)
+                    self._grace_thread.start()
+
+    def _exit(self, signum: int, line: str) -> None:
+        """Print ``line``, run :attr:`on_exit` and end the process with ``128 + signum`` at once."""
+        self._say(line)
+        for fn in list(self.on_exit):  # e.g. remove a directory made for a run not yet written
+            try:
+                fn()
+            except Exception:  # noqa: BLE001 - exiting anyway
+                pass
+        os._exit(128 + signum)
+
+    def _grace(self) -> None:
+        """Watch the grace after the first signal (while installed): when it has run out, stop at
+        once during training, or mark it so that the save in flight ends the process (:meth:`at`)."""
+        while self._old:
+            time.sleep(0.1)
+            with self._lock:
+                if self.grace_s is None or self._since is None or time.monotonic() < self._since + self.grace_s:
+                    continue
+                if self.moment in GRACE_MOMENTS and self._in_chunk:
+                    self._exit(self.signal, self.grace_message(self.signal))
+                if self.moment == "saving":
+                    self._expired = True
 
     def _got(self, signum: int) -> None:
         """One delivered signal, counted once (by the watcher thread; by the Python handler when
@@ -125,13 +225,7 @@ class Guard:
             self.count += 1
             n = self.count
         if n >= 2:
-            self._say(self.second_message(signum))
-            for fn in list(self.on_exit):  # e.g. remove a directory made for a run not yet written
-                try:
-                    fn()
-                except Exception:  # noqa: BLE001 - exiting anyway
-                    pass
-            os._exit(128 + signum)
+            self._exit(signum, self.second_message(signum))
 
     def _handler(self, signum, _frame) -> None:
         if self._thread is None:  # no watcher (no pipe): count here, between bytecodes
@@ -189,7 +283,10 @@ class Guard:
             self._pipe, self._thread = None, None
         for s, h in self._old.items():
             signal.signal(s, h)
-        self._old = {}
+        self._old = {}  # the grace's watcher ends with it
+        if self._grace_thread is not None:
+            self._grace_thread.join(timeout=5)
+            self._grace_thread = None
         if _ACTIVE[0] is self:
             _ACTIVE[0] = self._outer
 
@@ -201,10 +298,69 @@ class Guard:
 
     # ---------------------------------------------------------------- the command's side
     def at(self, moment: str) -> None:
-        """The command enters ``moment`` (a key of :data:`MOMENTS`): a first signal says what it does then."""
-        self.moment = moment
+        """The command enters ``moment`` (a key of :data:`MOMENTS`): a first signal says what it does
+        then. Leaving a save after the grace ran out during it ends the process (module docstring)."""
+        with self._lock:
+            if self._expired and self.moment == "saving" and moment != "saving":
+                self._exit(self.signal, self.grace_message(self.signal))
+            self.moment = moment
+
+    @contextlib.contextmanager
+    def chunk(self) -> Iterator[None]:
+        """The block computes a chunk: what a grace that ran out cuts (nothing is written meanwhile;
+        the bookkeeping after it, its metrics row, saves and results, runs to the stop)."""
+        with self._lock:
+            self._in_chunk = True
+        try:
+            yield
+        finally:
+            with self._lock:
+                self._in_chunk = False
 
     def raise_if_stopped(self, message: Callable[[int], str] | None = None) -> None:
         """Raise :class:`Interrupted` when a signal came (``message(signum)`` its text)."""
         if self.signal is not None:
             raise Interrupted(self.signal, self.moment, message(self.signal) if message else "")
+
+    def stop_setup(self) -> None:
+        """During set-up (one process, moment ``starting``, before the run's files are written), a
+        pending signal stops the command here: one line, then :class:`Interrupted`."""
+        if self.signal is None or not self.alone or self.moment != "starting":
+            return
+        self._say(f"stopped by signal {self.signal} during set-up, before the first chunk; nothing of the run was "
+                  f"written")
+        raise Interrupted(self.signal, "setting up")
+
+    def setup_line(self, what: str, total: int, done: int, step: str = "") -> None:
+        """``setting up TOTAL WHAT: STEP, DONE done`` on stderr once the set-up has taken
+        :data:`SETUP_EVERY_S` seconds, then at most once per that time (with :attr:`show_setup`)."""
+        if not self.show_setup:
+            return
+        now = time.monotonic()
+        if now - (self._last_setup_line or self._t0) < SETUP_EVERY_S:
+            return
+        self._last_setup_line = now
+        self._say(f"setting up {total:,} {what}: {step + ', ' if step else ''}{done:,} done")
+
+
+def setting_up(items: Iterable[T], total: int, what: str = "points", step: str = "") -> Iterator[T]:
+    """Yield ``items`` (``total`` of them), one step of a set-up before the first chunk: before each,
+    a pending signal stops the command (:meth:`Guard.stop_setup`) and a long set-up says how far it
+    is (:meth:`Guard.setup_line`: ``setting up 2,000 points: STEP, 1,200 done``). Without an
+    active guard, just ``items``."""
+    guard = active()
+    if guard is None:
+        yield from items
+        return
+    for i, x in enumerate(items):
+        guard.stop_setup()
+        guard.setup_line(what, total, i, step)
+        yield x
+    guard.stop_setup()
+
+
+def stop_setup() -> None:
+    """:meth:`Guard.stop_setup` of the active guard, if any: a set-up's check between two steps."""
+    guard = active()
+    if guard is not None:
+        guard.stop_setup()
