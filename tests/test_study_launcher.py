@@ -1,7 +1,7 @@
 """scripts/run/study.sh, the one launcher of every pre-registered study, on a stand-in study: start
 runs `python -m nmrl.experiments.NAME run --out runs/NAME --published PUB` in its own session and a
 second start leaves it alone; stop signals that session, waits for it to end and publishes to PUB;
-a bad NAME or command is refused with status 2. The stand-in's name is unique to this test, so the
+the sweeps' grace is stop's wait; a bad NAME or command is refused with status 2. The stand-in's name is unique to this test, so the
 project's real studies (if any are going) are never signalled."""
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ def study(tmp_path):
     fake_py = tmp_path / "python"  # records its arguments; `run` runs until SIGTERM
     fake_py.write_text("#!/usr/bin/env bash\n"
                        f'echo "$*" >> {calls}\n'
-                       'if [ "$3" = run ]; then trap "echo saved >> ' + str(calls) + '; exit 143" TERM\n'
+                       f'if [ "$3" = run ]; then echo "grace=$NMRL_GRACE_S" >> {calls}; trap "echo saved >> ' + str(calls) + '; exit 143" TERM\n'
                        "  while true; do sleep 0.1; done\nfi\n")
     fake_py.chmod(0o755)
     env = {**os.environ, "PY": str(fake_py), "STOP_TIMEOUT": "20"}
@@ -64,6 +64,7 @@ def test_start_once_then_stop_saves_and_publishes(study):
     lines = calls.read_text().splitlines()
     assert lines[-2:] == ["saved", f"-m nmrl.experiments.{name} publish --out runs/{name} --dest results/{name}"]
     assert sum("run --out" in line for line in lines) == 1  # the second start ran nothing
+    assert "grace=20" in lines  # the sweeps' grace is stop's wait (STOP_TIMEOUT), so stop keeps their chunk
 
 
 @pytest.mark.parametrize("args", [(), ("Bad-Name", "start"), ("thesis_ac", "restart")])

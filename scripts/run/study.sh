@@ -10,7 +10,8 @@
 # `python -m nmrl.experiments.NAME run --out runs/NAME --published PUB` in its own session at the
 # lowest CPU share (scripts/run/lower_priority.sh), logging to runs/NAME.log. stop sends SIGTERM to
 # that session (the sweep saves every active point after its chunk), waits up to STOP_TIMEOUT
-# seconds, then publishes the compact states and rows to PUB (commit it). PUB is the study's
+# seconds, then publishes the compact states and rows to PUB (commit it). The sweeps get a grace of
+# STOP_TIMEOUT seconds (NMRL_GRACE_S, docs/runs.md), so that stop keeps the chunk in flight. PUB is the study's
 # published directory: results/exploration2/runs for exploration2, results/NAME otherwise.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
@@ -30,7 +31,7 @@ case "${2:-}" in
   start)
     if pgrep -f "$PAT" > /dev/null; then echo "already running"; exit 0; fi
     mkdir -p "$(dirname "$LOG")"
-    setsid bash -c "source scripts/run/lower_priority.sh; lower_priority; exec nice -n \${NICE:-19} $PY -m $PAT \
+    NMRL_GRACE_S=${NMRL_GRACE_S:-$STOP_TIMEOUT} setsid bash -c "source scripts/run/lower_priority.sh; lower_priority; exec nice -n \${NICE:-19} $PY -m $PAT \
       --published $PUB" >> "$LOG" 2>&1 < /dev/null &
     echo "started (log: $LOG)"
     ;;
