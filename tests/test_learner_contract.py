@@ -325,3 +325,17 @@ def test_cli_sweep_varies_any_traced_field(tmp_path, capsys):
     # the saved spec resumes without --learner or --vary: a larger budget continues both points
     assert cli.main(["sweep", "--resume", "--steps", "10", "--out", str(out), "--quiet", "--devices", "1"]) == 0
     assert [r["steps"] for r in sweep.load_results(out)] == [10, 10]
+
+
+def test_the_config_protocol_is_what_register_requires_and_every_learner_has_it():
+    """``Config`` (the type nmrl.runs reads) names exactly the fields :func:`register` requires, and
+    every built-in learner's config has them with ``resolved`` and ``validate``."""
+    import dataclasses
+
+    from nmrl.learners import contract
+
+    assert set(contract.Config.__annotations__) == set(contract.COMMON_FIELDS)
+    for name in contract.names():
+        cls = contract.get(name).config
+        assert set(contract.COMMON_FIELDS) <= {f.name for f in dataclasses.fields(cls)}, name
+        assert callable(cls.resolved) and callable(cls.validate), name

@@ -95,6 +95,27 @@ COMMON_FIELDS = ("seed", "num_envs", "chunk_steps", "steps", "trials", "control_
 METRICS = ("avg_reward", "forward_speed", "trials_in_chunk", "step", "trials", "diverged")
 
 
+class Config(Protocol):
+    """What the driver reads of every learner's config (:data:`COMMON_FIELDS`, checked for each
+    registered learner by :func:`register`): the one meaning of ``Config`` in nmrl.runs. A learner's
+    config is a frozen dataclass declared with ``option(...)`` (nmrl/options.py)."""
+
+    seed: int
+    num_envs: int
+    chunk_steps: int
+    steps: int | None
+    trials: int | None
+    control_dt: float
+    stop_prob: float
+    max_param_norm: float
+
+    def resolved(self) -> "Config":
+        """The config with its derived fields filled in (a preset's step sizes, ...)."""
+
+    def validate(self) -> None:
+        """ValueError naming a bad value and what is allowed."""
+
+
 class Trainer(Protocol):
     """What ``Learner.make`` returns: the one meaning of ``Trainer`` in nmrl (the actor-critic's
     :class:`nmrl.learners.ac_train.ACTrainer` has these fields and more)."""

@@ -40,8 +40,8 @@ ITEMS = ("state", "policy", "meta")
 
 _SEP = "."
 Params = Any
-#: A learner's config (nmrl/learners/contract.py), its state and its trainer (the contract's Protocol).
-Config = Any
+#: A learner's state; its config and trainer are the contract's Protocols (nmrl/learners/contract.py).
+Config = learners.Config
 State = Any
 Trainer = learners.Trainer
 

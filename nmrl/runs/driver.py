@@ -42,6 +42,7 @@ import numpy as np
 
 from nmrl import learners
 from nmrl.learners import heartbeat
+from nmrl.learners.contract import Config
 from nmrl.runs import checkpoint, distributed as dist, lock, sharding, signals, store
 from nmrl.runs import points as pts
 from nmrl.runs.errors import Diverged, OutOfMemory, RunError, Stopped  # noqa: F401
@@ -54,8 +55,6 @@ from nmrl.runs.resume import BUDGET_FIELDS, existing_step, given_changes, load_r
 from nmrl.runs.store import (CONFIG_FILE, METRICS_FILE, RESUMES_FILE, RUN_FILES, append_metrics,  # noqa: F401
                              is_diverged, read_metrics, to_python, truncate_metrics)
 
-#: A learner's config (nmrl/learners/contract.py).
-Config = object
 
 
 # ----------------------------------------------------------------------------- one run

@@ -25,14 +25,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from nmrl import learners
+from nmrl.learners.contract import Config
 from nmrl.runs import distributed as dist, sharding, store
 from nmrl.runs import points as pts
 from nmrl.runs.errors import RunError
 from nmrl.runs.loop import compile_chunk
 from nmrl.runs.store import to_python, truncate_metrics
 
-#: A learner's config and trainer (nmrl/learners/contract.py).
-Config = object
 Trainer = learners.Trainer
 
 

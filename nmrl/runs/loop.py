@@ -33,13 +33,12 @@ import jax
 import numpy as np
 
 from nmrl import learners
+from nmrl.learners.contract import Config
 from nmrl.runs import checkpoint, distributed as dist, signals
 from nmrl.runs.errors import Diverged, Stopped
 from nmrl.runs.preflight import allocate
 from nmrl.runs.store import append_metrics, is_diverged
 
-#: A learner's config (nmrl/learners/contract.py).
-Config = object
 
 
 def _compile_needed(guard: signals.Guard) -> bool:

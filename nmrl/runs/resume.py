@@ -20,6 +20,7 @@ import time
 import jax
 
 from nmrl import learners
+from nmrl.learners.contract import Config
 from nmrl.runs import checkpoint, distributed as dist
 from nmrl.runs.errors import RunError
 from nmrl.runs.preflight import check_config, preflight
@@ -27,8 +28,6 @@ from nmrl.runs.store import CONFIG_FILE, METRICS_FILE, read_metrics
 
 #: Config fields a resume may change (the budget); the others are the run's identity.
 BUDGET_FIELDS = checkpoint.RESUMABLE_FIELDS
-#: A learner's config (nmrl/learners/contract.py).
-Config = object
 
 
 def existing_step(run_dir: pathlib.Path) -> int | None:
