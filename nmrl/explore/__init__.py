@@ -2,8 +2,9 @@
 
 * :mod:`nmrl.explore.process`: the traced state-space family (white, nm-periods, ou, colored), its
   sampler and its Kalman-filter log-density;
-* :mod:`nmrl.explore.spec`: :class:`ExplorationSpec`, the validated setting in seconds and Hz, and
-  the command-line options;
+* :mod:`nmrl.explore.fields`: :class:`ExplorationFields`, the process and its parameters declared
+  once (help, range, choices), from which the command-line options are made;
+* :mod:`nmrl.explore.spec`: :class:`ExplorationSpec`, the validated setting in seconds and Hz;
 * :mod:`nmrl.explore.colored`: the power-law fit of the colored process.
 
 docs/exploration.md has the formulas, the measured approximation error and an example.
@@ -11,12 +12,12 @@ docs/exploration.md has the formulas, the measured approximation error and an ex
 
 from nmrl.explore.process import (NO_RESET, NoiseState, Process, belief, filter_sequence, init, log_prob, reset,
                                   sample, stack)
-from nmrl.explore.spec import (DEFAULT_KIND, DEFAULTS, KINDS, PARAMETERS, CliOption, ExplorationSpec,
-                               alpha_from_corr_time, cli_options, config_option, corr_time_from_alpha, from_options,
+from nmrl.explore.fields import DEFAULT_KIND, DEFAULTS, KINDS, ExplorationFields, kind_option
+from nmrl.explore.spec import (PARAMETERS, ExplorationSpec, alpha_from_corr_time, corr_time_from_alpha,
                                period_steps)
 
 __all__ = [
     "NO_RESET", "NoiseState", "Process", "belief", "filter_sequence", "init", "log_prob", "reset", "sample", "stack",
-    "DEFAULT_KIND", "DEFAULTS", "KINDS", "PARAMETERS", "CliOption", "ExplorationSpec", "alpha_from_corr_time",
-    "cli_options", "config_option", "corr_time_from_alpha", "from_options", "period_steps",
+    "DEFAULT_KIND", "DEFAULTS", "KINDS", "ExplorationFields", "kind_option", "PARAMETERS", "ExplorationSpec",
+    "alpha_from_corr_time", "corr_time_from_alpha", "period_steps",
 ]

@@ -14,9 +14,11 @@ the same physical noise at every control step:
   (:mod:`nmrl.explore.colored`);
 * ``white``: i.i.d. N(0, sigma^2) (the paper's l = 1).
 
-Every check raises ValueError naming the bad value and the allowed range; :func:`cli_options` lists
-the command-line options (name, type, default, help) so that a CLI can be generated from this file,
-and :func:`from_options` builds the spec from their parsed values.
+The process and its parameters are declared once, in :class:`nmrl.explore.fields.ExplorationFields`
+(help, range, choices; the command line is made from those declarations): a spec checks each value
+by its declaration, then what relates them (the parameters its kind takes, the band's ends) and,
+given a control step, :meth:`ExplorationSpec.validate`. Every check raises ValueError naming the bad
+value and what is allowed.
 """
 
 from __future__ import annotations
@@ -25,15 +27,17 @@ import dataclasses
 import math
 import numbers
 from collections.abc import Mapping
-from typing import Any, NamedTuple
+from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
 
+from nmrl import options
 from nmrl.explore.colored import colored_components, time_constants
+from nmrl.explore.fields import (BETA_RANGE, DEFAULT_KIND, DEFAULTS, KINDS, ORDER_RANGE, PAPER_CORR_TIME_S, PARAMS,
+                                 check_field, kinds_of)
 from nmrl.explore.process import NO_RESET, Process
-from nmrl.options import option
-from nmrl.paper.control_step import DELTA_0
+from nmrl.options import Option, Range
 
 __all__ = [
     "KINDS",
@@ -43,37 +47,18 @@ __all__ = [
     "ORDER_RANGE",
     "MAX_TAU_STEPS",
     "ExplorationSpec",
-    "CliOption",
-    "cli_options",
-    "from_options",
-    "config_option",
+    "PAPER_CORR_TIME_S",
     "PARAMETERS",
     "corr_time_from_alpha",
     "alpha_from_corr_time",
     "period_steps",
 ]
 
-KINDS = ("white", "nm-periods", "ou", "colored")
-DEFAULT_KIND = "nm-periods"  # the paper's process
-#: the paper's alpha = 0.8 per 20 ms step as a correlation time
-PAPER_CORR_TIME_S = -DELTA_0 / math.log(0.8)
-DEFAULTS: dict[str, dict[str, Any]] = {
-    "white": {},
-    "nm-periods": {"period_s": 0.2, "corr_time_s": PAPER_CORR_TIME_S},
-    "ou": {"corr_time_s": PAPER_CORR_TIME_S},
-    "colored": {"beta": 1.0, "f_min_hz": 0.25, "f_max_hz": 25.0, "order": 6},
-}
-BETA_RANGE = (0.0, 2.0)
-ORDER_RANGE = (1, 32)
 #: longest time constant in control steps: keeps 1 - phi >= 1e-4, resolved in float32 to < 0.1%
 MAX_TAU_STEPS = 1e4
-_F32_MAX = float(np.finfo(np.float32).max)
-_F32_TINY = float(np.finfo(np.float32).tiny)
 _REL = 1e-9  # tolerance of the comparisons against dt (0.2 / 0.02 is not exactly 10)
-
-
-def _field(help: str, kinds: tuple[str, ...], unit: str = "", type_: type = float) -> Any:
-    return dataclasses.field(default=None, metadata={"help": help, "kinds": kinds, "unit": unit, "type": type_})
+#: the noise's standard deviation: positive and, as the process holds it, a normal float32 number
+_SIGMA = Option(range=Range(0.0, open_lo=True, why="a standard deviation"))
 
 
 def _number(name: str, value: Any) -> float:
@@ -95,70 +80,45 @@ class ExplorationSpec:
 
     Parameters that the kind does not use must be None; those it uses and that are None get the
     kind's default (:data:`DEFAULTS`), so a constructed spec is explicit and round-trips through
-    :meth:`to_dict` / :meth:`from_dict`.
+    :meth:`to_dict` / :meth:`from_dict`. Each value is checked by its declaration
+    (:class:`~nmrl.explore.fields.ExplorationFields`; ``sigma``: > 0 and a normal float32 number).
     """
 
-    kind: str = dataclasses.field(metadata={"help": f"exploration process: {', '.join(KINDS)}",
-                                            "kinds": KINDS, "unit": "", "type": str})
-    sigma: float = dataclasses.field(default=1.0, metadata={
-        "help": "marginal standard deviation of the noise xi in every action dimension (> 0, finite in float32)",
-        "kinds": KINDS, "unit": "", "type": float})
-    period_s: float | None = _field("nm-period duration in seconds, >= the control step; "
-                                    "l = round(period_s / control_dt) steps", ("nm-periods",), "s")
-    corr_time_s: float | None = _field("correlation time in seconds (> 0, <= 1e4 control steps): "
-                                       "per-step AR coefficient exp(-control_dt / corr_time_s)",
-                                       ("nm-periods", "ou"), "s")
-    beta: float | None = _field(f"spectral exponent of 1/f^beta in [{BETA_RANGE[0]:g}, {BETA_RANGE[1]:g}] "
-                                "(1 = pink, 0.5 = CN-PPO's best)", ("colored",))
-    f_min_hz: float | None = _field("low end of the power-law band in Hz (0 < f_min_hz < f_max_hz)",
-                                    ("colored",), "Hz")
-    f_max_hz: float | None = _field("high end of the power-law band in Hz (<= the Nyquist frequency "
-                                    "1 / (2 control_dt))", ("colored",), "Hz")
-    order: int | None = _field(f"number of OU components of the colored fit, an int in "
-                               f"[{ORDER_RANGE[0]}, {ORDER_RANGE[1]}]", ("colored",), "", int)
+    kind: str
+    sigma: float = 1.0
+    period_s: float | None = None
+    corr_time_s: float | None = None
+    beta: float | None = None
+    f_min_hz: float | None = None
+    f_max_hz: float | None = None
+    order: int | None = None
 
     def __post_init__(self) -> None:
-        if self.kind not in KINDS:
-            raise ValueError(f"exploration kind must be one of {', '.join(KINDS)}, got {self.kind!r}")
+        if self.kind is None:
+            raise options.invalid("kind", None, f"choose one of {', '.join(KINDS)}")
+        check_field("exploration", self.kind, shown="kind")
         own = DEFAULTS[self.kind]
-        for f in dataclasses.fields(self):
-            if f.name in ("kind", "sigma"):
-                continue
-            value = getattr(self, f.name)
-            if f.name not in own:
+        for name in PARAMS:
+            value = getattr(self, name)
+            if isinstance(value, np.generic):  # a NumPy scalar: its Python number, checked as one
+                value = value.item()
+            if name not in own:
                 if value is not None:
-                    raise ValueError(f"{f.name} is a parameter of {' and '.join(f.metadata['kinds'])}, "
-                                     f"not of {self.kind} exploration; got {f.name}={value!r}")
-            elif value is None:
-                object.__setattr__(self, f.name, own[f.name])
-        sigma = _number("sigma", self.sigma)
-        if not (math.isfinite(sigma) and _F32_TINY <= sigma <= _F32_MAX):
-            raise ValueError(f"sigma must be > 0 and finite in float32 (in [{_F32_TINY:.3g}, {_F32_MAX:.3g}]), "
-                             f"got {self.sigma!r}")
-        object.__setattr__(self, "sigma", sigma)
-        if self.period_s is not None:
-            object.__setattr__(self, "period_s", _finite_positive("period_s", self.period_s, " s"))
-        if self.corr_time_s is not None:
-            object.__setattr__(self, "corr_time_s", _finite_positive("corr_time_s", self.corr_time_s, " s"))
-        if self.beta is not None:
-            b = _number("beta", self.beta)
-            if not (BETA_RANGE[0] <= b <= BETA_RANGE[1]):
-                raise ValueError(f"beta must be in [{BETA_RANGE[0]:g}, {BETA_RANGE[1]:g}], got {self.beta!r}")
-            object.__setattr__(self, "beta", b)
-        if self.f_min_hz is not None:
-            lo = _finite_positive("f_min_hz", self.f_min_hz, " Hz")
-            hi = _finite_positive("f_max_hz", self.f_max_hz, " Hz")
-            if not lo < hi:
-                raise ValueError(f"f_min_hz must be < f_max_hz, got f_min_hz={self.f_min_hz!r} and "
-                                 f"f_max_hz={self.f_max_hz!r}")
-            object.__setattr__(self, "f_min_hz", lo)
-            object.__setattr__(self, "f_max_hz", hi)
-        if self.order is not None:
-            o = self.order
-            if isinstance(o, bool | np.bool_) or not isinstance(o, numbers.Integral) \
-                    or not ORDER_RANGE[0] <= int(o) <= ORDER_RANGE[1]:
-                raise ValueError(f"order must be an int in [{ORDER_RANGE[0]}, {ORDER_RANGE[1]}], got {o!r}")
-            object.__setattr__(self, "order", int(o))
+                    raise ValueError(f"{name} is a parameter of {' and '.join(kinds_of(name))}, "
+                                     f"not of {self.kind} exploration; got {name}={value!r}")
+                continue
+            if value is None:
+                value = own[name]
+            check_field(name, value)
+            object.__setattr__(self, name, int(value) if name == "order" else float(value))
+        sigma = self.sigma.item() if isinstance(self.sigma, np.generic) else self.sigma
+        if sigma is None:
+            raise options.invalid("sigma", None, f"must be {_SIGMA.range.text()}")
+        options.check_value("sigma", sigma, float, _SIGMA)
+        object.__setattr__(self, "sigma", float(sigma))
+        if self.f_min_hz is not None and not self.f_min_hz < self.f_max_hz:
+            raise ValueError(f"f_min_hz must be < f_max_hz, got f_min_hz={self.f_min_hz!r} and "
+                             f"f_max_hz={self.f_max_hz!r}")
 
     # ------------------------------------------------------------------ control step
 
@@ -270,68 +230,3 @@ def alpha_from_corr_time(corr_time_s: float, control_dt: float) -> float:
 def period_steps(period_s: float, control_dt: float) -> int:
     """``l = round(period_s / control_dt)`` (halves round up), at least 1."""
     return max(1, int(math.floor(period_s / control_dt + 0.5)))
-
-
-# ---------------------------------------------------------------------- command line
-
-
-class CliOption(NamedTuple):
-    """One command-line option: ``--<flag>``, parsed into ``dest`` of type ``type`` (default None =
-    the kind's default), ``choices`` (or None), ``help`` naming the unit, range and per-kind default."""
-
-    flag: str
-    dest: str
-    field: str
-    type: type
-    default: Any
-    choices: tuple[str, ...] | None
-    help: str
-
-
-def _help(f: dataclasses.Field) -> str:
-    """A parameter's option help: the kinds that take it, its unit, range and per-kind default."""
-    m = f.metadata
-    dflt = "1.0" if f.name == "sigma" else ", ".join(f"{k}: {DEFAULTS[k][f.name]:.4g}" for k in m["kinds"])
-    unit = f" [{m['unit']}]" if m["unit"] else ""
-    for_kinds = "" if f.name == "sigma" else f"{'/'.join(m['kinds'])} only; "
-    return f"{for_kinds}{m['help']}{unit} (default: {dflt})"
-
-
-def cli_options() -> tuple[CliOption, ...]:
-    """The options of the exploration: ``--exploration`` (the kind) and ``--<parameter>`` for every
-    parameter (``--sigma``, ``--period-s``, ``--corr-time-s``, ``--beta``, ``--f-min-hz``,
-    ``--f-max-hz``, ``--order``)."""
-    opts = []
-    for f in dataclasses.fields(ExplorationSpec):
-        if f.name == "kind":
-            opts.append(CliOption("exploration", "exploration", "kind", str, None, KINDS,
-                                  f"{f.metadata['help']} (default: {DEFAULT_KIND}, the paper's eq. (4))"))
-            continue
-        opts.append(CliOption(f.name.replace("_", "-"), f.name, f.name, f.metadata["type"], None, None, _help(f)))
-    return tuple(opts)
-
-
-def config_option(name: str, default: Any = None) -> Any:
-    """The field of a learner's config that holds the spec's ``name`` flat under the same name and
-    option (``exploration`` for the kind, ``period_s`` as ``--period-s``, ...; nmrl/options.py):
-    the kind's choices, or the parameter's help and None (the kind's default), in the exploration
-    option group; a parameter is traced into the learner's noise process (``Hyper.process``)."""
-    if name == "exploration":
-        return option(default, f"the exploration noise process: {', '.join(KINDS)} (docs/exploration.md)",
-                      choices=KINDS, group="exploration")
-    static = name == "order"  # the number of components is a shape of the program
-    return option(default, _help(ExplorationSpec.__dataclass_fields__[name]), traced=not static and "process",
-                  group="exploration")
-
-
-def from_options(options: Mapping) -> ExplorationSpec:
-    """The spec from parsed options keyed by :func:`cli_options` ``dest`` names (e.g. ``vars(args)``;
-    other keys are ignored, None means not given): the kind from ``exploration`` (default
-    nm-periods), every other parameter from its field name."""
-    kw: dict[str, Any] = {}
-    for o in cli_options():
-        v = options.get(o.dest)
-        if v is not None:
-            kw[o.field] = v
-    kw.setdefault("kind", DEFAULT_KIND)
-    return ExplorationSpec(**kw)

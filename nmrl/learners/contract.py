@@ -66,9 +66,9 @@ nothing else; the shape is Stoix's ``LearnerFn: state -> (state, metrics)`` and 
   run would have had); ``check(config)``: checks made before ``config.validate()`` (default: none).
 * ``explorations`` / ``exploration``: the exploration processes of nmrl.explore the learner takes
   and how ``--exploration KIND`` with its parameters in seconds/Hz (one option group for every
-  learner, parsed under the names of ``nmrl.explore.ExplorationSpec``) sets its config: a config
-  that holds the spec's fields itself (declared by ``nmrl.explore.config_option``, e.g. PPO's) takes
-  them as they are; another maps them onto its own fields (``exploration``, e.g. the
+  learner, made from the declarations of ``nmrl.explore.ExplorationFields`` and parsed under its
+  field names) sets its config: a config that holds those fields itself (inheriting
+  ``ExplorationFields``, e.g. PPO's) takes them as they are; another maps them onto its own fields (``exploration``, e.g. the
   actor-critic's l and alpha).
 
 A new learner provides these and registers itself at import: ``register(Learner(name="x", ...))``

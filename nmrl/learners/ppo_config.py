@@ -5,8 +5,10 @@ ones (the step size, the entropy cost, the clip epsilon, the value-loss weight, 
 the discount and GAE factors per control step and the exploration process) are the leaves of
 :class:`Hyper`, so a sweep over any of them is one compiled program (nmrl/learners/ppo.py).
 
-The exploration is an nmrl.explore.ExplorationSpec, its fields flat in the config (parameters in
-seconds and Hz, :data:`SPEC_FIELDS`); every process of nmrl.explore is allowed.
+The exploration is an nmrl.explore.ExplorationSpec, its fields flat in the config as
+:class:`nmrl.explore.ExplorationFields` declares them (the config inherits them: the process
+``exploration``, default white, and its parameters in seconds and Hz) with the config's own
+``sigma``; every process of nmrl.explore is allowed.
 
 **Time in seconds.** The discount ``gamma = exp(-control_dt / discount_horizon_s)``, the GAE
 ``lambda = exp(-control_dt / gae_horizon_s)``, the unroll ``unroll_s`` and the noise's correlation
@@ -44,26 +46,20 @@ def _per_step(horizon: str) -> Callable[["PPOConfig"], jax.Array]:
     return lambda c: jnp.asarray(math.exp(-c.control_dt / getattr(c, horizon)), jnp.float32)
 
 
-_X = explore.config_option
 _TIME = Range(0.0, open_lo=True, why="seconds, at least the control step")
 
 
 @dataclasses.dataclass(frozen=True)
-class PPOConfig(EnvFields):
+class PPOConfig(explore.ExplorationFields, EnvFields):
     """A PPO run. Defaults at control_dt = 0.02 s are the Brax baseline's (module docstring). Every
     field is declared once (nmrl/options.py); ``traced`` ones are :class:`Hyper`'s leaves. The
-    environment's fields (``env``, ``control_dt``, ``physics``, ...) are :class:`nmrl.tasks.EnvFields`'s."""
+    environment's fields (``env``, ``control_dt``, ``physics``, ...) are :class:`nmrl.tasks.EnvFields`'s,
+    the exploration's (``exploration``, ``period_s``, ``beta``, ...) :class:`nmrl.explore.ExplorationFields`'."""
 
-    # exploration: an nmrl.explore.ExplorationSpec, flat (parameters in seconds and Hz)
-    exploration: str = _X("exploration", "white")
+    # exploration: an nmrl.explore.ExplorationSpec, its process and parameters ExplorationFields'
+    exploration: str = explore.kind_option("white")
     sigma: float = option(1.0, "marginal std of the noise xi, multiplying the learned std_theta (1: Brax's learned "
                                "std alone)", traced="process", range=noise.SIGMA_RANGE)
-    period_s: float | None = _X("period_s")
-    corr_time_s: float | None = _X("corr_time_s")
-    beta: float | None = _X("beta")
-    f_min_hz: float | None = _X("f_min_hz")
-    f_max_hz: float | None = _X("f_max_hz")
-    order: int | None = _X("order")
     learn_std: bool = option(True, "learn a state-dependent std_theta(s) = softplus + min_std (Brax); false: "
                                    "std_theta = 1")
     min_std: float = option(1e-3, "floor of the learned std (Brax: 0.001)", range=POSITIVE)

@@ -79,10 +79,11 @@ def _bool(text: str) -> bool:
     raise argparse.ArgumentTypeError(f"{text!r} is not a boolean (true or false)")
 
 
-def add_declared(p, cls: type, name: str, default=None, help: str | None = None) -> None:
+def add_declared(p, cls: type, name: str, default=None, help: str | None = None, metavar: str | None = None) -> None:
     """The option ``--<flag>`` of the field ``name`` of the dataclass ``cls``, spelled, typed and explained
     by its declaration (nmrl/options.py), parsed into ``name`` with ``default`` (None: the field's own is
-    applied later, by the config); the field's default is named unless the help names one."""
+    applied later, by the config); the field's default is named unless the help names one. ``metavar``:
+    the value's name in the help (default: argparse's, the name in capitals)."""
     from nmrl import options
 
     f = cls.__dataclass_fields__[name]
@@ -90,4 +91,4 @@ def add_declared(p, cls: type, name: str, default=None, help: str | None = None)
     doc = options.declaration(cls, name).help if help is None else help
     shown = f.default if f.default is not dataclasses.MISSING else "?"
     p.add_argument("--" + options.flag(cls, name), dest=name, type=_bool if t is bool else t, default=default,
-                   help=doc if "(default:" in doc else f"{doc} (default: {shown})".strip())
+                   metavar=metavar, help=doc if "(default:" in doc else f"{doc} (default: {shown})".strip())
