@@ -7,7 +7,9 @@ A learner's config is a frozen dataclass whose fields are declared with :func:`o
 The declaration holds the field's default, its help (``--help``), whether it is traced (a leaf of
 the learner's ``Hyper`` pytree: a sweep's points may differ in it, one compiled program serves every
 value), the values it allows (a :class:`Range` or ``choices``), its command-line spelling where it is
-not the field name with dashes, and whether it is an option at all. From the declarations come:
+not the field name with dashes, how the command line reads a value where not by its type, and
+whether it is an option at all. A setting that several configs hold is declared once and taken by
+the others with :func:`same_as` (their own default). From the declarations come:
 
 * :func:`helps`: the help of every option (``Learner.help``; nmrl/cli/config_options.py builds one option per field);
 * :func:`traced`: the traced fields (``Learner.hyper_fields``, what ``nmrl sweep --vary`` takes);
@@ -103,6 +105,9 @@ class Option:
     cli: bool = True
     #: the option group the command line puts it in (None: the learner's own options)
     group: str | None = None
+    #: how the command line reads one value (None: by the field's type), e.g. a study's period
+    #: ``stationary`` as None
+    parse: Callable[[str], Any] | None = None
 
 
 def option(default: Any = dataclasses.MISSING, help: str = "", **meta: Any) -> Any:
@@ -125,6 +130,14 @@ def check_seed(value: Any, name: str = "seed") -> None:
     allows: the one seed range, for a command's seed outside a learner's config (``nmrl eval --seed``,
     the Brax baseline's)."""
     check_value(name, value, int, Option(**_RUN_OPTIONS["seed"]))
+
+
+def same_as(cls: type, name: str, default: Any, **changes: Any) -> Any:
+    """A dataclass field declared as the field ``name`` of ``cls`` is (help, range, choices, ...) with
+    its own ``default`` and ``changes`` of the declaration (e.g. ``cli=False``, another ``flag``): a
+    setting that several configs hold, declared once (the environment's ``physics`` in a study's
+    spec, the exploration's kind in PPO's config with PPO's default)."""
+    return dataclasses.field(default=default, metadata={KEY: dataclasses.replace(declaration(cls, name), **changes)})
 
 
 def run_option(name: str, default: Any, help: str | None = None) -> Any:
@@ -160,14 +173,31 @@ def traced(cls: type) -> tuple[str, ...]:
 
 
 @functools.lru_cache(maxsize=None)
-def kind(cls: type, name: str) -> type | None:
-    """``float``, ``int``, ``bool`` or ``str`` for a field typed so (or ``X | None``), else None. Cached
-    per class and field: resolving a class's annotations (``typing.get_type_hints``) costs ~1 ms, and
-    a sweep checks every field of every point (10,000 points: minutes, before the cache)."""
+def _hint(cls: type, name: str) -> Any:
+    """The annotation of the field ``name`` of ``cls`` (None if it cannot be resolved). Cached per class
+    and field: resolving a class's annotations (``typing.get_type_hints``) costs ~1 ms, and a sweep
+    checks every field of every point (10,000 points: minutes, before the cache)."""
     try:
-        t = typing.get_type_hints(cls)[name]
+        return typing.get_type_hints(cls)[name]
     except Exception:  # noqa: BLE001 - an unresolvable annotation: no kind
         return None
+
+
+def is_sequence(cls: type, name: str) -> bool:
+    """The field is a ``tuple[X, ...]``: one or more values, each of :func:`kind` and checked by the
+    field's declaration (a study's control steps, a network's layer sizes)."""
+    return typing.get_origin(_hint(cls, name)) is tuple
+
+
+@functools.lru_cache(maxsize=None)
+def kind(cls: type, name: str) -> type | None:
+    """``float``, ``int``, ``bool`` or ``str`` for a field typed so (or ``X | None``, or a ``tuple`` of
+    such values: the kind of each), else None."""
+    t = _hint(cls, name)
+    if t is None:
+        return None
+    if typing.get_origin(t) is tuple:
+        t = typing.get_args(t)[0]
     args = [a for a in typing.get_args(t) if a is not type(None)] or [t]
     for k in (bool, float, int, str):
         if k in args:
@@ -219,13 +249,22 @@ def check_value(name: str, value: Any, kind_: type | None, decl: Option = Option
 
 
 def check(config: Any, skip: frozenset[str] = frozenset(), limits: bool = True) -> None:
-    """:func:`check_value` for every field of the dataclass ``config`` (but ``skip``), in field
-    order: ValueError for the first that is not allowed. A config's ``validate`` checks without
-    ``limits`` (what is meaningless anywhere); nmrl/runs/bounds.py with them, before a run."""
+    """:func:`check_value` for every field of the dataclass ``config`` (but ``skip``; each value of a
+    :func:`is_sequence` field), in field order: ValueError for the first that is not allowed. A
+    config's ``validate`` checks without ``limits`` (what is meaningless anywhere);
+    nmrl/runs/bounds.py with them, before a run."""
     cls = type(config)
     for name, decl in declarations(cls).items():
-        if name not in skip:
-            check_value(name, getattr(config, name), kind(cls, name), decl, limits)
+        if name in skip:
+            continue
+        value = getattr(config, name)
+        if is_sequence(cls, name):
+            if not isinstance(value, (tuple, list)) or not value:
+                raise invalid(name, value, "give one or more values")
+            for v in value:
+                check_value(name, v, kind(cls, name), decl, limits)
+        else:
+            check_value(name, value, kind(cls, name), decl, limits)
 
 
 def hyper_leaves(cls: type) -> tuple[str, ...]:

@@ -25,6 +25,7 @@ import pathlib
 from typing import Any
 
 from nmrl import options, tasks
+from nmrl.options import AT_LEAST_ONE, NON_NEGATIVE, POSITIVE, Range, option, run_option
 from nmrl.paper.control_step import DELTA_0
 from nmrl.paper.env import EnvConfig
 from nmrl.runs import errors, store
@@ -57,33 +58,42 @@ CHANGES = (
 )
 
 
+_B = BRAX_HALFCHEETAH
+
+
 @dataclasses.dataclass(frozen=True)
 class BaselineConfig:
     """Brax PPO on the paper's Half-Cheetah. Defaults: BRAX_HALFCHEETAH's values (taken from it) with
-    CHANGES, and the paper's control step and stop rule."""
+    CHANGES, and the paper's control step and stop rule. Every field is declared once
+    (nmrl/options.py: help, range, whether it is an option of ``nmrl baseline ppo``); the seed and the
+    environment's fields as nmrl's runs declare them (``options.run_option``, nmrl.tasks.EnvFields)."""
 
-    seed: int = 0
-    num_timesteps: int = 25_000_000
-    num_envs: int = 64
-    batch_size: int = BRAX_HALFCHEETAH["batch_size"]
-    num_minibatches: int = BRAX_HALFCHEETAH["num_minibatches"]
-    unroll_length: int = BRAX_HALFCHEETAH["unroll_length"]
-    num_updates_per_batch: int = BRAX_HALFCHEETAH["num_updates_per_batch"]
-    discounting: float = BRAX_HALFCHEETAH["discounting"]
-    learning_rate: float = BRAX_HALFCHEETAH["learning_rate"]
-    entropy_cost: float = BRAX_HALFCHEETAH["entropy_cost"]
-    reward_scaling: float = float(BRAX_HALFCHEETAH["reward_scaling"])
-    normalize_observations: bool = BRAX_HALFCHEETAH["normalize_observations"]
-    policy_hidden: tuple[int, ...] = BRAX_HALFCHEETAH["policy_hidden"]
-    value_hidden: tuple[int, ...] = BRAX_HALFCHEETAH["value_hidden"]
-    episode_cap: int = 10_000
-    control_dt: float = DELTA_0
-    stop_prob: float = 1 / 250
-    eval_seconds: float = 10.0
+    seed: int = run_option("seed", 0)
+    num_timesteps: int = option(25_000_000, "control steps over all environments", range=AT_LEAST_ONE)
+    num_envs: int = option(64, "environments in lock-step", range=AT_LEAST_ONE)
+    batch_size: int = option(_B["batch_size"], "unrolls per minibatch", range=AT_LEAST_ONE)
+    num_minibatches: int = option(_B["num_minibatches"], "minibatches per iteration", range=AT_LEAST_ONE)
+    unroll_length: int = option(_B["unroll_length"], "control steps per unroll", range=AT_LEAST_ONE)
+    num_updates_per_batch: int = option(_B["num_updates_per_batch"], "epochs over an iteration's data",
+                                        range=AT_LEAST_ONE)
+    discounting: float = option(_B["discounting"], "discount per control step", range=Range(0.0, 1.0, open_lo=True))
+    learning_rate: float = option(_B["learning_rate"], "Adam's step size", range=POSITIVE)
+    entropy_cost: float = option(_B["entropy_cost"], "weight of the entropy bonus", range=NON_NEGATIVE)
+    reward_scaling: float = option(float(_B["reward_scaling"]), "the learner receives reward_scaling * r",
+                                   range=POSITIVE, cli=False)
+    normalize_observations: bool = option(_B["normalize_observations"], "running observation normalisation",
+                                          cli=False)
+    policy_hidden: tuple[int, ...] = option(_B["policy_hidden"], "the policy's layer sizes", range=AT_LEAST_ONE)
+    value_hidden: tuple[int, ...] = option(_B["value_hidden"], "the value net's layer sizes", range=AT_LEAST_ONE)
+    episode_cap: int = option(10_000, "Brax's episode length: a cap (a task's time limit)", range=AT_LEAST_ONE,
+                              cli=False)
+    control_dt: float = options.same_as(tasks.EnvFields, "control_dt", DELTA_0, cli=False)
+    stop_prob: float = options.same_as(tasks.EnvFields, "stop_prob", 1 / 250, cli=False)
+    eval_seconds: float = option(10.0, "simulated seconds of each evaluation", range=POSITIVE, cli=False)
     #: the environment's physics engine and the environment (the paper's robot or a v5 task), as a
-    #: learner's run declares them (nmrl.tasks.EnvFields, which checks them)
-    physics: str = "mjx"
-    env: str = tasks.PAPER
+    #: learner's run declares them (nmrl.tasks.EnvFields)
+    physics: str = options.same_as(tasks.EnvFields, "physics", "mjx", group=None)
+    env: str = options.same_as(tasks.EnvFields, "env", tasks.PAPER, group=None)
 
     @property
     def is_task(self) -> bool:
@@ -100,31 +110,16 @@ class BaselineConfig:
         return math.ceil(self.num_timesteps / self.steps_per_iteration)
 
     def validate(self, n_devices: int = 1) -> None:
-        for name in ("num_timesteps", "num_envs", "batch_size", "num_minibatches", "unroll_length",
-                     "num_updates_per_batch", "episode_cap"):
-            v = getattr(self, name)
-            if not isinstance(v, int) or isinstance(v, bool) or v < 1:
-                raise ValueError(f"{name}={v!r} is invalid: must be an integer >= 1")
-        options.check_seed(self.seed)  # Brax's train makes jax.random.PRNGKey(seed), as nmrl's learners do
+        """Every field by its declaration (nmrl/options.py), then what relates them: minibatches of
+        whole environments, environments split evenly over the devices, the environment's relations
+        (its control step and stop rule; a task's time limit as ``episode_cap``)."""
+        options.check(self, limits=False)
         if (self.batch_size * self.num_minibatches) % self.num_envs:
             raise ValueError(f"num_envs={self.num_envs} is invalid: batch_size x num_minibatches = "
                              f"{self.batch_size * self.num_minibatches} must be a multiple of it")
         if self.num_envs % n_devices:
             raise ValueError(f"num_envs={self.num_envs} is invalid: must be a multiple of the {n_devices} "
                              f"device(s) Brax splits it over")
-        if not 0 < self.discounting <= 1:
-            raise ValueError(f"discounting={self.discounting!r} is invalid: must be in (0, 1]")
-        for name in ("learning_rate", "reward_scaling", "eval_seconds", "control_dt"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ValueError(f"{name}={v!r} is invalid: must be a finite number > 0")
-        if not (math.isfinite(self.entropy_cost) and self.entropy_cost >= 0):
-            raise ValueError(f"entropy_cost={self.entropy_cost!r} is invalid: must be >= 0")
-        for name in ("policy_hidden", "value_hidden"):
-            v = getattr(self, name)
-            if not v or any(not isinstance(h, int) or h < 1 for h in v):
-                raise ValueError(f"{name}={v!r} is invalid: layer sizes must be integers >= 1")
-        tasks.check_fields(env=self.env, physics=self.physics)
         env_config = EnvConfig(control_dt=self.control_dt, stop_prob=self.stop_prob, physics=self.physics)
         env_config.validate()
         tasks.check_env(self.env, env_config)

@@ -220,21 +220,11 @@ def main(argv: list[str] | None = None) -> int:
     p = sub.add_parser("ppo", help="train Brax PPO on the paper's Half-Cheetah (needs pip install -e '.[brax]')")
     p.add_argument("--out", required=True, help="run directory")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its newest checkpoint")
-    p.add_argument("--seed", type=parser.integer, default=None, help=f"default {d.seed}")
-    p.add_argument("--num-timesteps", type=parser.integer, default=None,
-                   help=f"control steps over all environments (default {d.num_timesteps:.2g})")
-    for name in ("num_envs", "batch_size", "num_minibatches", "unroll_length", "num_updates_per_batch"):
-        p.add_argument("--" + name.replace("_", "-"), type=parser.integer, default=None, help=f"default {getattr(d, name)}")
-    for name in ("discounting", "learning_rate", "entropy_cost"):
-        p.add_argument("--" + name.replace("_", "-"), type=float, default=None, help=f"default {getattr(d, name)}")
-    for name in ("policy_hidden", "value_hidden"):
-        p.add_argument("--" + name.replace("_", "-"), type=parser.integer, nargs="+", default=None,
-                       help=f"layer sizes (default {' '.join(map(str, getattr(d, name)))})")
+    # every field of the config declared an option (nmrl/options.py), the environment's as EnvFields declares it
+    parser.add_fields(p, BaselineConfig, helps={"env": f"{options.helps(tasks.EnvFields)['env']}; a task runs at its "
+                                                       f"own control step with its time limit (default: {d.env})"})
     p.add_argument("--max-iterations", type=parser.integer, default=None,
                    help="stop after this many PPO iterations of this call (continue with --resume)")
-    parser.add_declared(p, tasks.EnvFields, "physics")
-    parser.add_declared(p, tasks.EnvFields, "env", help=f"{options.helps(tasks.EnvFields)['env']}; a task runs at its "
-                        f"own control step with its time limit (default: {d.env})")
     p.add_argument("--devices", default="auto", help="CPU devices Brax splits the environments over")
     p.add_argument("--quiet", action="store_true")
     e = sub.add_parser("eval", help="evaluate a PPO baseline checkpoint like nmrl eval (JSON, strobe, GIF)")
@@ -254,19 +244,11 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         if a.max_iterations is not None and a.max_iterations < 1:
             raise ValueError(f"--max-iterations={a.max_iterations} is invalid: must be >= 1")
-        given = {k: getattr(a, k) for k in ("seed", "num_timesteps", "num_envs", "batch_size", "num_minibatches",
-                                             "unroll_length", "num_updates_per_batch", "discounting", "learning_rate",
-                                             "entropy_cost", "policy_hidden", "value_hidden", "physics")
-                 if getattr(a, k) is not None}
-        for k in ("policy_hidden", "value_hidden"):
-            if k in given:
-                given[k] = tuple(given[k])
+        given = parser.given_fields(a, BaselineConfig)
         if a.env is not None and not a.resume:
             base = task_config(a.env)  # the task's own control step and time limit
         else:
             base = load_config(a.out) if a.resume else BaselineConfig()
-            if a.env is not None:
-                given["env"] = a.env
         cfg = dataclasses.replace(base, **given)  # a resume refuses any change but num_timesteps (run)
         run(cfg, a.out, resume=a.resume, progress=not a.quiet, max_iterations=a.max_iterations)
     except driver.Stopped as err:

@@ -41,7 +41,6 @@ Every phase resumes where it stopped: run the same command again. A larger ``--f
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import pathlib
@@ -126,46 +125,16 @@ def _settle(spec: TimescaleSpec, out: pathlib.Path) -> None:
                          f"gradvar.csv exists, may be given) or choose another --out")
 
 
-def _period(s: str) -> float | None:
-    if s in ("stationary", "none", "1"):
-        return None
-    try:
-        v = float(s)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"period {s!r} is invalid: give seconds > 0 or 'stationary'") from None
-    return v
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     ap = parser.OneLineParser(prog="nmrl study", description=__doc__.split("\n\n")[0])
     d = TimescaleSpec()
     ap.add_argument("--out", required=True, help="study directory (continued if it exists)")
-    ap.add_argument("--dt", type=float, nargs="+", default=list(d.dts), help="control steps [s]")
-    ap.add_argument("--periods", type=_period, nargs="+", default=list(d.periods),
-                    help="nm-period durations [s]; 'stationary' = l = 1")
-    ap.add_argument("--beta-theta", type=float, nargs="+", default=list(d.beta_theta_grid))
-    ap.add_argument("--beta-v", type=float, nargs="+", default=list(d.beta_v_grid))
-    ap.add_argument("--grid-seconds", type=float, default=d.grid_seconds)
-    ap.add_argument("--final-seconds", type=float, default=d.final_seconds)
-    ap.add_argument("--chunk-seconds", type=float, default=d.chunk_seconds)
-    ap.add_argument("--seeds", type=int, default=d.seeds)
-    ap.add_argument("--num-envs", type=int, default=d.num_envs)
-    ap.add_argument("--checkpoint-every", type=int, default=d.checkpoint_every)
-    ap.add_argument("--gradvar-envs", type=int, default=d.gradvar_envs)
-    ap.add_argument("--gradvar-batches", type=int, default=d.gradvar_batches)
-    ap.add_argument("--beta-theta-cap", type=float, default=None,
-                    help="choose only among grid pairs with beta_theta <= this (every arm)")
-    parser.add_declared(ap, EnvFields, "physics", default=d.physics)
+    parser.add_fields(ap, TimescaleSpec)  # every field of the spec declared an option (nmrl/options.py)
     parser.add_declared(ap, EnvFields, "env", default=d.base.env)
     ap.add_argument("--phases", nargs="+", default=list(PHASES), help=f"any of {list(PHASES)}")
     ap.add_argument("--quiet", action="store_true")
     a = ap.parse_args(argv)
-    spec = TimescaleSpec(physics=a.physics, dts=tuple(a.dt), periods=tuple(a.periods), beta_theta_grid=tuple(a.beta_theta),
-                     beta_v_grid=tuple(a.beta_v), grid_seconds=a.grid_seconds, final_seconds=a.final_seconds,
-                     chunk_seconds=a.chunk_seconds, seeds=a.seeds, num_envs=a.num_envs,
-                     checkpoint_every=a.checkpoint_every, gradvar_envs=a.gradvar_envs,
-                     gradvar_batches=a.gradvar_batches, beta_theta_cap=a.beta_theta_cap,
-                     base=dataclasses.replace(d.base, env=a.env))
+    spec = TimescaleSpec(**parser.given_fields(a, TimescaleSpec), base=dataclasses.replace(d.base, env=a.env))
     try:
         return command.run("nmrl study", lambda: run_study(spec, a.out, phases=a.phases, progress=not a.quiet),
                            (StudyError,))

@@ -21,8 +21,10 @@ Step sizes are not converted: they are chosen per arm by a grid (the study's rul
 
 :class:`TimescaleSpec` is the study's design: the control steps, the arms (the stationary policy
 and nm-periods of fixed durations), the step-size grid and the budgets in simulated seconds, and
-every run's config made from the paper's constants by :func:`at_control_step`. It is stored as the
-study's ``study.json`` (:meth:`TimescaleSpec.to_json`).
+every run's config made from the paper's constants by :func:`at_control_step`. Each of its fields
+is declared once with ``option(...)`` (the control steps and the physics as the runs' own
+environment fields, nmrl.tasks.EnvFields), so ``nmrl study``'s options and the checks are made from
+the declarations. It is stored as the study's ``study.json`` (:meth:`TimescaleSpec.to_json`).
 
 On a Gymnasium task (``env``, docs/tasks.md) the trial's end and the reward's scale are the task's
 own: it ends by its own rule and time limit (the stop probability stays the default it refuses to
@@ -32,13 +34,15 @@ dt0), so ``reward_scale`` is not converted; the average reward per second is mea
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import math
 
-from nmrl import learners, tasks
-from nmrl.paper.control_step import DELTA_0
+from nmrl import learners, options, tasks
 from nmrl.learners.ac_config import TrainConfig
-from nmrl.runs import bounds
+from nmrl.options import AT_LEAST_ONE, Range, option
+from nmrl.paper.control_step import DELTA_0
+from nmrl.tasks import EnvFields
 
 
 def _as_int(x: float, what: str) -> int:
@@ -77,48 +81,67 @@ def arm_name(period: float | None) -> str:
     return "stationary" if period is None else f"p{period:g}s"
 
 
+def period(text: str) -> float | None:
+    """A period on the command line: seconds, or ``stationary`` (also ``none``, ``1``: l = 1) as None."""
+    if text in ("stationary", "none", "1"):
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"period {text!r} is invalid: give seconds > 0 or 'stationary'") from None
+
+
+_SECONDS = Range(0.0, open_lo=True, why="simulated seconds")
+_STEP_SIZE = Range(0.0, open_lo=True, why="a step size")
+
+
 @dataclasses.dataclass(frozen=True)
 class TimescaleSpec:
-    dts: tuple[float, ...] = (0.02, 0.01, 0.005)
-    periods: tuple[float | None, ...] = (None, 0.1, 0.2, 0.4)  #: None = the stationary policy
-    beta_theta_grid: tuple[float, ...] = (3e-6, 1e-5, 3e-5)
-    beta_v_grid: tuple[float, ...] = (5e-5, 1.5e-4, 5e-4)
-    grid_seconds: float = 40.0  #: simulated seconds per environment in a grid run
-    final_seconds: float = 150.0  #: simulated seconds per environment in a final run
-    chunk_seconds: float = 5.0  #: simulated seconds per jitted chunk
-    seeds: int = 3
-    num_envs: int = 32
-    checkpoint_every: int = 3  #: chunks between checkpoints
-    gradvar_envs: int = 64
-    gradvar_batches: int = 8
-    base: TrainConfig = TrainConfig()  #: the paper's constants at delta_0 = 0.02 s
+    """The study's design, each field declared once (nmrl/options.py: help, range, command-line
+    spelling; ``nmrl study``'s options are made from the declarations, :meth:`validate` checks by them
+    and then what relates the fields)."""
+
+    dts: tuple[float, ...] = options.same_as(EnvFields, "control_dt", (0.02, 0.01, 0.005), flag="dt",
+                                             help="control steps [s]", group=None)
+    #: None = the stationary policy
+    periods: tuple[float | None, ...] = option((None, 0.1, 0.2, 0.4), "nm-period durations [s]; 'stationary' = l = 1",
+                                               range=Range(0.0, open_lo=True, why="seconds, or stationary"),
+                                               parse=period)
+    beta_theta_grid: tuple[float, ...] = option((3e-6, 1e-5, 3e-5), "the grid's actor step sizes beta^theta",
+                                                flag="beta-theta", range=_STEP_SIZE)
+    beta_v_grid: tuple[float, ...] = option((5e-5, 1.5e-4, 5e-4), "the grid's critic step sizes beta^v", flag="beta-v",
+                                            range=_STEP_SIZE)
+    grid_seconds: float = option(40.0, "simulated seconds per environment in a grid run", range=_SECONDS)
+    final_seconds: float = option(150.0, "simulated seconds per environment in a final run", range=_SECONDS)
+    chunk_seconds: float = option(5.0, "simulated seconds per jitted chunk", range=_SECONDS)
+    seeds: int = option(3, "seeds of each arm's final runs", range=AT_LEAST_ONE)
+    num_envs: int = option(32, "environments in lock-step", range=AT_LEAST_ONE)
+    checkpoint_every: int = option(3, "chunks between checkpoints", range=AT_LEAST_ONE)
+    gradvar_envs: int = option(64, "environments of the gradient-variance measurement", range=AT_LEAST_ONE)
+    gradvar_batches: int = option(8, "batches of the gradient-variance measurement",
+                                  range=Range(2, why="need >= 2 batches for an interval"))
+    #: the paper's constants at delta_0 = 0.02 s
+    base: TrainConfig = option(TrainConfig(), "the paper's constants at delta_0 = 0.02 s", cli=False)
     #: if set, the rule chooses only among grid pairs with beta^theta <= this (the same for every arm)
-    beta_theta_cap: float | None = None
-    physics: str = "mjx"  #: every run's physics engine (checked as the runs' own: nmrl.tasks.EnvFields)
+    beta_theta_cap: float | None = option(None, "choose only among grid pairs with beta_theta <= this (every arm)",
+                                          range=_STEP_SIZE)
+    #: every run's physics engine (declared and checked as the runs' own: nmrl.tasks.EnvFields)
+    physics: str = options.same_as(EnvFields, "physics", "mjx", group=None)
 
     def validate(self) -> None:
+        """Every field by its declaration (nmrl/options.py), then what relates them: distinct control
+        steps and periods, a cap within the grid, budgets of whole chunks, chunks of whole control steps,
+        every arm's config at every control step (a period of whole steps, the environment's rules)."""
         def bad(name, allowed):
-            return ValueError(f"{name}={getattr(self, name)!r} is invalid: {allowed}")
+            return options.invalid(name, getattr(self, name), allowed)
 
-        bounds.control_steps("dts", self.dts, "0.02 0.01 0.005")
-        if not self.periods or any(p is not None and not (isinstance(p, (int, float)) and p > 0) for p in self.periods):
-            raise bad("periods", "give durations > 0 s (None = the stationary policy)")
+        options.check(self, limits=False)
+        if len(set(self.dts)) != len(self.dts):
+            raise bad("dts", "each control step may appear once")
         if len(set(self.periods)) != len(self.periods):
             raise bad("periods", "each period may appear once")
-        for name in ("beta_theta_grid", "beta_v_grid"):
-            g = getattr(self, name)
-            if len(g) < 1 or any(not (isinstance(b, (int, float)) and b > 0 and math.isfinite(b)) for b in g):
-                raise bad(name, "give step sizes > 0")
-        bounds.positive_ints(self, ("seeds", "num_envs", "checkpoint_every", "gradvar_envs", "gradvar_batches"))
-        if self.beta_theta_cap is not None and not (
-                isinstance(self.beta_theta_cap, (int, float)) and self.beta_theta_cap >= min(self.beta_theta_grid)):
+        if self.beta_theta_cap is not None and self.beta_theta_cap < min(self.beta_theta_grid):
             raise bad("beta_theta_cap", f"must be >= the smallest grid value {min(self.beta_theta_grid):g}")
-        if self.gradvar_batches < 2:
-            raise bad("gradvar_batches", "need >= 2 batches for an interval")
-        for name in ("grid_seconds", "final_seconds", "chunk_seconds"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and v > 0):
-                raise bad(name, "must be > 0 s")
         for name in ("grid_seconds", "final_seconds"):
             if abs(getattr(self, name) / self.chunk_seconds - round(getattr(self, name) / self.chunk_seconds)) > 1e-9:
                 raise bad(name, f"must be a multiple of chunk_seconds={self.chunk_seconds:g}")

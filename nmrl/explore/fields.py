@@ -91,7 +91,7 @@ PARAMS = tuple(f.name for f in dataclasses.fields(ExplorationFields) if f.name !
 def kind_option(default: str) -> Any:
     """The field ``exploration`` as :class:`ExplorationFields` declares it, with a learner's default
     process (PPO's: white)."""
-    return dataclasses.field(default=default, metadata=ExplorationFields.__dataclass_fields__["exploration"].metadata)
+    return options.same_as(ExplorationFields, "exploration", default)
 
 
 def check_field(name: str, value: Any, shown: str | None = None) -> None:

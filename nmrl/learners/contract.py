@@ -68,8 +68,8 @@ nothing else; the shape is Stoix's ``LearnerFn: state -> (state, metrics)`` and 
   and how ``--exploration KIND`` with its parameters in seconds/Hz (one option group for every
   learner, made from the declarations of ``nmrl.explore.ExplorationFields`` and parsed under its
   field names) sets its config: a config that holds those fields itself (inheriting
-  ``ExplorationFields``, e.g. PPO's) takes them as they are; another maps them onto its own fields (``exploration``, e.g. the
-  actor-critic's l and alpha).
+  ``ExplorationFields``, e.g. PPO's) takes them as they are; another maps them onto its own fields
+  (``exploration``, e.g. the actor-critic's l and alpha).
 
 A new learner provides these and registers itself at import: ``register(Learner(name="x", ...))``
 in its module, and its module path in :data:`BUILTIN` (or the caller imports it before use; a

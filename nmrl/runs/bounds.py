@@ -18,7 +18,6 @@ Each refusal is one line ``NAME=VALUE is invalid: ...`` naming what is allowed.
 
 from __future__ import annotations
 
-import typing
 from typing import Any
 
 from nmrl import options
@@ -35,19 +34,3 @@ def check(config: Any, skip: frozenset[str] = frozenset()) -> None:
     order: ValueError for the first that is out of bounds (:func:`nmrl.options.check`)."""
     options.check(config, skip)
 
-
-def control_steps(name: str, dts: Any, example: str) -> None:
-    """ValueError (one line) unless ``dts`` is a non-empty list of distinct control steps > 0 s
-    (a study's list; ``example`` shows one)."""
-    if not dts or any(not (isinstance(d, (int, float)) and not isinstance(d, bool) and d > 0) for d in dts):
-        raise ValueError(f"{name}={dts!r} is invalid: give control steps > 0 s, e.g. {example}")
-    if len(set(dts)) != len(dts):
-        raise ValueError(f"{name}={dts!r} is invalid: each control step may appear once")
-
-
-def positive_ints(obj: Any, names: typing.Iterable[str]) -> None:
-    """ValueError (one line) for the first of ``obj``'s attributes ``names`` that is not an integer >= 1."""
-    for name in names:
-        v = getattr(obj, name)
-        if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
-            raise ValueError(f"{name}={v!r} is invalid: must be an integer >= 1")

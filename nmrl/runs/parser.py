@@ -9,7 +9,8 @@ Subparsers made by ``add_subparsers`` are of the same class, so every command an
 :func:`integer` is a strict ``type=`` for integer options (``1e3``, ``nan``, ``1.0`` are refused by
 name; ``int()`` would refuse them too, this says what is allowed). :func:`add_declared` makes the
 option of a field declared with ``nmrl.options.option`` (its spelling, type and help from the
-declaration), for every command that takes such a field.
+declaration), for every command that takes such a field; :func:`add_fields` every option of a
+config at once, and :func:`given_fields` reads back those given.
 """
 
 from __future__ import annotations
@@ -82,13 +83,38 @@ def _bool(text: str) -> bool:
 def add_declared(p, cls: type, name: str, default=None, help: str | None = None, metavar: str | None = None) -> None:
     """The option ``--<flag>`` of the field ``name`` of the dataclass ``cls``, spelled, typed and explained
     by its declaration (nmrl/options.py), parsed into ``name`` with ``default`` (None: the field's own is
-    applied later, by the config); the field's default is named unless the help names one. ``metavar``:
-    the value's name in the help (default: argparse's, the name in capitals)."""
+    applied later, by the config); the field's default is named unless the help names one. A
+    ``tuple[X, ...]`` field takes one or more values; a declaration's ``parse`` reads each value.
+    ``metavar``: the value's name in the help (default: the option's spelling in capitals)."""
     from nmrl import options
 
     f = cls.__dataclass_fields__[name]
-    t = field_type(cls, f)
-    doc = options.declaration(cls, name).help if help is None else help
+    decl = options.declaration(cls, name)
+    many = options.is_sequence(cls, name)
+    t = options.kind(cls, name) if many else field_type(cls, f)
+    doc = decl.help if help is None else help
     shown = f.default if f.default is not dataclasses.MISSING else "?"
-    p.add_argument("--" + options.flag(cls, name), dest=name, type=_bool if t is bool else t, default=default,
-                   metavar=metavar, help=doc if "(default:" in doc else f"{doc} (default: {shown})".strip())
+    shown = " ".join(map(str, shown)) if many and isinstance(shown, tuple) else shown
+    p.add_argument("--" + options.flag(cls, name), dest=name, type=decl.parse or (_bool if t is bool else t),
+                   default=default, metavar=metavar or (decl.flag.upper().replace("-", "_") if decl.flag else None),
+                   nargs="+" if many else None,
+                   help=doc if "(default:" in doc else f"{doc} (default: {shown})".strip())
+
+
+def add_fields(p, cls: type, helps: dict[str, str] | None = None) -> None:
+    """:func:`add_declared` for every field of ``cls`` declared an option (``cli``), in field order, each
+    parsed into its name with the default None (the config's own applies); ``helps`` replaces a help."""
+    from nmrl import options
+
+    for name, decl in options.declarations(cls).items():
+        if decl.cli:
+            add_declared(p, cls, name, help=(helps or {}).get(name))
+
+
+def given_fields(args: argparse.Namespace, cls: type) -> dict:
+    """The fields of ``cls`` that :func:`add_fields` made options of and that were given (name ->
+    value; one or more values as a tuple)."""
+    from nmrl import options
+
+    return {name: tuple(v) if isinstance(v, list) else v for name, decl in options.declarations(cls).items()
+            if decl.cli and (v := getattr(args, name, None)) is not None}

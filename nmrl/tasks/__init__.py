@@ -16,9 +16,7 @@ of a name such as ``--env`` or ``--physics``), and :meth:`EnvFields.check_env` w
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
 
-from nmrl import options
 from nmrl.options import Range, option
 from nmrl.paper.env import DEFAULT_STOP_PROB, MODEL_PATH, EnvConfig, HalfCheetah
 from nmrl.physics import PHYSICS
@@ -67,15 +65,6 @@ class EnvFields:
         env_config = self.env_config()
         env_config.validate()
         check_env(self.env, env_config)
-
-
-def check_fields(**values: Any) -> None:
-    """ValueError (one line) for the first of ``values`` (field name -> value) that :class:`EnvFields`'s
-    declaration of that field does not allow: the check of a config that names these fields without
-    being a learner's (the Brax baseline's)."""
-    for name, value in values.items():
-        options.check_value(name, value, options.kind(EnvFields, name), options.declaration(EnvFields, name),
-                            limits=False)
 
 
 def check_env(name: str, env_config: EnvConfig) -> None:
