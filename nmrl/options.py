@@ -137,7 +137,8 @@ def same_as(cls: type, name: str, default: Any, **changes: Any) -> Any:
     its own ``default`` and ``changes`` of the declaration (e.g. ``cli=False``, another ``flag``): a
     setting that several configs hold, declared once (the environment's ``physics`` in a study's
     spec, the exploration's kind in PPO's config with PPO's default)."""
-    return dataclasses.field(default=default, metadata={KEY: dataclasses.replace(declaration(cls, name), **changes)})
+    decl = declaration(cls, name)
+    return dataclasses.field(default=default, metadata={KEY: dataclasses.replace(decl, **changes) if changes else decl})
 
 
 def run_option(name: str, default: Any, help: str | None = None) -> Any:

@@ -29,6 +29,7 @@ from nmrl.analysis import evaluate, task_eval
 from nmrl.experiments.baseline_config import BaselineConfig, load_config
 from nmrl.paper.env import EnvConfig
 from nmrl.runs import checkpoint, errors, store
+from nmrl.tasks.env import Task, TaskConfig
 
 __all__ = ["brax_ppo", "train_kwargs", "environment", "policy_action", "initial_params", "evaluate_params",
            "evaluate_checkpoint"]
@@ -74,7 +75,7 @@ def _actor(policy_hidden: tuple[int, ...], value_hidden: tuple[int, ...], normal
         nets = _networks(policy_hidden, value_hidden, normalize)
         to_action = lambda u: brax_env.ACTION_SCALE * jnp.clip(u, -1.0, 1.0)  # noqa: E731
     else:
-        task = tasks.Task(env, tasks.TaskConfig(control_dt=control_dt))
+        task = Task(env, TaskConfig(control_dt=control_dt))
         nets = _networks(policy_hidden, value_hidden, normalize, (task.obs_dim, task.act_dim))
         lo, scale = jnp.asarray(task.action_offset, jnp.float32), jnp.asarray(task.action_scale, jnp.float32)
         to_action = lambda u: lo + scale * jnp.clip(u, -1.0, 1.0)  # noqa: E731

@@ -43,6 +43,11 @@ _SECONDS = Range(0.0, open_lo=True, why="seconds")
 _HZ = Range(0.0, open_lo=True, why="Hz")
 #: the option group of the exploration's fields on the command line
 GROUP = "exploration"
+#: the range of a noise standard deviation sigma every learner takes: actions are clipped to [-1, 1]
+#: (nmrl/paper/env.py), and at sigma = 10, 92 % of the noise values alone exceed that whole range
+SIGMA_RANGE = Range(0.0, 10.0, open_lo=True, why="the exploration noise's standard deviation; actions are "
+                                                 "clipped to [-1, 1]", cap=True)
+
 
 
 def kinds_of(name: str) -> tuple[str, ...]:

@@ -36,16 +36,13 @@ import math
 
 import jax.numpy as jnp
 
-from nmrl import explore, options, tasks
+from nmrl import explore, tasks
 from nmrl.learners import ppo_networks
-from nmrl.learners.ac_config import Hyper, TrainConfig
-from nmrl.learners.ac_train import OPT_FIELDS, make_train
-from nmrl.learners.contract import Learner, Policy, register
+from nmrl.learners.ac_config import EXPLORATIONS, TrainConfig
+from nmrl.learners.ac_train import make_train
+from nmrl.learners.contract import Policy
 from nmrl.paper import networks, noise
 
-NAME = "ac"
-#: the exploration processes the actor-critic can use
-EXPLORATIONS = ("white", "nm-periods")
 #: TrainConfig fields checked for finiteness before anything is built (NaN/inf pass some range checks)
 FINITE = ("alpha", "sigma", "gamma", "lam", "control_dt", "stop_prob", "reward_scale")
 
@@ -131,30 +128,8 @@ def policy(cfg: TrainConfig, env) -> Policy:
     )
 
 
-def _fill(trainer, ts):
+def fill(trainer, ts):
     """Fresh optimizer states for a checkpoint written before they were saved (exact for the paper's
     sgd rule, the only one those runs could name: its state holds no statistics)."""
     opt_theta, opt_v = trainer.init_opt(ts.theta, ts.v, ts.hyper)
     return ts.replace(opt_theta=opt_theta, opt_v=opt_v)
-
-
-LEARNER = register(Learner(
-    name=NAME,
-    config=TrainConfig,
-    hyper=Hyper.from_config,
-    hyper_fields=options.traced(TrainConfig),
-    make=make,
-    env_fields=("slots",),
-    compact_fields=("theta", "v", "periods"),
-    policy_fields=("theta", "v"),
-    policy=policy,
-    doc="the paper's actor-critic with TD(lambda) over nm-periods (Table II)",
-    help=options.helps(TrainConfig),
-    restorable=OPT_FIELDS,
-    fill=_fill,
-    check=check,
-    describe=lambda c: {"l": int(c.l), "alpha": float(c.alpha), "sigma": float(c.sigma)},
-    explorations=EXPLORATIONS,
-    sweep_field="l",
-    exploration=exploration,
-))

@@ -11,15 +11,26 @@ chains of nmrl/learners/optimizers.py, recorded in canonical form.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, NamedTuple
-
-import jax
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 from nmrl import options
+from nmrl.explore.fields import SIGMA_RANGE
+from nmrl.learners.contract import Learner, lazy, register
 from nmrl.learners.optimizers import OPT_HELP, canonical_opt, parse_opt
 from nmrl.options import AT_LEAST_ONE, POSITIVE, STEP_SIZE, Range, option, run_option
-from nmrl.paper import networks, noise
 from nmrl.tasks import EnvFields
+
+if TYPE_CHECKING:  # the module imports no JAX: the declarations are read when a command line is built
+    import jax
+
+#: the exploration processes the actor-critic can use
+EXPLORATIONS = ("white", "nm-periods")
+#: the training state's optimizer states (nmrl/learners/ac_train.py): a checkpoint written before they
+#: were saved lacks them (``Learner.restorable``)
+OPT_FIELDS = ("opt_theta", "opt_v")
+#: the hidden units' arctan implementations by name, the keys of nmrl.paper.networks.ARCTANS (which
+#: imports JAX; tests/test_config_model.py checks they agree)
+ARCTANS = ("fast", "xla")
 
 #: Named step-size presets. "paper" is Sec. V-C. "fast" is for the budgets this 2-core machine
 #: allows (10^3-10^4 trials instead of the paper's 10^5): with the paper's step sizes and 16-64
@@ -58,7 +69,7 @@ class TrainConfig(EnvFields):
                         range=AT_LEAST_ONE)
     alpha: float = option(0.8, "AR coefficient alpha of the noise xi, eq. (4)", traced=True,
                           range=Range(0.0, 1.0, open_lo=True))
-    sigma: float = option(1.0, "standard deviation of xi (Sigma = sigma^2 I)", traced=True, range=noise.SIGMA_RANGE)
+    sigma: float = option(1.0, "standard deviation of xi (Sigma = sigma^2 I)", traced=True, range=SIGMA_RANGE)
     gamma: float = option(0.995, "discount per control step", traced=True, range=Range(0.0, 1.0))
     lam: float = option(0.5, "lambda of the TD(lambda) traces", traced=True, range=Range(0.0, 1.0))
     beta_theta: float | None = option(None, "actor step size (default: the preset's)", traced=True, range=STEP_SIZE)
@@ -71,7 +82,7 @@ class TrainConfig(EnvFields):
     hidden_critic: int = option(200, "hidden units M^C of the critic", range=AT_LEAST_ONE)
     arctan: str = option("fast", "the hidden units' arctan: fast (Cephes' atanf, within 3 float32 ulp) or xla "
                                  "(XLA's atan2, ~15x slower on a CPU; the runs made before this option)",
-                         choices=tuple(networks.ARCTANS))
+                         choices=ARCTANS)
     # batching and budget
     num_envs: int = option(256, "N environments in lock-step", range=AT_LEAST_ONE)
     chunk_steps: int = option(250, "control steps per environment in one jitted chunk", range=AT_LEAST_ONE)
@@ -105,6 +116,8 @@ class TrainConfig(EnvFields):
         """Eq. (4)'s alpha and the period lengths (nmrl.paper.noise), every field by its declaration
         (type, finiteness, range, choices; nmrl/options.py), the update rules, one budget, the
         environment's relations (:meth:`nmrl.tasks.EnvFields.check_env`)."""
+        from nmrl.paper import noise
+
         noise.validate(alpha=self.alpha, l=self.l, delta=self.delta)
         options.check(self, limits=False)
         for name in ("actor_opt", "critic_opt"):
@@ -132,3 +145,27 @@ class Hyper(NamedTuple):
     @staticmethod
     def from_config(config: TrainConfig) -> "Hyper":
         return options.hyper_values(Hyper, config)
+
+
+#: the learner ``ac``: its declarations here, its program in nmrl/learners/ac.py (imported at a run's
+#: first call of ``make``, ``policy``, ...: the command line reads the declarations without JAX)
+LEARNER = register(Learner(
+    name="ac",
+    config=TrainConfig,
+    hyper=Hyper.from_config,
+    hyper_fields=options.traced(TrainConfig),
+    make=lazy("nmrl.learners.ac", "make"),
+    env_fields=("slots",),
+    compact_fields=("theta", "v", "periods"),
+    policy_fields=("theta", "v"),
+    policy=lazy("nmrl.learners.ac", "policy"),
+    doc="the paper's actor-critic with TD(lambda) over nm-periods (Table II)",
+    help=options.helps(TrainConfig),
+    restorable=OPT_FIELDS,
+    fill=lazy("nmrl.learners.ac", "fill"),
+    check=lazy("nmrl.learners.ac", "check"),
+    describe=lambda c: {"l": int(c.l), "alpha": float(c.alpha), "sigma": float(c.sigma)},
+    explorations=EXPLORATIONS,
+    sweep_field="l",
+    exploration=lazy("nmrl.learners.ac", "exploration"),
+))

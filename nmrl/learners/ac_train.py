@@ -68,6 +68,7 @@ import optax
 from flax import struct
 
 from nmrl import tasks
+from nmrl.learners import ac_config
 from nmrl.learners.ac_config import Hyper, TrainConfig
 from nmrl.learners.optimizers import injected, opt_rule, parse_opt, with_learning_rate
 from nmrl.paper import likelihood, networks, noise
@@ -79,7 +80,7 @@ OptState = Any
 
 #: The TrainState fields that hold the optimizer states (a checkpoint of the layout without an
 #: optimizer lacks them; nmrl/runs/checkpoint.py restores it with fresh ones, see :func:`make_train`'s ``init_opt``).
-OPT_FIELDS = ("opt_theta", "opt_v")
+OPT_FIELDS = ac_config.OPT_FIELDS
 
 
 @struct.dataclass

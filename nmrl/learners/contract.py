@@ -73,7 +73,10 @@ nothing else; the shape is Stoix's ``LearnerFn: state -> (state, metrics)`` and 
 
 A new learner provides these and registers itself at import: ``register(Learner(name="x", ...))``
 in its module, and its module path in :data:`BUILTIN` (or the caller imports it before use; a
-test registers a toy learner this way). :func:`get` imports a built-in learner on first use.
+test registers a toy learner this way). :func:`get` imports a built-in learner on first use. A
+built-in learner registers from its config's module (``ac_config``, ``ppo_config``: no JAX, so that
+a command line's options and ``--help`` are made without it), its program's functions named by
+module (:func:`lazy`) and imported when a run first calls them.
 """
 
 from __future__ import annotations
@@ -84,7 +87,7 @@ import math
 from typing import Any, Callable, NamedTuple, Protocol
 
 #: learner name -> module that registers it when imported
-BUILTIN = {"ac": "nmrl.learners.ac", "ppo": "nmrl.learners.ppo"}
+BUILTIN = {"ac": "nmrl.learners.ac_config", "ppo": "nmrl.learners.ppo_config"}
 #: the learner of a run whose config.json or checkpoint names none (every run before there were two)
 DEFAULT = "ac"
 #: the key of ``config.json`` (and of a checkpoint's metadata) that names the learner
@@ -200,6 +203,18 @@ def register(learner: Learner) -> Learner:
         raise ValueError(f"a learner named {learner.name!r} is already registered ({old.config.__name__})")
     _REGISTRY[learner.name] = learner
     return learner
+
+
+def lazy(module: str, name: str) -> Callable[..., Any]:
+    """The function ``name`` of ``module``, imported at its first call. A built-in learner registers
+    from its config's module, which imports no JAX (a command line's ``--help`` reads the learners'
+    declarations), and names its program's functions (``make``, ``policy``, ...) this way."""
+
+    def call(*args: Any, **kwargs: Any) -> Any:
+        return getattr(importlib.import_module(module), name)(*args, **kwargs)
+
+    call.__name__, call.__qualname__ = name, f"{module}.{name}"
+    return call
 
 
 def _load(name: str) -> None:

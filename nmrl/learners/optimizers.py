@@ -25,12 +25,13 @@ recomputes the hand-written rule around every control step of a chunk and compar
 from __future__ import annotations
 
 import math
-from typing import Any, Callable, NamedTuple
-
-import jax
-import optax
+from typing import TYPE_CHECKING, Any, Callable, NamedTuple
 
 from nmrl import options
+
+if TYPE_CHECKING:  # the rules import optax when they are made: the grammar is read without JAX (--help)
+    import jax
+    import optax
 
 OptState = Any
 
@@ -124,6 +125,7 @@ def canonical_opt(spec: str, field: str = "opt") -> str:
 def opt_rule(chain: tuple[OptStep, ...]) -> Callable[[jax.Array], optax.GradientTransformation]:
     """``learning_rate -> GradientTransformation`` of a parsed chain. A chain of one ``sgd`` is exactly
     :func:`sgd_rule` (the paper's rule, with the state of a plain ``optax.sgd``)."""
+    import optax
 
     def rule(learning_rate: jax.Array) -> optax.GradientTransformation:
         parts = []
@@ -145,12 +147,16 @@ def opt_rule(chain: tuple[OptStep, ...]) -> Callable[[jax.Array], optax.Gradient
 def sgd_rule(learning_rate: jax.Array) -> optax.GradientTransformation:
     """The paper's update (Table II, steps 4 and 5): p := p - beta g on the negated pseudo-gradient
     g = -sum_e d_e z_e (actor) or -sum_e d_e y_e (critic), i.e. p := p + beta sum_e d_e z_e."""
+    import optax
+
     return optax.sgd(learning_rate)
 
 
 def injected(rule: Callable[[jax.Array], optax.GradientTransformation], learning_rate: jax.Array
              ) -> optax.GradientTransformation:
     """``rule`` with its step size as a traced hyperparameter (``optax.inject_hyperparams``)."""
+    import optax
+
     return optax.inject_hyperparams(lambda learning_rate: rule(learning_rate))(learning_rate=learning_rate)
 
 

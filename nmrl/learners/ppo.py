@@ -45,16 +45,13 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from nmrl import explore, options, tasks
+from nmrl import explore, tasks
 from nmrl.learners import heartbeat
 from nmrl.learners import ppo_losses as L
 from nmrl.learners import ppo_networks as nn_
-from nmrl.learners.contract import Learner, register
-from nmrl.learners.ppo_policy import policy
 from nmrl.learners.ppo_config import Hyper, PPOConfig
+from nmrl.learners.ppo_policy import policy  # noqa: F401 - ppo.policy, the learner's evaluation policy
 from nmrl.pytrees import check_shards, global_norm, tree_where
-
-NAME = "ppo"
 
 
 @struct.dataclass
@@ -388,20 +385,3 @@ def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None
 
     return PPOTrainer(config=cfg, env=env, init=init, chunk=chunk, nets=nets, seq_logp=seq_logp, loss=loss,
                       rollout=rollout, learn=learn, minibatches=minibatches)
-
-
-LEARNER = register(Learner(
-    name=NAME,
-    config=PPOConfig,
-    hyper=Hyper.from_config,
-    hyper_fields=options.traced(PPOConfig),
-    make=make_ppo,
-    env_fields=("env", "noise"),
-    compact_fields=("policy", "value", "opt", "obs_stats"),
-    policy_fields=("policy", "obs_stats"),
-    policy=policy,
-    doc="PPO (Brax's settings at 0.02 s) with the exact likelihood of any exploration process",
-    help=options.helps(PPOConfig),
-    describe=lambda c: {"exploration": c.exploration, "sigma": float(c.sigma)},
-    explorations=explore.KINDS,
-))

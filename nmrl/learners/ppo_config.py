@@ -22,15 +22,16 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Callable, NamedTuple
-
-import jax
-import jax.numpy as jnp
+from typing import TYPE_CHECKING, Callable, NamedTuple
 
 from nmrl import explore, options
+from nmrl.explore.fields import KINDS, PARAMS, SIGMA_RANGE
+from nmrl.learners.contract import Learner, lazy, register
 from nmrl.options import AT_LEAST_ONE, NON_NEGATIVE, POSITIVE, Range, option, run_option
-from nmrl.paper import noise
 from nmrl.tasks import EnvFields
+
+if TYPE_CHECKING:  # the module imports no JAX: the declarations are read when a command line is built
+    import jax
 
 #: the horizon (s) of Brax's discounting 0.95 (and GAE lambda 0.95) at the baseline's 0.02 s step
 BRAX_HORIZON_S = -0.02 / math.log(0.95)
@@ -43,7 +44,13 @@ DEFAULT_ITERATIONS = 1
 
 def _per_step(horizon: str) -> Callable[["PPOConfig"], jax.Array]:
     """``exp(-control_dt / horizon_s)`` in float32: a horizon in seconds as a factor per control step."""
-    return lambda c: jnp.asarray(math.exp(-c.control_dt / getattr(c, horizon)), jnp.float32)
+
+    def factor(c: "PPOConfig") -> jax.Array:
+        import jax.numpy as jnp
+
+        return jnp.asarray(math.exp(-c.control_dt / getattr(c, horizon)), jnp.float32)
+
+    return factor
 
 
 _TIME = Range(0.0, open_lo=True, why="seconds, at least the control step")
@@ -59,7 +66,7 @@ class PPOConfig(explore.ExplorationFields, EnvFields):
     # exploration: an nmrl.explore.ExplorationSpec, its process and parameters ExplorationFields'
     exploration: str = explore.kind_option("white")
     sigma: float = option(1.0, "marginal std of the noise xi, multiplying the learned std_theta (1: Brax's learned "
-                               "std alone)", traced="process", range=noise.SIGMA_RANGE)
+                               "std alone)", traced="process", range=SIGMA_RANGE)
     learn_std: bool = option(True, "learn a state-dependent std_theta(s) = softplus + min_std (Brax); false: "
                                    "std_theta = 1")
     min_std: float = option(1e-3, "floor of the learned std (Brax: 0.001)", range=POSITIVE)
@@ -164,8 +171,9 @@ class PPOConfig(explore.ExplorationFields, EnvFields):
         return out
 
 
-#: the exploration parameters of the config, as nmrl.explore.ExplorationSpec names them
-SPEC_FIELDS = explore.PARAMETERS
+#: the exploration parameters of the config, as nmrl.explore.ExplorationSpec names them (its
+#: ``PARAMETERS``: sigma and the declared parameters)
+SPEC_FIELDS = ("sigma", *PARAMS)
 #: the derived traced values: the discount and GAE factors per control step (from the config's
 #: seconds) and the noise process
 _DERIVED = {"gamma": _per_step("discount_horizon_s"), "lam": _per_step("gae_horizon_s"),
@@ -189,3 +197,23 @@ class Hyper(NamedTuple):
     @staticmethod
     def from_config(config: PPOConfig) -> "Hyper":
         return options.hyper_values(Hyper, config, _DERIVED)
+
+
+#: the learner ``ppo``: its declarations here, its program in nmrl/learners/ppo.py and its evaluation
+#: policy in ppo_policy.py (imported at a run's first call: the command line reads the declarations
+#: without JAX)
+LEARNER = register(Learner(
+    name="ppo",
+    config=PPOConfig,
+    hyper=Hyper.from_config,
+    hyper_fields=options.traced(PPOConfig),
+    make=lazy("nmrl.learners.ppo", "make_ppo"),
+    env_fields=("env", "noise"),
+    compact_fields=("policy", "value", "opt", "obs_stats"),
+    policy_fields=("policy", "obs_stats"),
+    policy=lazy("nmrl.learners.ppo_policy", "policy"),
+    doc="PPO (Brax's settings at 0.02 s) with the exact likelihood of any exploration process",
+    help=options.helps(PPOConfig),
+    describe=lambda c: {"exploration": c.exploration, "sigma": float(c.sigma)},
+    explorations=KINDS,
+))

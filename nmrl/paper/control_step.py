@@ -10,3 +10,6 @@ size (nmrl/experiments/timescale.py). It is also the environment's default contr
 
 #: the paper's control step [s]
 DELTA_0 = 0.02
+#: the paper's probability of stopping a trial after each control step (Sec. V-C: 5 s on average at
+#: DELTA_0), the environment's default (nmrl/paper/env.py)
+DEFAULT_STOP_PROB = 1 / 250

@@ -48,7 +48,7 @@ from flax import struct
 from nmrl.paper import _mjx as mjx  # quiet import (see nmrl/__init__.py)
 
 from nmrl.paper import c_plant
-from nmrl.paper.control_step import DELTA_0
+from nmrl.paper.control_step import DEFAULT_STOP_PROB, DELTA_0
 from nmrl.paper.robot import kinematics, observation, pd_torque, state_rewards
 from nmrl.physics import mujoco_c
 
@@ -65,7 +65,7 @@ class EnvConfig:
     """Environment options. Defaults are the paper's (Sec. V-C) and docs/model.md's physics."""
 
     control_dt: float = DELTA_0  #: control step delta [s] (the paper's, nmrl/paper/control_step.py)
-    stop_prob: float = 1 / 250  #: probability of stopping the trial after each step
+    stop_prob: float = DEFAULT_STOP_PROB  #: probability of stopping the trial after each step
     #: mean trial length [s]; when set, the stop probability per step is control_dt / trial_s, so a
     #: trial lasts trial_s seconds on average at every control step (None: stop_prob as given)
     trial_s: float | None = None
@@ -104,7 +104,6 @@ class EnvConfig:
         return self.stop_prob if self.trial_s is None else self.control_dt / self.trial_s
 
 
-DEFAULT_STOP_PROB = EnvConfig.stop_prob
 
 
 def check_trial_s(trial_s, stop_prob, control_dt) -> None:

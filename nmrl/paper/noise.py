@@ -28,7 +28,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nmrl.options import Range
 
 __all__ = [
     "validate",
@@ -61,12 +60,6 @@ def concrete_scalar(x: Any, name: str) -> Any:
     if arr.dtype == np.bool_:
         raise ValueError(f"{name} must be a number, got the bool {x!r}")
     return arr.item()
-
-
-#: the range of a noise standard deviation sigma every learner takes: actions are clipped to [-1, 1]
-#: (nmrl/paper/env.py), and at sigma = 10, 92 % of the noise values alone exceed that whole range
-SIGMA_RANGE = Range(0.0, 10.0, open_lo=True, why="the exploration noise's standard deviation; actions are "
-                                                 "clipped to [-1, 1]", cap=True)
 
 
 def validate(alpha: Any = None, l: Any = None, delta: Any = None) -> None:

@@ -11,17 +11,23 @@ robot or one of the tasks, from the learner's ``nmrl.paper.env.EnvConfig``.
 trial. Every learner's config has these fields by inheriting it; the command line makes one option
 of each (the group :data:`GROUP`), ``options.check`` validates each by its declaration (the only check
 of a name such as ``--env`` or ``--physics``), and :meth:`EnvFields.check_env` what relates them.
+The package imports no JAX or MuJoCo until an environment is made: the declarations are read when
+a command line is built.
 """
 
 from __future__ import annotations
 
 import dataclasses
 
+from typing import TYPE_CHECKING
+
 from nmrl.options import Range, option
-from nmrl.paper.env import DEFAULT_STOP_PROB, MODEL_PATH, EnvConfig, HalfCheetah
+from nmrl.paper.control_step import DEFAULT_STOP_PROB
 from nmrl.physics import PHYSICS
-from nmrl.tasks.env import Task, TaskConfig, control_steps
 from nmrl.tasks.gym_v5 import TASKS, load_model
+
+if TYPE_CHECKING:
+    from nmrl.paper.env import EnvConfig
 
 #: the paper's robot (nmrl/paper/env.py), the default environment
 PAPER = "paper-cheetah"
@@ -56,6 +62,8 @@ class EnvFields:
 
     def env_config(self) -> EnvConfig:
         """The environment's own config (batched training: ``auto_reset``)."""
+        from nmrl.paper.env import EnvConfig
+
         return EnvConfig(control_dt=self.control_dt, stop_prob=self.stop_prob, auto_reset=True,
                          physics=self.physics, trial_s=self.trial_s, timestep=self.physics_timestep)
 
@@ -79,6 +87,8 @@ def check_env(name: str, env_config: EnvConfig) -> None:
     if given:
         raise ValueError(f"env={name!r} ends its episodes by its own rule and time limit and keeps its model's "
                          f"timestep: {', '.join(given)} {'is an option' if len(given) == 1 else 'are options'} of {PAPER} only")
+    from nmrl.tasks.env import control_steps
+
     control_steps(TASKS[name], env_config.control_dt)
 
 
@@ -88,6 +98,8 @@ def mj_model(name: str):
     if name == PAPER:
         import mujoco
 
+        from nmrl.paper.env import MODEL_PATH
+
         return mujoco.MjModel.from_xml_path(str(MODEL_PATH))
     return load_model(TASKS[name])
 
@@ -95,6 +107,9 @@ def mj_model(name: str):
 def make_env(name: str, env_config: EnvConfig):
     """The environment ``name`` (:data:`ENVS`): the paper's HalfCheetah with ``env_config``, or the task
     with ``env_config``'s control step, physics, threads and auto-reset (docs/tasks.md)."""
+    from nmrl.paper.env import HalfCheetah
+    from nmrl.tasks.env import Task, TaskConfig
+
     if name == PAPER:
         return HalfCheetah(env_config)
     check_env(name, env_config)

@@ -26,8 +26,6 @@ import importlib.util
 import pathlib
 import re
 
-import mujoco
-
 #: the episode length of every task's registration, in its own control steps
 MAX_EPISODE_STEPS = 1000
 
@@ -106,6 +104,8 @@ def load_model(spec: TaskSpec) -> mujoco.MjModel:
     the model is parsed without it and scaled after compiling by ``mj_setTotalmass`` and
     ``mj_setConst``, the replacement MuJoCo names, which gives every field of the model bit for bit
     (tests/test_tasks.py)."""
+    import mujoco  # not at import: the tasks' data are read without MuJoCo (a command line's --help)
+
     path = model_path(spec)
     text = path.read_text()
     m = _TOTAL_MASS.search(text)
