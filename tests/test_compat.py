@@ -29,8 +29,10 @@ from nmrl.runs import checkpoint, store
 DATA = pathlib.Path(__file__).resolve().parent / "data"
 #: metrics that depend on the machine's speed, not on the computation
 TIMING = {"wall_s", "steps_per_s"}
-#: metrics f021abf's code does not write (global norms of the summed pseudo-gradients and updates)
-ADDED = {f"{k}_{p}_{s}" for k in ("gnorm", "unorm") for p in ("theta", "v") for s in ("mean", "max")}
+#: metrics f021abf's code does not write (global norms of the summed pseudo-gradients and updates,
+#: the chunk's reward per ended trial)
+ADDED = {f"{k}_{p}_{s}" for k in ("gnorm", "unorm") for p in ("theta", "v") for s in ("mean", "max")} | {
+    "return_per_trial"}
 
 
 #: float32 rounding of another processor's XLA code (see the module docstring)
