@@ -119,7 +119,7 @@ def env_rollout(env, n_steps: int):
 def measure(batch: int, chunk_steps: int, rounds: int) -> dict:
     from nmrl.learners.ac_config import TrainConfig
     from nmrl.learners.ac_train import make_train
-    from nmrl.runs.driver import compile_chunk
+    from nmrl.runs.loop import compile_chunk
 
     cfg = TrainConfig(num_envs=batch, chunk_steps=chunk_steps, l=10, seed=0)
     trainer = make_train(cfg)

@@ -50,7 +50,7 @@ def _worker(modes: list[str], rounds: int, num_envs: int = NUM_ENVS, chunk_steps
     from nmrl.runs import sharding
     from nmrl.learners.ac_config import Hyper, TrainConfig
     from nmrl.learners.ac_train import make_train
-    from nmrl.runs.driver import compile_chunk
+    from nmrl.runs.loop import compile_chunk
 
     devs = jax.local_devices()
     configs = [TrainConfig(num_envs=num_envs, chunk_steps=chunk_steps, l=L, seed=s).resolved()

@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 from nmrl import cli
-from nmrl.runs import checkpoint, devices, driver as run
+from nmrl.runs import checkpoint, devices, driver as run, store
 from nmrl.experiments import sweep
 from nmrl.learners.ac_config import TrainConfig
 from nmrl.learners.ac_train import make_train
@@ -124,7 +124,7 @@ def test_compact_state_continues_like_a_run_from_those_parameters(tmp_path):
     reset_qpos = np.asarray(trainer.env.reset(jax.random.PRNGKey(0)).data.qpos)
     np.testing.assert_array_equal(np.asarray(ts.slots.env.data.qpos), np.broadcast_to(reset_qpos, (8, reset_qpos.size)))
     ts, m = jax.jit(trainer.chunk)(ts)
-    row = run.to_python(jax.device_get(m))
+    row = store.to_python(jax.device_get(m))
     _close([cont[1]], [row], "continued chunk")
     # and the compact resume's checkpoint holds the same parameters
     restored = checkpoint.restore(d, trainer)

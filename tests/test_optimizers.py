@@ -358,8 +358,8 @@ def test_resume_with_another_chain_is_refused(tmp_path, capsys):
     assert "--actor-opt 'sgd' (the run has 'clip:max_norm=10.0,sgd')" in err, err
     assert sorted(p.name for p in run.iterdir()) == before
     # the same chain in another spelling is the same run (the canonical form is compared)
-    from nmrl.runs import driver as run_mod
-    run_mod.given_changes(checkpoint.load_run_config(run), {"actor_opt": "clip:max_norm=10,sgd"}, run)
+    from nmrl.runs import resume
+    resume.given_changes(checkpoint.load_run_config(run), {"actor_opt": "clip:max_norm=10,sgd"}, run)
 
 
 def test_sweep_resume_with_another_chain_is_refused(tmp_path, capsys):

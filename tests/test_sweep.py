@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from nmrl import cli
-from nmrl.runs import checkpoint, driver as run
+from nmrl.runs import checkpoint, driver as run, store
 from nmrl.experiments import sweep
 from nmrl.learners.ac_config import TrainConfig
 from nmrl.learners.ac_train import make_train
@@ -53,7 +53,6 @@ def test_results_file_and_figure(swept, tmp_path, saved_figures):
         assert r["diverged"] == "False"
         assert checkpoint.latest_step(out / r["checkpoint"]) == 50
     assert (out / "fig3.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    from nmrl.runs import store  # the figure of these results draws their numbers (read here from the files)
 
     sweep.draw(out, store.read_csv(out / "results.csv"), path=tmp_path / "fig3.png")
     ax, ax2 = _fig3_axes(saved_figures)
@@ -214,8 +213,8 @@ def test_resume_keeps_a_diverged_point_frozen(swept, tmp_path):
     bad = sweep.point_dir(part, 3, 1)
     shutil.rmtree(bad / "checkpoints" / "50")
     rows = run.read_metrics(bad)
-    run.truncate_metrics(bad, 25)
-    run.append_metrics(bad, {**rows[-1], "diverged": True})
+    store.truncate_metrics(bad, 25)
+    store.append_metrics(bad, {**rows[-1], "diverged": True})
     before = run.read_metrics(bad)
     sweep.run_sweep(sweep.SweepSpec(ls=(99,), seeds=1, base=dataclasses.replace(BASE, steps=75)), part,
                     resume=True, progress=False, plot=False)

@@ -77,12 +77,12 @@ def ready(args: argparse.Namespace, check: Callable[[], T]) -> tuple[T, int | No
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from nmrl.runs import checkpoint, driver as run, store
+    from nmrl.runs import checkpoint, driver as run, errors, preflight, store
 
     def check() -> tuple[dict, object]:
         store.out_path(args.out)
         given, cfg = given_options(args), config_from_args(args)
-        run.check_config(cfg)
+        preflight.check_config(cfg)
         if not args.resume:
             check_iteration_budget(cfg)
         if args.step is not None and args.step < 0:
@@ -97,13 +97,13 @@ def cmd_train(args: argparse.Namespace) -> int:
     try:
         run.train(cfg, args.out, resume=args.resume, progress=not args.quiet, devices=n_dev,
                   given=given if args.resume else None, step=args.step)
-    except run.Diverged as e:
+    except errors.Diverged as e:
         print(f"nmrl: {e}", file=sys.stderr)
         return _exits.DIVERGED
-    except run.Stopped as e:
+    except errors.Stopped as e:
         status = e.exit_status
     except Exception as e:  # noqa: BLE001 - bad input, the disk, another writer, memory; several processes: a peer gone
-        return exit_status(args, e, (run.RunError, checkpoint.CheckpointError))
+        return exit_status(args, e, (errors.RunError, checkpoint.CheckpointError))
     try:
         rows = store.read_metrics(args.out)  # the run's, not only this session's
     except Exception:  # noqa: BLE001 - nothing of the run was written (stopped before its first chunk)
@@ -178,7 +178,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     from nmrl.experiments import sweep
-    from nmrl.runs import checkpoint, driver, store
+    from nmrl.runs import checkpoint, errors, store
 
     learner = get_learner(args.learner)
     field = learner.sweep_field
@@ -222,13 +222,13 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         sweep.run_sweep(spec, args.out, resume=args.resume, progress=not args.quiet,
                         checkpoint_every=args.checkpoint_every, group=args.group, devices=n_dev,
                         given=given_options(args, skip=sweep_skip(learner)) if args.resume else None)
-    except driver.Stopped as e:
+    except errors.Stopped as e:
         if e.rows or args.resume:
             print(f"nmrl: sweep stopped by signal {e.signum}; every active point was saved. Continue with: nmrl "
                   f"sweep --resume --out {args.out}", file=sys.stderr)
         return e.exit_status
     except Exception as e:  # noqa: BLE001 - bad input, the disk, another writer, memory; several processes: a peer gone
-        return exit_status(args, e, (sweep.SweepError, driver.RunError, checkpoint.CheckpointError, ValueError))
+        return exit_status(args, e, (sweep.SweepError, errors.RunError, checkpoint.CheckpointError, ValueError))
     if is_process_zero(args):
         out = pathlib.Path(args.out)
         wrote = [str(out / f) for f in (sweep.RESULTS_FILE, "fig3.png") if (out / f).is_file()]

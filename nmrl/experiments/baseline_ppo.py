@@ -35,7 +35,7 @@ continues from its newest checkpoint's parameters and normalizer (or, with no ``
 ``compact.npz``: the same arrays, so the same continuation) with a fresh Adam state, fresh
 environments (every trial starts anew) and a new PRNG stream (``seed`` folded with the resume
 count): statistically, not bitwise, the uninterrupted run. An uninterrupted run is exactly Brax's
-PPO. SIGINT/SIGTERM stop after the iteration in flight is saved (:class:`nmrl.runs.driver.Stopped`).
+PPO. SIGINT/SIGTERM stop after the iteration in flight is saved (:class:`nmrl.runs.errors.Stopped`).
 A failure ends ``nmrl baseline`` with one line and the exit status of every nmrl command
 (nmrl/runs/command.py).
 """
@@ -60,7 +60,8 @@ from nmrl.adapters import brax_env
 from nmrl.experiments import baseline_brax
 from nmrl.experiments.baseline_config import BaselineConfig, check_resume, load_config, stored, task_config
 from nmrl.options import MAX_EVAL_SECONDS
-from nmrl.runs import checkpoint, command, driver, parser, store
+from nmrl.runs import checkpoint, command, errors, loop, parser, preflight, store
+from nmrl.runs.resume import existing_step
 
 __all__ = ["run", "finished_step", "main"]
 
@@ -70,7 +71,7 @@ PROG = "nmrl baseline"
 class _Recorder:
     """The host side of one ``ppo.train`` call: sums the learning's rewards (``tally``, the sink of
     brax_env.Tally) and, after every iteration (Brax's ``policy_params_fn``), evaluates, checkpoints
-    and appends the metrics row; raises :class:`driver.Stopped` after the save when a signal came."""
+    and appends the metrics row; raises :class:`errors.Stopped` after the save when a signal came."""
 
     def __init__(self, cfg: BaselineConfig, out: pathlib.Path, step0: int, stop: Any, progress: bool):
         self.cfg, self.out, self.step0, self.stop, self.progress = cfg, out, step0, stop, progress
@@ -97,7 +98,7 @@ class _Recorder:
             return
         self._record(self.step0 + int(current_step), params)
         if self.stop.signal is not None:  # the signal guard's first signal: stop after this save
-            raise driver.Stopped(self.stop.signal, self.step0 + int(current_step), self.rows)
+            raise errors.Stopped(self.stop.signal, self.step0 + int(current_step), self.rows)
 
     def _record(self, step: int, params: Any, compile_s: float | None = None) -> None:
         now = time.perf_counter()
@@ -152,8 +153,8 @@ def run(cfg: BaselineConfig, out: str | os.PathLike, *, resume: bool = False, pr
     """Train (or, with ``resume``, continue) the PPO baseline in ``out``; returns the rows written.
 
     ``max_iterations`` stops after that many iterations of this call (for tests and chunked
-    sessions; the run continues with ``resume``). Raises driver.RunError for a bad ``out`` or a
-    resume with another config, driver.Stopped after SIGINT/SIGTERM (everything saved).
+    sessions; the run continues with ``resume``). Raises errors.RunError for a bad ``out`` or a
+    resume with another config, errors.Stopped after SIGINT/SIGTERM (everything saved).
     """
     out = pathlib.Path(out)
     cfg.validate(len(jax.local_devices()))  # bad values are named first, with or without Brax
@@ -164,7 +165,7 @@ def run(cfg: BaselineConfig, out: str | os.PathLike, *, resume: bool = False, pr
         saved = load_config(out)
         check_resume(cfg, saved, out)
         template = baseline_brax.initial_params(saved)
-        if driver.existing_step(out) is not None:
+        if existing_step(out) is not None:
             meta, params = checkpoint.restore_tree(out, template)
         elif checkpoint.has_compact(out):  # a fresh clone of an unfinished published run: the same parameters
             meta, params = checkpoint.restore_tree_compact(out, template)
@@ -173,7 +174,7 @@ def run(cfg: BaselineConfig, out: str | os.PathLike, *, resume: bool = False, pr
         else:
             rows = store.read_metrics(out)
             reached = f"its metrics reach {rows[-1]['step']:,} control steps" if rows else "it has no metrics"
-            raise driver.RunError(
+            raise errors.RunError(
                 f"{out}: no checkpoint (or compact.npz) to resume from, and the run is not finished "
                 f"({reached}, --num-timesteps is {cfg.num_timesteps:,}); a published seed keeps its "
                 f"parameters (compact.npz) only while it is unfinished")
@@ -186,8 +187,8 @@ def run(cfg: BaselineConfig, out: str | os.PathLike, *, resume: bool = False, pr
                                   "unix_time": time.time()})
         store.atomic_write_json(out / store.CONFIG_FILE, stored(cfg))
     else:
-        driver.fresh_out(out)
-        driver.create_dir(out)
+        preflight.fresh_out(out)
+        preflight.create_dir(out)
         store.atomic_write_json(out / store.CONFIG_FILE, stored(cfg))
         params = None
     spi = cfg.steps_per_iteration
@@ -199,7 +200,7 @@ def run(cfg: BaselineConfig, out: str | os.PathLike, *, resume: bool = False, pr
     ppo_train, _, _ = baseline_brax.brax_ppo()
     seed = cfg.seed if n_resume == 0 else int(jax.random.randint(
         jax.random.fold_in(jax.random.PRNGKey(cfg.seed), n_resume), (), 0, 2**31 - 1))
-    with driver.guarded() as guard:  # the command's signal guard, as every run of nmrl has
+    with loop.guarded() as guard:  # the command's signal guard, as every run of nmrl has
         guard.at("training")
         rec = _Recorder(cfg, out, step0, guard, progress)
         ppo_train.train(baseline_brax.environment(cfg), num_timesteps=left * spi, num_evals=left + 1, seed=seed,
@@ -251,11 +252,11 @@ def main(argv: list[str] | None = None) -> int:
             base = load_config(a.out) if a.resume else BaselineConfig()
         cfg = dataclasses.replace(base, **given)  # a resume refuses any change but num_timesteps (run)
         run(cfg, a.out, resume=a.resume, progress=not a.quiet, max_iterations=a.max_iterations)
-    except driver.Stopped as err:
+    except errors.Stopped as err:
         print(f"{PROG}: {err}; saved; continue with --resume", file=sys.stderr)
         return err.exit_status
     except Exception as err:  # noqa: BLE001 - bad input (Brax missing too), the disk, another writer; else a bug
-        status = command.exit_status(PROG, err, (ValueError, ImportError, driver.RunError, checkpoint.CheckpointError))
+        status = command.exit_status(PROG, err, (ValueError, ImportError, errors.RunError, checkpoint.CheckpointError))
         if status is None:
             raise
         return status

@@ -51,9 +51,11 @@ from typing import Sequence
 
 from nmrl import learners
 from nmrl.analysis import plots, stats
-from nmrl.runs import distributed as dist, driver, lock, store
+from nmrl.options import SEED_MAX
+from nmrl.runs import distributed as dist, driver, errors, lock, preflight, store
+from nmrl.runs.resume import existing_step, given_changes
 from nmrl.runs.signals import setting_up, stop_setup
-from nmrl.runs.driver import Stopped  # noqa: F401  (raised by run_sweep after a signal)
+from nmrl.runs.errors import Stopped  # noqa: F401  (raised by run_sweep after a signal)
 from nmrl.runs.points import slot_order, stack_trees  # noqa: F401  (the sweep's layout, nmrl/runs/points.py)
 
 SPEC_FILE = "sweep.json"
@@ -94,7 +96,7 @@ class SweepSpec:
 
     def validate(self) -> None:
         """ValueError naming the first bad value: the field, its values, the seed count, ``first``,
-        and every point's config held to the bounds of ``nmrl train`` (nmrl.runs.driver.check_config).
+        and every point's config held to the bounds of ``nmrl train`` (nmrl.runs.preflight.check_config).
         The points are not enumerated: their count is bounded by the memory pre-flight of
         :func:`run_sweep`."""
         learner = learners.of(self.base)
@@ -116,20 +118,20 @@ class SweepSpec:
         dup = sorted({l for l in self.ls if self.ls.count(l) > 1})
         if dup:
             raise ValueError(f"duplicate {f} values {dup}: each value may appear once")
-        if not isinstance(self.seeds, int) or isinstance(self.seeds, bool) or not 1 <= self.seeds <= driver.SEED_MAX + 1:
-            raise ValueError(f"seeds={self.seeds!r} is invalid: must be an integer in [1, {driver.SEED_MAX + 1}] (the "
+        if not isinstance(self.seeds, int) or isinstance(self.seeds, bool) or not 1 <= self.seeds <= SEED_MAX + 1:
+            raise ValueError(f"seeds={self.seeds!r} is invalid: must be an integer in [1, {SEED_MAX + 1}] (the "
                              f"seeds 0..seeds-1 are 32-bit PRNG seeds)")
         if not isinstance(self.seed0, int) or isinstance(self.seed0, bool) or \
-                not 0 <= self.seed0 <= driver.SEED_MAX + 1 - self.seeds:
+                not 0 <= self.seed0 <= SEED_MAX + 1 - self.seeds:
             raise ValueError(f"seed0={self.seed0!r} is invalid: must be an integer >= 0 with seed0 + seeds - 1 <= "
-                             f"{driver.SEED_MAX} (32-bit PRNG seeds)")
+                             f"{SEED_MAX} (32-bit PRNG seeds)")
         bad = [l for l in self.first if l not in self.ls]
         if bad or len(set(self.first)) != len(self.first):
             raise ValueError(f"first={list(self.first)} is invalid: the {f} values that run first must be "
                              f"distinct values of the sweep's {f} list {list(self.ls)}")
         for v in self.ls:  # the points differ in the value and the seed, whose bounds are checked above
             cfg = self.base if f is None else dataclasses.replace(self.base, **{f: v})
-            driver.check_config(dataclasses.replace(cfg, seed=0))  # the bounds of ``nmrl train``
+            preflight.check_config(dataclasses.replace(cfg, seed=0))  # the bounds of ``nmrl train``
 
     def _validate_overrides(self) -> None:
         """The listed points: distinct plain names, fields of the config other than the budget, the
@@ -156,7 +158,7 @@ class SweepSpec:
         configs = self.point_configs()
         for n, c in setting_up(zip(names, configs), len(names), step="checking the configs"):
             try:
-                driver.check_config(c)  # the bounds of ``nmrl train``
+                preflight.check_config(c)  # the bounds of ``nmrl train``
             except ValueError as e:
                 raise ValueError(f"point {n!r}: {e}") from None
         pts.check_one_program(names, [c.resolved() for c in setting_up(configs, len(configs), step="resolving the "
@@ -220,7 +222,7 @@ def write_results(out: pathlib.Path, spec: SweepSpec) -> list[dict]:
             **key, "seed": cfg.seed, "trials": last.get("trials", 0), "steps": last.get("step", 0),
             "avg_reward": stats.final_avg(m, "avg_reward"), "forward_speed": stats.final_avg(m, "forward_speed"),
             "diverged": bool(any(r["diverged"] for r in m)),
-            "checkpoint": os.path.relpath(d, out) if driver.existing_step(d) is not None else "",
+            "checkpoint": os.path.relpath(d, out) if existing_step(d) is not None else "",
         })
     store.write_csv(out / RESULTS_FILE, spec.columns(), rows)
     return rows
@@ -298,8 +300,8 @@ def _run_sweep(spec, out, resume, progress, keep, max_chunks, plot, checkpoint_e
                              f"--learner {learners.of(spec.base).name} would change it")
         if given:
             try:
-                driver.given_changes(base, given, out)
-            except driver.RunError as e:
+                given_changes(base, given, out)
+            except errors.RunError as e:
                 raise SweepError(str(e).replace("the run in", "the sweep in")) from e
         if spec.base.steps is not None or spec.base.trials is not None:  # the budget may be extended
             base = dataclasses.replace(base, steps=spec.base.steps, trials=spec.base.trials)
@@ -338,7 +340,7 @@ def _run_sweep(spec, out, resume, progress, keep, max_chunks, plot, checkpoint_e
     first = (dataclasses.replace(base, **{k: v for k, v in spec.overrides[0].items() if k != "name"})
              if spec.overrides else base)
     stop_setup()
-    env = driver.preflight_points(first, spec.count())
+    env = preflight.preflight_points(first, spec.count())
     stop_setup()
     names = spec.names()
     begun: list[bool] = []

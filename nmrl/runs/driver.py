@@ -7,7 +7,7 @@ paper's actor-critic is ``ac``): a run's config is of one learner, whose ``make`
 
 * :func:`train` -- one run (``nmrl train``): its N environments split over the local devices
   (``psum``-ed updates, nmrl/runs/sharding.py). A run whose parameters diverge stops with
-  :class:`Diverged` and keeps its last good checkpoint.
+  :class:`~nmrl.runs.errors.Diverged` and keeps its last good checkpoint.
 * :func:`run_points` -- P runs (the points of a sweep or study) as one compiled program
   (nmrl/runs/points.py: the points over the devices, one at a time per device). A diverged point
   is frozen at its last good checkpoint and the others go on; ``priority`` stages the points.
@@ -45,15 +45,13 @@ from nmrl.learners import heartbeat
 from nmrl.learners.contract import Config
 from nmrl.runs import checkpoint, distributed as dist, lock, sharding, signals, store
 from nmrl.runs import points as pts
-from nmrl.runs.errors import Diverged, OutOfMemory, RunError, Stopped  # noqa: F401
+from nmrl.runs.errors import RunError
 from nmrl.runs.layout import OneRun, Point, Points, begin_fresh, begin_resumed, num_shards
-from nmrl.runs.loop import (Progress, budget_done, budget_text, compile_chunk, compile_or_stop, drive,  # noqa: F401
-                            guarded, metrics_row, next_save, progress_table)
-from nmrl.runs.preflight import (SEED_MAX, allocate, check_config, create_dir, fresh_out, hold,  # noqa: F401
-                                 physics_timestep, preflight, preflight_points)
-from nmrl.runs.resume import BUDGET_FIELDS, existing_step, given_changes, load_resume  # noqa: F401
-from nmrl.runs.store import (CONFIG_FILE, METRICS_FILE, RESUMES_FILE, RUN_FILES, append_metrics,  # noqa: F401
-                             is_diverged, read_metrics, to_python, truncate_metrics)
+from nmrl.runs.loop import (Progress, budget_done, budget_text, compile_or_stop, drive, guarded, next_save,
+                            progress_table)
+from nmrl.runs.preflight import allocate, check_config, fresh_out, hold, preflight
+from nmrl.runs.resume import BUDGET_FIELDS, existing_step, load_resume
+from nmrl.runs.store import RUN_FILES, is_diverged, read_metrics
 
 
 
@@ -78,7 +76,7 @@ def train(cfg: Config, out: str | os.PathLike, *, resume: bool = False, progress
     Every refusal comes before anything is written. A budget change is recorded in ``config.json``,
     every resume in ``resumes.jsonl``.
 
-    Raises :class:`Diverged` when the parameters diverge, :class:`Stopped` after SIGINT/SIGTERM.
+    Raises :class:`~nmrl.runs.errors.Diverged` when the parameters diverge, :class:`~nmrl.runs.errors.Stopped` after SIGINT/SIGTERM.
     ``max_chunks`` stops after that many chunks (used by tests to interrupt a run).
     """
     out = pathlib.Path(out)
@@ -182,7 +180,7 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[C
     later stage that never ran) from the start. A diverged point stays frozen at its last good
     checkpoint. ``on_chunk()`` runs after every chunk; ``progress`` prints the layout, the compile
     time and (with ``table``) every point's latest metrics. SIGINT/SIGTERM stop the sweep after the
-    chunk in flight, every active point saved, with :class:`Stopped`. Returns the rows written.
+    chunk in flight, every active point saved, with :class:`~nmrl.runs.errors.Stopped`. Returns the rows written.
     ``before_start()`` runs once every check has passed and the chunk has compiled, before the
     points' files are written. ``out/points/`` may hold only these points and those named in
     ``known`` (points of the same experiment not run in this call, e.g. finished ones): any other

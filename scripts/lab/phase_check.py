@@ -62,7 +62,7 @@ def main(argv=None) -> int:
     import jax.numpy as jnp
     import numpy as np
 
-    from nmrl.runs import driver, points, store
+    from nmrl.runs import loop, points, store
     from nmrl.experiments import sweep
     from nmrl.analysis import stats
     from nmrl.learners.ac_config import Hyper, TrainConfig
@@ -110,7 +110,7 @@ def main(argv=None) -> int:
         for j, i in enumerate(slots):
             if i < 0 or done[i]:
                 continue
-            row = driver.metrics_row(cfgs[i], store.to_python({k: v[j] for k, v in m.items()}), wall,
+            row = loop.metrics_row(cfgs[i], store.to_python({k: v[j] for k, v in m.items()}), wall,
                                   points=int((~done).sum()))
             with open(_metrics(out, names[i]), "a") as f:
                 f.write(json.dumps(row) + "\n")
@@ -133,7 +133,7 @@ def _read(path: pathlib.Path) -> list[dict]:
 def summarize(args, names, out: pathlib.Path) -> int:
     import numpy as np
 
-    from nmrl.runs import driver, points, store
+    from nmrl.runs import loop, points, store
     from nmrl.experiments import sweep
     from nmrl.analysis import stats
 

@@ -87,7 +87,7 @@ def progress(src: pathlib.Path, spec: sweep.SweepSpec) -> dict:
             mean, half = stats.mean_ci95(np.array(got)) if len(got) == spec.seeds else (None, None)
             out["by_l"][str(l)][m] = {"mean": mean, "ci95": half, "seeds": vals}
     # rate: the points active in a chunk share its wall time, and steps_per_s already counts every
-    # one of them (nmrl.runs.driver.metrics_row(points=...))
+    # one of them (nmrl.runs.loop.metrics_row(points=...))
     recent = sorted((newest or newest_all).items())[-10:]
     out["rate_ctrl_steps_per_s"] = float(np.median([v[0] for _, v in recent])) if recent else None
     rate = out["rate_ctrl_steps_per_s"]
