@@ -125,10 +125,45 @@ def test_the_diagnosis_tables_endpoints_are_the_published_runs():
     _, doc = _pages()
     with open(RECORD.parent / "diagnosis" / "rows.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
-    assert len(rows) == 6
-    for variant in ("nmp_sigma0.4", "nmp_sigma0.16", "nmp_sigma1_fixed_std"):
+    assert len(rows) == 10
+    for variant in ("nmp_sigma0.4", "nmp_sigma0.16", "nmp_sigma1_fixed_std", "nmp_sigma1_clip0.52",
+                    "nmp_sigma1_corr0.01"):
         rs = sorted((r for r in rows if r["cell"] == f"dt0.02/{variant}"), key=lambda r: int(r["seed"]))
         det = ", ".join(f"{float(r['det_reward_per_s']):+.1f}".replace("+-", "-").replace("-", "\N{MINUS SIGN}")
                         for r in rs)
         assert det.replace("+", "") in doc.replace("+", ""), det
         assert all(float(r["det_forward_speed"]) < 1.0 for r in rs)
+
+
+def test_the_diagnosis_trust_region_and_noise_scales_are_the_published_runs():
+    """The variants' KL per second and clipped share (medians over iterations 2-16 of the medians over
+    seeds, from the published metrics.jsonl) and their forward speeds with the noise times k (the
+    published noise_scales.csv) are the page's; every variant's mean stands while its noise moves it."""
+    from nmrl.experiments import exploration2_diagnosis as diag
+
+    _, doc = _pages()
+    root = RECORD.parent / "diagnosis"
+    cells = ("dt0.02/nmp_sigma1_clip0.52", "dt0.02/nmp_sigma1_corr0.01")
+    summary = diag.summary(diag.trust_region(root, cells))
+    for cell in cells:
+        kl, clip = summary[cell]["kl_per_s"], summary[cell]["clip_frac"]
+        assert f"| {kl:.2f} | {clip:.3f} |" in doc, (cell, kl, clip)
+    with open(root / "noise_scales.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    for cell in cells:
+        speeds = [np.mean([float(r["forward_speed"]) for r in rows if r["cell"] == cell and float(r["noise_scale"]) == k])
+                  for k in (0.0, 0.25, 0.5, 1.0)]
+        assert ", ".join(f"{v:.2f}" for v in speeds) in doc, (cell, speeds)
+        assert speeds[0] < 0.5 and speeds[-1] > 1.0  # stands alone, moves with its noise
+
+
+def test_the_grids_noise_scales_quoted_beside_the_diagnosis_are_the_record():
+    """NMp(20)'s and white's mean forward speeds at k = 0, 0.25, 0.5, 1 (study 2's noise_scales.csv)."""
+    _, doc = _pages()
+    with open(RECORD / "noise_scales.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    for cell in ("grid/dt0.02/nmp", "grid/dt0.02/white"):
+        speeds = [np.mean([float(r["forward_speed"]) for r in rows if r["cell"] == cell and float(r["noise_scale"]) == k])
+                  for k in (0.0, 0.25, 0.5, 1.0)]
+        text = re.sub(r"\s+", " ", doc)
+        assert ", ".join(f"{v:.2f}" for v in speeds) in text, (cell, speeds)
