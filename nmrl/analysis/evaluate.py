@@ -300,7 +300,7 @@ def evaluate(
         if render:
             span = (len(det["pos"]) - 1) * config.control_dt  # the whole rollout (--seconds)
             every = strobe_every(span)
-            title = f"{run.name}, step {step}, deterministic policy, a pose every {every:g} s of {span:g} s"
+            title = f"{run.name}, step {step}, deterministic policy"  # the strobe adds its spacing and span
             plot_strobe(det["pos"], config.control_dt, stage / STROBE, every_s=every, span_s=span, title=title)
             write_gif(det["pos"], config.control_dt, stage / GIF)
             with atomic_path(stage / TRAJECTORY) as tmp:
