@@ -170,7 +170,7 @@ def test_the_progress_line_says_when_the_next_save_is_due(capsys):
 # ----------------------------------------------------------------------------- set-up
 
 
-@pytest.mark.slow  # 10,000 points: tens of seconds of set-up before this change; ~15 s now
+@pytest.mark.slow  # 10,000 points: about 15 s of set-up on the reference machine
 def test_a_long_set_up_says_how_far_it_is_and_a_sigterm_stops_it_within_seconds(tmp_path):
     pts = tmp_path / "points.json"
     pts.write_text(json.dumps([{"name": f"p{i}", "l": 1 + i % 5, "seed": i} for i in range(10_000)]))
