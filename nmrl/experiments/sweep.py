@@ -51,7 +51,7 @@ from typing import Sequence
 
 from nmrl import learners
 from nmrl.analysis import plots, stats
-from nmrl.options import SEED_MAX
+from nmrl.options import SEED_MAX, check_seed
 from nmrl.runs import distributed as dist, driver, errors, lock, preflight, store
 from nmrl.runs.resume import existing_step, given_changes
 from nmrl.runs.signals import setting_up, stop_setup
@@ -156,13 +156,20 @@ class SweepSpec:
         if dup:
             raise ValueError(f"duplicate point names {dup}: each point needs its own name")
         configs = self.point_configs()
+        # points that differ in the seed alone are checked and resolved once: the seed's own range
+        # (the run field's declaration) is checked per point
+        checked: dict = {}
         for n, c in setting_up(zip(names, configs), len(names), step="checking the configs"):
             try:
-                preflight.check_config(c)  # the bounds of ``nmrl train``
+                check_seed(c.seed)
+                seedless = dataclasses.replace(c, seed=0)
+                if seedless not in checked:
+                    preflight.check_config(seedless)  # the bounds of ``nmrl train``
+                    checked[seedless] = seedless.resolved()
             except ValueError as e:
                 raise ValueError(f"point {n!r}: {e}") from None
-        pts.check_one_program(names, [c.resolved() for c in setting_up(configs, len(configs), step="resolving the "
-                                                                                                  "configs")])
+        pts.check_one_program(names, [checked[dataclasses.replace(c, seed=0)]
+                                      for c in setting_up(configs, len(configs), step="resolving the configs")])
 
     def stages(self) -> list[list[int]] | None:
         """Point indices by stage: the points of ``first`` (every seed), then the rest."""
