@@ -1,4 +1,4 @@
-"""One config model: a run's settings are each declared and checked in one place (issue 66).
+"""One config model: a run's settings are each declared and checked in one place.
 
 * the environment (``--env``, ``--physics``, the control step, the stop rule, the trial length, the
   timestep) is :class:`nmrl.tasks.EnvFields`: every learner's config inherits the same declarations,
