@@ -17,11 +17,11 @@ interleaved round by round so that a background load touches them alike:
   points per device) and threads (``cores``, ``mujoco.batch`` with the PD law): the share of the
   limit the program reaches;
 * (d) the native PPO at the exploration study's settings (64 environments, value 2x64), one
-  iteration (rollout + update) on C against MJX, at 20 and 5 ms;
+  iteration (rollout + update) on C against MJX, at 20 and 5 ms (``--quick``: 5 ms), with 4
+  minibatches per iteration (the study's 32 only change how many);
 * (e) the second exploration study's grid layout at 2.5 ms: 8 seeds of that PPO on C over the
   devices, each device's seeds vmapped together (``--group 8``) against a seed at a time, one
-  iteration with the study's minibatches of 512 unrolls of 0.4 s (fewer of them per iteration:
-  4, ``--quick`` 1; the study's 32 only change how many).
+  iteration of one minibatch of the study's 512 unrolls of 0.4 s (``--quick``: 128).
 
 Control steps per second of the whole machine; compile times apart. ``--quick`` fewer rounds and
 steps; ``smoke`` the smallest setting. ``run(quick, smoke=False) -> dict``;
@@ -155,8 +155,8 @@ def _worker(quick: bool, smoke: bool) -> dict:
 
     # (d) native PPO, one iteration (rollout + update), 64 environments, value 2x64, at 20 and 5 ms
     out["d_ppo"] = {}
-    for dt in (0.02, 0.005):
-        mb = 2 if smoke else 4 if quick else 32
+    for dt in (0.005,) if quick else (0.02, 0.005):
+        mb = 2 if smoke else 4
         ppo = {}
         for physics in ("c", "mjx"):
             cfg = PPOConfig(num_envs=ENV_BATCH, control_dt=dt, reward_scale=dt / 0.02, value_layers=2,
@@ -218,8 +218,8 @@ def _ppo_group(n_dev: int, cores: int, rounds: int, quick: bool, smoke: bool) ->
     from nmrl.paper.env import HalfCheetah
 
     seeds, dt = (2, 0.02) if smoke else (8, 0.0025)
-    cfg = PPOConfig(num_envs=4 if smoke else ENV_BATCH, batch_size=4 if smoke else 512,
-                    num_minibatches=1 if smoke or quick else 4, control_dt=dt, reward_scale=dt / 0.02,
+    cfg = PPOConfig(num_envs=4 if smoke else ENV_BATCH, batch_size=4 if smoke else 128 if quick else 512,
+                    num_minibatches=1, control_dt=dt, reward_scale=dt / 0.02,
                     value_layers=2, value_width=64, physics="c", physics_timestep=0.0025, trial_s=5.0).resolved()
     tr = make_ppo(cfg, HalfCheetah(dataclasses.replace(cfg.env_config(), threads=max(1, cores // n_dev))))
     calls, compiles = {}, {}
