@@ -514,6 +514,8 @@ def test_return_per_trial_is_the_chunks_reward_over_its_ended_trials():
     (["ppo", "--seed", "4294967296"], "seed=4294967296 is invalid: must be an integer in [0, 4294967295]"),
     (["ppo", "--seed", "-1"], "seed=-1 is invalid: must be an integer in [0, 4294967295]"),
     (["eval", "RUN", "--seconds", "601"], "--seconds=601.0 is invalid: must be in (0, 600]"),
+    (["ppo", "--grace-s", "-1"], "--grace-s='-1' is invalid: the grace is a positive, finite number of seconds"),
+    (["ppo", "--grace-s", "inf"], "--grace-s='inf' is invalid"),
 ])
 def test_bad_baseline_values_are_one_line(tmp_path, argv, message):
     """``nmrl baseline`` answers a bad option as ``nmrl train`` does: one line, status 2, nothing written."""

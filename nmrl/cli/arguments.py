@@ -39,17 +39,7 @@ from nmrl.cli.commands import cmd_eval, cmd_sweep, cmd_train, sweep_skip
 from nmrl.cli.config_options import add_config_options, field_type, get_learner, learner_names
 from nmrl.cli.exploration_options import add_exploration_options
 from nmrl.runs import devices as _devices
-from nmrl.runs import signals as _signals
-from nmrl.runs.parser import OneLineParser
-
-
-def _grace_option(p: argparse.ArgumentParser) -> None:
-    """``--grace-s``: how long a first SIGTERM/SIGINT leaves the chunk in flight (nmrl/runs/signals.py);
-    read as text and checked with ``NMRL_GRACE_S`` by the command (one line, status 2)."""
-    p.add_argument("--grace-s", default=None, metavar="SECONDS",
-                   help=f"after a first SIGTERM/SIGINT, the seconds the chunk in flight has to finish and be "
-                        f"saved before the run stops with its last saved chunk (default: ${_signals.GRACE_ENV}, "
-                        f"else {_signals.DEFAULT_GRACE_S:g}: inside SLURM's default KillWait of 30 s)")
+from nmrl.runs.parser import OneLineParser, add_grace_option
 
 
 def _learner_option(p: argparse.ArgumentParser, learner) -> None:
@@ -96,7 +86,7 @@ def build_parser(learner=None) -> argparse.ArgumentParser:
                    help="with --resume: the checkpoint step to continue from (default: the newest)")
     _devices_option(p)
     p.add_argument("--quiet", action="store_true", help="no progress display")
-    _grace_option(p)
+    add_grace_option(p)
     add_distributed_options(p)
     p.set_defaults(func=cmd_train)
 
@@ -133,7 +123,7 @@ def build_parser(learner=None) -> argparse.ArgumentParser:
     p.add_argument("--out", required=True)
     p.add_argument("--resume", action="store_true")
     p.add_argument("--quiet", action="store_true")
-    _grace_option(p)
+    add_grace_option(p)
     add_distributed_options(p)
     p.set_defaults(func=cmd_sweep)
 

@@ -60,7 +60,7 @@ from nmrl.adapters import brax_env
 from nmrl.experiments import baseline_brax
 from nmrl.experiments.baseline_config import BaselineConfig, check_resume, load_config, stored, task_config
 from nmrl.options import MAX_EVAL_SECONDS
-from nmrl.runs import checkpoint, command, errors, loop, parser, preflight, store
+from nmrl.runs import checkpoint, command, errors, loop, parser, preflight, signals, store
 from nmrl.runs.resume import existing_step
 
 __all__ = ["run", "finished_step", "main"]
@@ -149,11 +149,13 @@ def finished_step(out: str | os.PathLike, cfg: BaselineConfig) -> int | None:
 
 
 def run(cfg: BaselineConfig, out: str | os.PathLike, *, resume: bool = False, progress: bool = True,
-        max_iterations: int | None = None) -> list[dict]:
+        max_iterations: int | None = None, grace_s: float | None = None) -> list[dict]:
     """Train (or, with ``resume``, continue) the PPO baseline in ``out``; returns the rows written.
 
     ``max_iterations`` stops after that many iterations of this call (for tests and chunked
-    sessions; the run continues with ``resume``). Raises errors.RunError for a bad ``out`` or a
+    sessions; the run continues with ``resume``). ``grace_s``: after a first SIGINT/SIGTERM, the
+    seconds the iteration in flight has to finish and be saved before the process stops with its
+    last saved iteration (nmrl/runs/signals.py; None: it waits for the iteration). Raises errors.RunError for a bad ``out`` or a
     resume with another config, errors.Stopped after SIGINT/SIGTERM (everything saved).
     """
     out = pathlib.Path(out)
@@ -201,11 +203,13 @@ def run(cfg: BaselineConfig, out: str | os.PathLike, *, resume: bool = False, pr
     seed = cfg.seed if n_resume == 0 else int(jax.random.randint(
         jax.random.fold_in(jax.random.PRNGKey(cfg.seed), n_resume), (), 0, 2**31 - 1))
     with loop.guarded() as guard:  # the command's signal guard, as every run of nmrl has
+        guard.grace_s = grace_s
         guard.at("training")
         rec = _Recorder(cfg, out, step0, guard, progress)
-        ppo_train.train(baseline_brax.environment(cfg), num_timesteps=left * spi, num_evals=left + 1, seed=seed,
-                        restore_params=params, policy_params_fn=rec.on_params,
-                        **baseline_brax.train_kwargs(cfg, rec.tally))
+        with guard.chunk():  # Brax's iterations: what a grace that ran out cuts (each saves in _record)
+            ppo_train.train(baseline_brax.environment(cfg), num_timesteps=left * spi, num_evals=left + 1, seed=seed,
+                            restore_params=params, policy_params_fn=rec.on_params,
+                            **baseline_brax.train_kwargs(cfg, rec.tally))
     return rec.rows
 
 
@@ -228,6 +232,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="stop after this many PPO iterations of this call (continue with --resume)")
     p.add_argument("--devices", default="auto", help="CPU devices Brax splits the environments over")
     p.add_argument("--quiet", action="store_true")
+    parser.add_grace_option(p)
     e = sub.add_parser("eval", help="evaluate a PPO baseline checkpoint like nmrl eval (JSON, strobe, GIF)")
     e.add_argument("run")
     e.add_argument("--step", type=parser.integer, default=None)
@@ -245,13 +250,14 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         if a.max_iterations is not None and a.max_iterations < 1:
             raise ValueError(f"--max-iterations={a.max_iterations} is invalid: must be >= 1")
+        grace_s = signals.grace_of(a.grace_s)
         given = parser.given_fields(a, BaselineConfig)
         if a.env is not None and not a.resume:
             base = task_config(a.env)  # the task's own control step and time limit
         else:
             base = load_config(a.out) if a.resume else BaselineConfig()
         cfg = dataclasses.replace(base, **given)  # a resume refuses any change but num_timesteps (run)
-        run(cfg, a.out, resume=a.resume, progress=not a.quiet, max_iterations=a.max_iterations)
+        run(cfg, a.out, resume=a.resume, progress=not a.quiet, max_iterations=a.max_iterations, grace_s=grace_s)
     except errors.Stopped as err:
         print(f"{PROG}: {err}; saved; continue with --resume", file=sys.stderr)
         return err.exit_status

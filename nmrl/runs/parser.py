@@ -10,7 +10,8 @@ Subparsers made by ``add_subparsers`` are of the same class, so every command an
 name; ``int()`` would refuse them too, this says what is allowed). :func:`add_declared` makes the
 option of a field declared with ``nmrl.options.option`` (its spelling, type and help from the
 declaration), for every command that takes such a field; :func:`add_fields` every option of a
-config at once, and :func:`given_fields` reads back those given.
+config at once, and :func:`given_fields` reads back those given. :func:`add_grace_option` is every
+running command's ``--grace-s``.
 """
 
 from __future__ import annotations
@@ -21,6 +22,8 @@ import re
 import sys
 import typing
 from typing import NoReturn
+
+from nmrl.runs import signals
 
 _INVALID = re.compile(r"argument (\S+?)(?:/\S+)?: invalid (\w+) value: (.*)$")
 _TYPES = {"int": "an integer", "integer": "an integer", "float": "a number", "_bool": "true or false",
@@ -118,3 +121,13 @@ def given_fields(args: argparse.Namespace, cls: type) -> dict:
 
     return {name: tuple(v) if isinstance(v, list) else v for name, decl in options.declarations(cls).items()
             if decl.cli and (v := getattr(args, name, None)) is not None}
+
+
+def add_grace_option(p: argparse.ArgumentParser) -> None:
+    """``--grace-s``: how long a first SIGTERM/SIGINT leaves the chunk in flight (nmrl/runs/signals.py);
+    read as text and checked with ``NMRL_GRACE_S`` by the command (``signals.grace_of``: one line,
+    status 2)."""
+    p.add_argument("--grace-s", default=None, metavar="SECONDS",
+                   help=f"after a first SIGTERM/SIGINT, the seconds the chunk in flight has to finish and be "
+                        f"saved before the run stops with its last saved chunk (default: ${signals.GRACE_ENV}, "
+                        f"else {signals.DEFAULT_GRACE_S:g}: inside SLURM's default KillWait of 30 s)")
