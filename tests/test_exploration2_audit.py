@@ -167,3 +167,68 @@ def test_the_grids_noise_scales_quoted_beside_the_diagnosis_are_the_record():
                   for k in (0.0, 0.25, 0.5, 1.0)]
         text = re.sub(r"\s+", " ", doc)
         assert ", ".join(f"{v:.2f}" for v in speeds) in text, (cell, speeds)
+
+
+STAGES = RECORD.parent / "diagnosis" / "stages"
+
+
+def _stages() -> list[dict]:
+    with open(STAGES / "stages.csv", newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def test_the_stages_training_speeds_are_the_runs_metrics_and_the_page_quotes_every_stage():
+    """stages.csv's training speed at each stage is the published run's metrics.jsonl at that step
+    (iteration x 5,120 control steps at 20 ms); the study page's table row of each stage holds the
+    three speeds of both seeds of each arm, to two decimals."""
+    _, doc = _pages()
+    rows = _stages()
+    assert {(r["arm"], r["point"]) for r in rows} == {(a, p) for a in ("white", "nmp") for p in ("s0", "s1")}
+    for r in rows:
+        log = [json.loads(x) for x in (STAGES / "dt0.02" / r["arm"] / "points" / r["point"] / "metrics.jsonl")
+               .read_text().splitlines() if x.strip()]
+        step = int(r["iteration"]) * 5120
+        assert int(r["step"]) == step
+        assert float(r["train_forward_speed"]) == pytest.approx(next(m["forward_speed"] for m in log if m["step"] == step))
+    quoted = {(8, "white"), (12, "white"), (14, "white"), (16, "white"), (8, "nmp"), (12, "nmp"), (16, "nmp"),
+              (20, "nmp"), (24, "nmp"), (28, "nmp"), (32, "nmp")}
+    for it, arm in quoted:
+        pair = sorted((r for r in rows if r["arm"] == arm and int(r["iteration"]) == it), key=lambda r: r["point"])
+        for key in ("train_forward_speed", "det_forward_speed", "noisy_forward_speed"):
+            cell = ", ".join(f"{abs(float(r[key])):.2f}" if abs(float(r[key])) < 0.005 else f"{float(r[key]):.2f}"
+                             for r in pair)
+            assert f"| {cell} |" in doc, (arm, it, key, cell)
+
+
+def test_the_stages_show_each_mean_walking_last_and_nmp_at_half_the_pace():
+    """The claims the page and README draw from stages.csv: white's mean stands (< 0.35 m/s) at
+    iterations 10-14 while its exploring policy trains at >= 1 m/s, and walks (>= 1 m/s) in one seed
+    at 16; NMp's mean stands at 16-28 and walks in one seed at 32, when its exploring policy trains
+    faster than white's did at 16."""
+    rows = _stages()
+
+    def at(arm, it, key):
+        return [float(r[key]) for r in sorted(rows, key=lambda r: r["point"]) if r["arm"] == arm and int(r["iteration"]) == it]
+
+    for it in (10, 12, 14):
+        assert max(at("white", it, "det_forward_speed")) < 0.35 and min(at("white", it, "train_forward_speed")) >= 1.0
+    assert sum(v >= 1.0 for v in at("white", 16, "det_forward_speed")) == 1
+    for it in (16, 20, 24, 28):
+        assert max(at("nmp", it, "det_forward_speed")) < 0.3
+    assert sum(v >= 1.0 for v in at("nmp", 32, "det_forward_speed")) == 1
+    assert min(at("nmp", 28, "train_forward_speed")) > max(at("white", 16, "train_forward_speed"))
+    assert min(at("nmp", 32, "noisy_forward_speed")) > max(at("white", 16, "noisy_forward_speed"))
+
+
+def test_the_last_stages_deterministic_endpoint_recomputes_from_the_published_state():
+    """NMp seed 1's deterministic endpoint after 32 iterations, recomputed from its published compact
+    state with the study's endpoint (8 rollouts of 10 s from perturbed starts), is stages.csv's."""
+    from nmrl.analysis import endpoint
+    from nmrl.runs import checkpoint
+
+    row = next(r for r in _stages() if r["arm"] == "nmp" and r["point"] == "s1" and r["iteration"] == "32")
+    meta, config, params = checkpoint.restore_params(STAGES / "dt0.02" / "nmp" / "points" / "s1")
+    assert int(meta["step"]) == int(row["step"])
+    e = endpoint.deterministic_endpoint(config, params, seconds=10.0, rollouts=8, start_noise=0.05, seed=0)
+    assert e["reward_per_s"] == pytest.approx(float(row["det_reward_per_s"]), rel=1e-4)
+    assert float(np.mean(e["forward_speed"])) == pytest.approx(float(row["det_forward_speed"]), rel=1e-3, abs=1e-4)
