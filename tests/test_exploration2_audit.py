@@ -232,3 +232,20 @@ def test_the_last_stages_deterministic_endpoint_recomputes_from_the_published_st
     e = endpoint.deterministic_endpoint(config, params, seconds=10.0, rollouts=8, start_noise=0.05, seed=0)
     assert e["reward_per_s"] == pytest.approx(float(row["det_reward_per_s"]), rel=1e-4)
     assert float(np.mean(e["forward_speed"])) == pytest.approx(float(row["det_forward_speed"]), rel=1e-3, abs=1e-4)
+
+
+def test_the_policy_shape_ranges_quoted_are_the_published_table():
+    """policy_shape.csv (scripts/lab/policy_shape.py over the grid's 20 ms white and NMp policies):
+    the page's ranges of the noise scale's variation over time, the mean action's and the noise's
+    standard deviations are the table's, and no policy's noise scale varies by more than 0.15 of its
+    mean along its gait."""
+    _, doc = _pages()
+    with open(RECORD.parent / "diagnosis" / "policy_shape.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    for arm in ("nmp", "white"):
+        rs = [r for r in rows if r["cell"].endswith(f"/{arm}")]
+        assert len(rs) == 8
+        for key in ("std_cv", "mean_action_sd", "noise_action_sd"):
+            v = [float(r[key]) for r in rs]
+            assert f"{min(v):.2f}–{max(v):.2f}" in doc, (arm, key)
+        assert max(float(r["std_cv"]) for r in rs) < 0.15
