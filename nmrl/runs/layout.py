@@ -4,7 +4,8 @@ A :class:`Point` is one run of the session (its directory, config, trainer and s
 :func:`begin_fresh` and :func:`begin_resumed` write what it starts with, once every check has
 passed. Two layouts hold the points' states on the devices for the chunk loop
 (nmrl/runs/loop.py), each compiling the chunk, running it for the active points and handing out
-the states to checkpoint and the counters the loop decides by (several processes: gathered):
+the states to checkpoint and the counters the loop decides by (several processes: gathered), and
+saying where the points are (``banner``, the session's first line; ``chunk_name``, its compile line):
 
 * :class:`OneRun` (``nmrl train``): one run, its N environments split over the local devices
   (:func:`num_shards`; ``psum``-ed updates, nmrl/runs/sharding.py), of every process in a
@@ -113,6 +114,16 @@ class OneRun:
             program, self.place = trainer.chunk, jax.device_put
         self.ts = self.place(p.ts)  # committed inputs: no second, hidden compile of the chunk
         self.program = program
+        self.cfg = p.cfg
+        #: the chunk as the line giving its compile time names it
+        self.chunk_name = f"the training chunk ({p.cfg.num_envs} environments on {n_dev} device(s))"
+
+    def banner(self) -> str:
+        """The line saying where the run's environments are."""
+        n, n_dev = self.cfg.num_envs, self.n_dev
+        procs = f", {jax.process_count()} processes" if dist.active() else ""
+        return (f"train: {n} environments on {n_dev} device(s), {n // n_dev} per device "
+                f"({len(jax.local_devices())} local {jax.local_devices()[0].platform} device(s){procs})")
 
     def compile(self) -> float:
         self.chunk, compile_s = compile_chunk(self.program, self.ts)
@@ -147,6 +158,17 @@ class Points:
         self.program = pts.points_program(ps[0].trainer.chunk, n_dev, group, devices=devices)
         self.per_dev = len(self.slots) // n_dev
         self._host = None  # the host copy of the states gathered for this chunk's saves (several processes)
+        self.num_points, self.group, self.num_envs = len(ps), group, ps[0].cfg.num_envs
+        #: the chunk as the line giving its compile time names it
+        self.chunk_name = "the sweep chunk"
+
+    def banner(self) -> str:
+        """The line saying where the points are and how each device steps them."""
+        n, group = self.num_envs, self.group
+        return (f"sweep: {self.num_points} points x {n} environments on {self.n_dev} "
+                f"{jax.local_devices()[0].platform} device(s), {self.per_dev} point(s) per device stepped "
+                f"{'one at a time' if group == 1 else f'in vmapped groups of {group}'} "
+                f"({n * min(group, self.per_dev)} environments per device at a time)")
 
     def _place(self, tree):
         return pts.place_points(tree, self.n_dev, devices=self.devices)
