@@ -128,3 +128,28 @@ def test_the_pages_detectable_differences_are_the_noncentral_t():
 
         d = next(d for d in range(1, 200) if power(d) >= 0.8)
         assert f"{label} {d}" in doc, (label, d)
+
+
+def test_the_20_ms_cells_progress_numbers_are_the_published_rows():
+    """The Progress section's description of the finished 20 ms cell: per arm the mean (SD) of the
+    deterministic endpoint and of the AUC over its 8 seeds, recomputed with NumPy from rows.csv, and
+    the range of forward speeds of the walking runs (the one that does not walk named apart)."""
+    import csv
+
+    path = REPO / "results" / "thesis_ac" / "rows.csv"
+    with open(path, newline="") as fh:
+        rows = [r for r in csv.DictReader(fh) if r["cell"] == "grid/dt0.02"]
+    if len(rows) < 24:
+        pytest.skip("the 20 ms cell is not published in full")
+    doc = _doc()
+    speeds = []
+    for arm in ("stationary", "p0.1s", "p0.2s"):
+        rs = [r for r in rows if r["point"].rsplit("_s", 1)[0] == arm]
+        assert len(rs) == 8
+        for key in ("det_reward_per_s", "auc_reward_per_s"):
+            v = np.array([float(r[key]) for r in rs])
+            assert f"{v.mean():.1f} ({v.std(ddof=1):.1f})" in doc, (arm, key)
+        speeds += [float(r["det_forward_speed"]) for r in rs]
+    walking = sorted(v for v in speeds if v >= 1.0)
+    assert len(walking) == 23 and f"{walking[0]:.2f}–{walking[-1]:.2f} m/s" in doc
+    assert f"({min(speeds):.2f} m/s)" in doc
