@@ -15,6 +15,7 @@ import io
 import json
 import os
 import pathlib
+import re
 import shutil
 import signal
 import subprocess
@@ -492,6 +493,7 @@ def test_progress_eta_after_resume_uses_this_sessions_speed(capsys):
     row = {"step": 75, "trials": 3, "total_steps": 600, "steps_per_s": 60.0, "avg_reward": -0.5,
            "forward_speed": 0.0}
     bar.update(row)
+    bar.close()
     line = capsys.readouterr().err.strip()
     assert line.startswith("[ 75.0%]") and line.endswith("ETA 10s"), line
     assert "step 75 of 100 per env (600 in all" in line, line  # --steps counts per environment
@@ -532,3 +534,25 @@ def test_bad_baseline_values_are_one_line(tmp_path, argv, message):
     assert rc == 2 and stdout == "" and len(lines) == 1 and lines[0].startswith("nmrl baseline"), err
     assert message in lines[0]
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_long_chunk_without_heartbeats_gets_a_line_every_tick(capsys, monkeypatch):
+    """Without a terminal, a chunk that shows no line for TICK_S seconds (no heartbeat: e.g. PPO on
+    MJX) gets one with its time so far and, after the first chunk, the last chunk's time; a closed
+    bar prints nothing more."""
+    import time
+
+    monkeypatch.setattr(loop, "TICK_S", 0.3)
+    cfg = TrainConfig(num_envs=8, chunk_steps=25, steps=100)
+    bar = loop.Progress(cfg, True)
+    time.sleep(1.2)
+    first = [l for l in capsys.readouterr().err.splitlines() if "the chunk has run" in l]
+    assert first and "last chunk" not in first[0], first
+    bar.update({"step": 25, "trials": 1, "total_steps": 200, "steps_per_s": 20.0, "avg_reward": 0.0,
+                "forward_speed": 0.0, "wall_s": 1.2})
+    time.sleep(1.2)
+    bar.close()
+    later = [l for l in capsys.readouterr().err.splitlines() if "the chunk has run" in l]
+    assert later and all(re.search(r"the chunk has run \d+ s \(the last chunk took \d+ s\)$", l) for l in later), later
+    time.sleep(0.8)
+    assert "the chunk has run" not in capsys.readouterr().err

@@ -163,6 +163,7 @@ def test_the_progress_line_says_when_the_next_save_is_due(capsys):
     bar = loop.Progress(TrainConfig(num_envs=8, chunk_steps=25, steps=100), True, every=2)
     bar.update({"step": 25, "trials": 3, "total_steps": 200, "steps_per_s": 60.0, "avg_reward": -0.5,
                 "forward_speed": 0.0, "wall_s": 7.0})
+    bar.close()
     line = capsys.readouterr().err.strip()
     assert len(line.splitlines()) == 1 and "save" in line and "step 50 " in line and "~7 s" in line, line
 

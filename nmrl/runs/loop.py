@@ -26,7 +26,9 @@ from __future__ import annotations
 
 import contextlib
 import sys
+import threading
 import time
+import weakref
 from typing import Callable, Iterator, Sequence
 
 import jax
@@ -125,6 +127,8 @@ def next_save(step: int, chunk_steps: int, every: int, wall_s: float) -> str:
 
 #: the least time between two lines of a chunk's heartbeat [s]
 BEAT_S = 10.0
+#: without a terminal, the longest time a chunk in flight goes without a line [s] (:class:`Progress`)
+TICK_S = 30.0
 
 
 class Progress:
@@ -132,7 +136,10 @@ class Progress:
 
     ``done0`` is where this session started (a resumed run): the ETA extrapolates this session's
     own speed, not the run's whole progress over this session's time. Each line also says when the
-    next checkpoint is due (a save every ``every`` chunks, :func:`next_save`).
+    next checkpoint is due (a save every ``every`` chunks, :func:`next_save`). Without a terminal a
+    chunk that runs longer than :data:`TICK_S` without a line (no heartbeat: a program without host
+    callbacks, e.g. PPO on MJX, whose compile stays cacheable) gets one every :data:`TICK_S` s with
+    its time so far and the last chunk's; on a terminal the bar's clock moves by itself.
     """
 
     def __init__(self, cfg: Config, enabled: bool, done0: int = 0, every: int = 1):
@@ -140,7 +147,12 @@ class Progress:
         self.every = every
         self.enabled = enabled
         self.rich = enabled and sys.stderr.isatty()
-        self.t0 = self.t_beat = time.time()
+        self.t0 = self.t_beat = self.t_chunk = self.t_line = time.time()
+        self.last_chunk_s: float | None = None
+        self._closed = threading.Event()
+        if enabled and not sys.stderr.isatty():
+            threading.Thread(target=type(self)._tick, args=(weakref.ref(self), self._closed), name="nmrl-progress",
+                             daemon=True).start()
         self.total = cfg.steps if cfg.steps is not None else cfg.trials
         self.frac0 = min(done0 / self.total, 1.0)
         if self.rich:
@@ -169,11 +181,28 @@ class Progress:
                 f"({row['avg_reward'] / cfg.control_dt:+.1f}/s{ret})  speed {row['forward_speed']:+.2f} m/s")
         if done < self.total and "wall_s" in row:  # the last chunk's save is the end
             text += f"  {next_save(row['step'], cfg.chunk_steps, self.every, row['wall_s'])}"
+        now = time.time()
+        self.last_chunk_s, self.t_chunk, self.t_line = now - self.t_chunk, now, now
         if self.rich:
             self.bar.update(self.task, completed=min(done, self.total), description=text)
         else:
             frac = min(done / self.total, 1.0)
             print(f"[{100 * frac:5.1f}%] {text}  ETA {self.eta(frac):,.0f}s", file=sys.stderr, flush=True)
+
+    @staticmethod
+    def _tick(ref: "weakref.ref[Progress]", closed: threading.Event) -> None:
+        """The plain line's clock (class docstring): a line when the chunk in flight has shown none
+        for :data:`TICK_S` seconds; it ends with :meth:`close` or with the bar itself."""
+        while not closed.wait(min(1.0, TICK_S)):
+            bar = ref()
+            if bar is None:
+                return
+            now = time.time()
+            if now - bar.t_line >= TICK_S:
+                bar.t_line = now
+                last = f" (the last chunk took {bar.last_chunk_s:,.0f} s)" if bar.last_chunk_s is not None else ""
+                print(f"  the chunk has run {now - bar.t_chunk:,.0f} s{last}", file=sys.stderr, flush=True)
+            del bar
 
     def beat(self, stage: str, done: int, n: int) -> None:
         """Where the chunk in flight is (nmrl/learners/heartbeat.py: a PPO iteration's unrolls and
@@ -181,7 +210,7 @@ class Progress:
         now = time.time()
         if not self.enabled or now - self.t_beat < BEAT_S:
             return
-        self.t_beat = now
+        self.t_beat = self.t_line = now
         text = f"in the chunk: {stage} {done}/{n} ({'unrolls' if stage == 'rollout' else 'epochs'})"
         if self.rich:
             self.bar.update(self.task, description=text)
@@ -189,6 +218,7 @@ class Progress:
             print(f"  {text}", file=sys.stderr, flush=True)
 
     def close(self) -> None:
+        self._closed.set()
         if self.rich:
             self.bar.stop()
 
