@@ -181,11 +181,11 @@ def seed_from(published: pathlib.Path, d: pathlib.Path) -> bool:
     sweep); True if done."""
     if (d / "sweep.json").exists() or not (published / "sweep.json").exists():
         return False
-    _copy_cell(published, d)
+    copy_cell(published, d)
     return True
 
 
-def _copy_cell(src: pathlib.Path, dst: pathlib.Path) -> None:
+def copy_cell(src: pathlib.Path, dst: pathlib.Path) -> None:
     """A cell's sweep.json and results.csv, and each point's continuation files, from ``src`` to ``dst``."""
     dst.mkdir(parents=True, exist_ok=True)
     for f in _CELL_FILES:
@@ -388,7 +388,7 @@ def publish(study: Study, out: str | os.PathLike, dest: str | os.PathLike) -> No
         d = out / cell.name
         if not (d / "sweep.json").exists():
             continue
-        _copy_cell(d, dest / cell.name)
+        copy_cell(d, dest / cell.name)
     r = write_rows(study, out)
     shutil.copy2(out / ROWS, dest / ROWS)
     for m in study.measurements:

@@ -100,7 +100,7 @@ def publish(out: pathlib.Path, dest: pathlib.Path) -> None:
             rows += store.read_csv(out / arm / CSV)
         d = out / cell(arm, STAGES[arm][0]).name
         if (d / "sweep.json").is_file():
-            kit._copy_cell(d, dest / d.relative_to(out))
+            kit.copy_cell(d, dest / d.relative_to(out))
     dest.mkdir(parents=True, exist_ok=True)
     store.write_csv(dest / CSV, COLUMNS, rows)
 
