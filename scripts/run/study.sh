@@ -12,7 +12,8 @@
 # that session (the sweep saves every active point after its chunk), waits up to STOP_TIMEOUT
 # seconds, then publishes the compact states and rows to PUB (commit it). The sweeps get a grace of
 # STOP_TIMEOUT seconds (NMRL_GRACE_S, docs/runs.md), so that stop keeps the chunk in flight. PUB is the study's
-# published directory: results/exploration2/runs for exploration2, results/NAME otherwise.
+# published directory: results/exploration2/runs for exploration2, results/exploration2/amendment
+# for exploration2_amendment, results/NAME otherwise.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 NAME=${1:-}
@@ -22,7 +23,11 @@ esac
 PY=${PY:-.venv/bin/python}
 MOD="nmrl.experiments.$NAME"
 OUT=${OUT:-runs/$NAME}
-if [ "$NAME" = exploration2 ]; then PUB=${PUB:-results/exploration2/runs}; else PUB=${PUB:-results/$NAME}; fi
+case "$NAME" in
+  exploration2) PUB=${PUB:-results/exploration2/runs} ;;
+  exploration2_amendment) PUB=${PUB:-results/exploration2/amendment} ;;
+  *) PUB=${PUB:-results/$NAME} ;;
+esac
 LOG=${LOG:-runs/$NAME.log}
 PAT="$MOD run --out $OUT"
 STOP_TIMEOUT=${STOP_TIMEOUT:-1800}

@@ -1,0 +1,175 @@
+"""Study 2's amendment A (docs/exploration-study-2.md, "Amendment A") on the kit: P6, P7 and P1
+again at 32 PPO iterations, with NMp(20) against W(20) and P1 with the trust region per second
+held; its cells, rule, family and command.
+
+    python -m nmrl.experiments.exploration2_amendment run --out runs/exploration2_amendment \\
+        [--published results/exploration2/amendment]
+    python -m nmrl.experiments.exploration2_amendment publish --out runs/exploration2_amendment \\
+        --dest results/exploration2/amendment
+
+The cells are the grid's (nmrl/experiments/exploration2_cells.py: ``grid_cell`` with each grid
+cell's own settings, layout and options) at twice its budget, so that each run's first 16
+iterations are the grid's run; W at 2.5 ms with the clip per step scaled by sqrt(2.5 / 20)
+(:data:`WC_CLIP`); the sigma check at 20 ms. NMp at 2.5 ms runs only when NMp(20) walks in at least
+:data:`WALK_RULE` of its 8 runs (:func:`later`). The family A1-A5: two-sided Welch on the
+deterministic endpoint, Holm over the contrasts that ran, TOST at +-50 reward per second with Holm
+over the same; the sigma check reported with Welch intervals, deciding nothing.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import sys
+
+import numpy as np
+
+from nmrl.experiments import kit, kit_cli
+from nmrl.experiments.exploration2_cells import ARMS, ENDPOINT, GRID_SEEDS, base, grid_cell
+
+ITERATIONS = 32  #: twice the grid's 16
+#: each arm's grid settings at each control step (the screen's choices; tests check them against
+#: the published grid's config.json)
+CHOICES = {("white", 0.02): {"sigma": 1.0}, ("nmp", 0.02): {"sigma": 1.0},
+           ("white", 0.0025): {"sigma": 1.0}, ("nmp", 0.0025): {"sigma": 1.0, "period_s": 0.02}}
+#: Wc(2.5)'s clip per step: 0.3 sqrt(2.5 / 20), so that a clipped ratio's KL per second (KL per step
+#: ~ eps^2, over delta) equals W(20)'s
+WC_CLIP = 0.3 * math.sqrt(0.0025 / 0.02)
+SIGMA_CHECK = (0.4, 2.5)
+SIGMA_SEEDS = 4
+WALK_SPEED, WALK_RULE = 1.0, 5  #: a run walks at >= 1 m/s deterministic; NMp(2.5) runs if >= 5 of 8 NMp(20) do
+MARGIN = 50.0  #: reward per second (the primary family's)
+
+
+def _name(arm: str, dt: float) -> str:
+    return f"amendment/dt{dt:g}/{arm}"
+
+
+def family_cell(arm: str, dt: float) -> kit.Cell:
+    """``arm``'s grid cell at ``dt`` (its name, options and layout) carried to :data:`ITERATIONS`."""
+    cell = grid_cell(arm, dt, CHOICES[(arm, dt)], GRID_SEEDS, iterations=ITERATIONS)
+    return dataclasses.replace(cell, name=_name(arm, dt))
+
+
+def wc_cell() -> kit.Cell:
+    """W(2.5)'s cell with the clip :data:`WC_CLIP`."""
+    cell = family_cell("white", 0.0025)
+    return dataclasses.replace(cell, name=_name("wc", 0.0025), sweep=(*cell.sweep, "--clip-eps", f"{WC_CLIP:.6g}"))
+
+
+def sigma_cell(arm: str) -> kit.Cell:
+    """``arm`` at 20 ms with sigma :data:`SIGMA_CHECK`, seeds 0-3, :data:`ITERATIONS` (a seed at a
+    time, as its family cell)."""
+    return kit.Cell(f"amendment/sigma/dt0.02/{arm}",
+                    (*base(0.02, ITERATIONS), *ARMS[arm], "--vary", "sigma", *map(str, SIGMA_CHECK),
+                     "--seeds", str(SIGMA_SEEDS), "--seed0", "0"))
+
+
+CELLS = (family_cell("nmp", 0.02), family_cell("white", 0.02), sigma_cell("white"), sigma_cell("nmp"),
+         family_cell("white", 0.0025))
+
+
+def _ended(r: dict) -> bool:
+    return r["steps"] == r["budget"] or r["diverged"] == "True"
+
+
+def _cell_rows(rows: list[dict], name: str) -> list[dict] | None:
+    """The rows of cell ``name`` once every point of it has ended, else None."""
+    rs = [r for r in rows if r["cell"] == name]
+    return rs if rs and all(_ended(r) for r in rs) else None
+
+
+def walking(rs: list[dict]) -> int:
+    """How many of the runs ``rs`` walk (deterministic forward speed >= :data:`WALK_SPEED`)."""
+    return sum(float(r["det_forward_speed"]) >= WALK_SPEED for r in rs)
+
+
+def later(rows: list[dict]) -> list[kit.Cell]:
+    """After the cells above: NMp(2.5) when NMp(20) walks in >= :data:`WALK_RULE` of its runs, then Wc(2.5)."""
+    nmp20 = _cell_rows(rows, _name("nmp", 0.02))
+    if nmp20 is None:
+        return []
+    return ([family_cell("nmp", 0.0025)] if walking(nmp20) >= WALK_RULE else []) + [wc_cell()]
+
+
+#: A1-A5 (the page's table): weights on cells
+CONTRASTS = (
+    ("A1", {_name("nmp", 0.0025): 1.0, _name("white", 0.0025): -1.0}),
+    ("A2", {_name("nmp", 0.0025): 1.0, _name("nmp", 0.02): -1.0, _name("white", 0.0025): -1.0,
+            _name("white", 0.02): 1.0}),
+    ("A3", {_name("nmp", 0.02): 1.0, _name("white", 0.02): -1.0}),
+    ("A4", {_name("white", 0.0025): 1.0, _name("white", 0.02): -1.0}),
+    ("A5", {_name("wc", 0.0025): 1.0, _name("white", 0.02): -1.0}),
+)
+
+
+def family(rows: list[dict]) -> list[dict]:
+    """A1-A5 on the deterministic endpoint (module docstring); every decision "pending" until each
+    contrast's cells have ended or, for those with NMp(2.5), the rule has left it out."""
+    from nmrl.analysis import prereg_stats
+
+    key = "det_reward_per_s"
+    nmp20 = _cell_rows(rows, _name("nmp", 0.02))
+    dropped = nmp20 is not None and walking(nmp20) < WALK_RULE  # NMp(2.5) does not run
+    out, ok = [], True
+    for name, weights in CONTRASTS:
+        if dropped and _name("nmp", 0.0025) in weights:
+            continue
+        row = {"contrast": name, "cells": " ".join(f"{w:+g}*{c}" for c, w in weights.items())}
+        cells = {c: _cell_rows(rows, c) for c in weights}
+        if any(v is None for v in cells.values()):
+            ok = False
+            out.append(row)
+            continue
+        samples = [np.array([float(r[key]) for r in cells[c]]) for c in weights]
+        r = prereg_stats.contrast(samples, list(weights.values()))
+        e = prereg_stats.contrast_tost(samples, list(weights.values()), MARGIN)
+        row.update(n=" ".join(str(len(s)) for s in samples),
+                   walking=" ".join(f"{walking(cells[c])}/{len(cells[c])}" for c in weights),
+                   estimate=r.diff, lo=r.lo, hi=r.hi, p=r.p, margin=MARGIN, tost_p=e.p)
+        out.append(row)
+    if not ok:
+        return [{**r, "decision": "pending"} for r in out]
+    reject = prereg_stats.holm([r["p"] for r in out])
+    equiv = prereg_stats.holm([r["tost_p"] for r in out])
+    for r, pa, rj, pe, eq in zip(out, reject.adjusted, reject.reject, equiv.adjusted, equiv.reject):
+        r.update(p_holm=float(pa), tost_p_holm=float(pe),
+                 decision=("ahead" if r["estimate"] > 0 else "behind") if rj else "equivalent" if eq else "not detected")
+    return out
+
+
+def sigma_check(rows: list[dict]) -> list[dict]:
+    """Each arm's sigma 0.4 and 2.5 at 20 ms minus its family cell's seeds 0-3 (sigma 1), with the
+    Welch interval, deciding nothing."""
+    from nmrl.analysis import prereg_stats
+
+    out = []
+    for arm in ("white", "nmp"):
+        check, fam = _cell_rows(rows, f"amendment/sigma/dt0.02/{arm}"), _cell_rows(rows, _name(arm, 0.02))
+        for s in SIGMA_CHECK:
+            row = {"contrast": f"{arm}(20) sigma {s:g} - sigma 1"}
+            if check is None or fam is None:
+                out.append({**row, "decision": "pending"})
+                continue
+            a = np.array([float(r["det_reward_per_s"]) for r in check if float(r["value"]) == s])
+            b = np.array([float(r["det_reward_per_s"]) for r in fam if int(r["seed"]) < SIGMA_SEEDS])
+            w = prereg_stats.welch(a, b)
+            out.append({**row, "n": f"{len(a)} {len(b)}", "estimate": w.diff, "lo": w.lo, "hi": w.hi, "p": w.p,
+                        "decision": "beats sigma 1 by more than the margin" if w.diff > MARGIN else "reported"})
+    return out
+
+
+def analysis(rows: list[dict]) -> list[dict]:
+    """The amended family and the sigma check, as ``analysis.csv``'s rows."""
+    return [{"family": "amendment", **r} for r in family(rows)] + [{"family": "check", **r} for r in sigma_check(rows)]
+
+
+STUDY = kit.Study(name="exploration2_amendment", cells=CELLS, endpoint=ENDPOINT, later=later, analysis=analysis)
+
+
+def main(argv: list[str] | None = None) -> int:
+    return kit_cli.main(STUDY, argv, "python -m nmrl.experiments.exploration2_amendment", __doc__.split("\n\n")[0])
+
+
+if __name__ == "__main__":
+    sys.exit(main())
