@@ -15,7 +15,8 @@ comes after the exploring policy's in both. NMp runs on to twice study 2's budge
     python scripts/lab/gait_stages.py --out runs/gait_stages --publish results/exploration2/diagnosis/stages
 
 ``stages.csv`` holds one row per arm, seed and stage: the iteration, the exploring policy's training
-speed in that iteration, and both rollouts' reward per second and forward speed.
+speed in that iteration, and both rollouts' reward per second and forward speed; ``stages.png``
+draws the three speeds by iteration, a panel per arm.
 """
 
 from __future__ import annotations
@@ -103,6 +104,39 @@ def publish(out: pathlib.Path, dest: pathlib.Path) -> None:
             kit.copy_cell(d, dest / d.relative_to(out))
     dest.mkdir(parents=True, exist_ok=True)
     store.write_csv(dest / CSV, COLUMNS, rows)
+    figure(rows, dest / FIGURE)
+
+
+FIGURE = "stages.png"
+
+
+def figure(rows: list[dict], path: pathlib.Path) -> None:
+    """A panel per arm: each seed's forward speed in training, without noise and with it, by iteration."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(STAGES), figsize=(10, 3.6), sharey=True)
+    styles = {"train_forward_speed": ("training (exploring)", "C0"), "noisy_forward_speed": ("rollout with its noise", "C1"),
+              "det_forward_speed": ("deterministic rollout", "C3")}
+    for ax, arm in zip(axes, STAGES):
+        for seed, ls in ((0, "-"), (1, "--")):
+            rs = sorted((r for r in rows if r["arm"] == arm and int(r["seed"]) == seed), key=lambda r: int(r["iteration"]))
+            its = [int(r["iteration"]) for r in rs]
+            for key, (label, colour) in styles.items():
+                ax.plot(its, [float(r[key]) for r in rs], ls, color=colour, marker="o", ms=3,
+                        label=f"{label}" if seed == 0 else None)
+        ax.axvline(16, color="0.6", lw=0.8)
+        ax.set_title({"white": "W(20): white noise, per-step ratios", "nmp": "NMp(20): nm-periods learned on periods"}[arm],
+                     fontsize=9)
+        ax.set_xlabel("PPO iteration (the grid's budget: 16)")
+    axes[0].set_ylabel("forward speed, m/s")
+    fig.suptitle("seeds 0 (solid) and 1 (dashed); a policy rolled out at the end of each stage", fontsize=9)
+    axes[0].legend(fontsize=7, loc="upper left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
 
 
 def main() -> None:
