@@ -112,10 +112,7 @@ FIGURE = "stages.png"
 
 def figure(rows: list[dict], path: pathlib.Path) -> None:
     """A panel per arm: each seed's forward speed in training, without noise and with it, by iteration."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from nmrl.analysis.plots import plt, save
 
     fig, axes = plt.subplots(1, len(STAGES), figsize=(10, 3.6), sharey=True)
     styles = {"train_forward_speed": ("training (exploring)", "C0"), "noisy_forward_speed": ("rollout with its noise", "C1"),
@@ -135,8 +132,7 @@ def figure(rows: list[dict], path: pathlib.Path) -> None:
     fig.suptitle("seeds 0 (solid) and 1 (dashed); a policy rolled out at the end of each stage", fontsize=9)
     axes[0].legend(fontsize=7, loc="upper left")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save(fig, path, dpi=120)
 
 
 def main() -> None:
