@@ -104,37 +104,21 @@ CONTRASTS = (
 
 
 def family(rows: list[dict]) -> list[dict]:
-    """A1-A5 on the deterministic endpoint (module docstring); every decision "pending" until each
-    contrast's cells have ended or, for those with NMp(2.5), the rule has left it out."""
+    """A1-A5 on the deterministic endpoint (module docstring: ``prereg_stats.family``, Holm and TOST
+    over the contrasts that run), each with how many runs of each of its cells walk; every decision
+    "pending" until each contrast's cells have ended or, for those with NMp(2.5), the rule has left
+    it out."""
     from nmrl.analysis import prereg_stats
 
-    key = "det_reward_per_s"
     nmp20 = _cell_rows(rows, _name("nmp", 0.02))
     dropped = nmp20 is not None and walking(nmp20) < WALK_RULE  # NMp(2.5) does not run
-    out, ok = [], True
-    for name, weights in CONTRASTS:
-        if dropped and _name("nmp", 0.0025) in weights:
-            continue
-        row = {"contrast": name, "cells": " ".join(f"{w:+g}*{c}" for c, w in weights.items())}
-        cells = {c: _cell_rows(rows, c) for c in weights}
-        if any(v is None for v in cells.values()):
-            ok = False
-            out.append(row)
-            continue
-        samples = [np.array([float(r[key]) for r in cells[c]]) for c in weights]
-        r = prereg_stats.contrast(samples, list(weights.values()))
-        e = prereg_stats.contrast_tost(samples, list(weights.values()), MARGIN)
-        row.update(n=" ".join(str(len(s)) for s in samples),
-                   walking=" ".join(f"{walking(cells[c])}/{len(cells[c])}" for c in weights),
-                   estimate=r.diff, lo=r.lo, hi=r.hi, p=r.p, margin=MARGIN, tost_p=e.p)
-        out.append(row)
-    if not ok:
-        return [{**r, "decision": "pending"} for r in out]
-    reject = prereg_stats.holm([r["p"] for r in out])
-    equiv = prereg_stats.holm([r["tost_p"] for r in out])
-    for r, pa, rj, pe, eq in zip(out, reject.adjusted, reject.reject, equiv.adjusted, equiv.reject):
-        r.update(p_holm=float(pa), tost_p_holm=float(pe),
-                 decision=("ahead" if r["estimate"] > 0 else "behind") if rj else "equivalent" if eq else "not detected")
+    contrasts = [(n, w) for n, w in CONTRASTS if not (dropped and _name("nmp", 0.0025) in w)]
+    ended = {c: _cell_rows(rows, c) for _, w in contrasts for c in w}
+    cells = {c: [float(r["det_reward_per_s"]) for r in rs] for c, rs in ended.items() if rs is not None}
+    out = prereg_stats.family(cells, contrasts, MARGIN)
+    for r, (_, weights) in zip(out, contrasts):
+        if all(ended[c] is not None for c in weights):
+            r.update(walking=" ".join(f"{walking(ended[c])}/{len(ended[c])}" for c in weights), margin=MARGIN)
     return out
 
 
