@@ -21,7 +21,7 @@ import sys
 
 import numpy as np
 
-from nmrl.experiments import kit, kit_cli
+from nmrl.experiments import kit, kit_cli, kit_gaits
 from nmrl.experiments.thesis_ac_cells import CELLS, CHECK_DT, CHECK_FACTORS, ENDPOINT
 from nmrl.paper.control_step import DELTA_0
 from nmrl.runs import store
@@ -128,6 +128,37 @@ def analysis(rows: list[dict]) -> list[dict]:
             + [{"family": "check", **r} for r in check(rows)])
 
 
+#: the control step whose gaits are drawn, and the arms it draws: the stationary policy and the
+#: nm-period arm whose cell has the higher mean deterministic endpoint there
+GAIT_DT = 0.0025
+
+
+def gait_picks(rows: list[dict]) -> list[dict] | None:
+    """The stationary arm's and the best nm-period arm's median run at :data:`GAIT_DT` (the lower of
+    the middle two by the deterministic endpoint), each {name, arm, cell, point, seed,
+    det_reward_per_s, cell_mean}; None while the cell is incomplete."""
+    by = cells(rows, "det_reward_per_s")
+    means = {a: float(np.mean(by[_c(a, GAIT_DT)])) for a in ARMS if _c(a, GAIT_DT) in by}
+    if len(means) < len(ARMS):
+        return None
+    best = max(ARMS[1:], key=lambda a: means[a])
+    out = []
+    for name, arm in (("stationary", "stationary"), (f"best_{best}", best)):
+        r = kit_gaits.median_run(r for r in rows if r["cell"].startswith("grid/") and arm_of(r["point"]) == arm
+                                 and float(r["control_dt"]) == GAIT_DT)
+        out.append({"name": name, "arm": arm, "cell": r["cell"], "point": r["point"], "seed": int(r["seed"]),
+                    "det_reward_per_s": float(r["det_reward_per_s"]), "cell_mean": means[arm]})
+    return out
+
+
+def gaits(out: pathlib.Path, rows: list[dict]) -> None:
+    """The gaits of :func:`gait_picks` (nmrl/experiments/kit_gaits.py), once the 2.5 ms cell is complete."""
+    picks = gait_picks(rows)
+    if picks is not None:
+        kit_gaits.draw(out, picks, lambda c: f"{'l = 1' if c['arm'] == 'stationary' else 'nm-periods of ' + c['arm'][1:]}"
+                                             f" at 2.5 ms, seed {c['seed']}, deterministic policy")
+
+
 def _curve(point: pathlib.Path) -> tuple[np.ndarray, np.ndarray]:
     """A point's learning curve: simulated seconds per environment, exploring reward per second."""
     cfg = json.loads((point / "config.json").read_text())
@@ -168,7 +199,8 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
                                    "the registered contrasts on the AUC (decisions: Holm over both endpoints)")
 
 
-STUDY = kit.Study(name="thesis_ac", cells=CELLS, endpoint=ENDPOINT, analysis=analysis, report=report)
+STUDY = kit.Study(name="thesis_ac", cells=CELLS, endpoint=ENDPOINT, analysis=analysis, report=report,
+                  measurements=(kit.Measurement(kit_gaits.GAITS, gaits),))
 
 
 def main(argv: list[str] | None = None) -> int:
