@@ -159,7 +159,16 @@ def family(cells: dict[str, Sequence[float]], contrasts: Sequence[tuple[str, dic
     "equivalent" (TOST rejects after Holm), else "not detected". While any contrast lacks a cell
     with 2 finite values, every decision is "pending" (a family is corrected as a whole) and the
     estimates that exist are given."""
-    out, ok = [], True
+    return decide(contrast_rows(cells, contrasts, margin), alpha)
+
+
+def contrast_rows(cells: dict[str, Sequence[float]], contrasts: Sequence[tuple[str, dict[str, float]]],
+                  margin: float) -> list[dict]:
+    """:func:`family`'s rows before the decision: per contrast its cells, their sizes, and, where every
+    cell has 2 finite values, the estimate, the 95% Welch interval, the raw p and the TOST p within
+    ``±margin``. A family over several endpoints (each with its cells and margin) is the rows of each
+    endpoint joined, then :func:`decide`."""
+    out = []
     for name, weights in contrasts:
         samples = [_finite(cells.get(c, ())) for c in weights]
         row = {"contrast": name, "cells": " ".join(f"{w:+g}*{c}" for c, w in weights.items()),
@@ -168,12 +177,18 @@ def family(cells: dict[str, Sequence[float]], contrasts: Sequence[tuple[str, dic
             r = contrast(samples, list(weights.values()))
             e = contrast_tost(samples, list(weights.values()), margin)
         except ValueError:
-            ok = False
             out.append(row)
             continue
         out.append({**row, "estimate": r.diff, "lo": r.lo, "hi": r.hi, "p": r.p, "tost_p": e.p})
-    if not ok:
-        return [{**r, "decision": "pending"} for r in out]
+    return out
+
+
+def decide(rows: list[dict], alpha: float = 0.05) -> list[dict]:
+    """Holm over every row's raw p and, apart, over every row's TOST p, and each row's decision
+    (:func:`family`); every decision "pending" while a row has no estimate."""
+    if any("p" not in r for r in rows):
+        return [{**r, "decision": "pending"} for r in rows]
+    out = [dict(r) for r in rows]
     reject = holm([r["p"] for r in out], alpha)
     equiv = holm([r["tost_p"] for r in out], alpha)
     for r, pa, rj, pe, eq in zip(out, reject.adjusted, reject.reject, equiv.adjusted, equiv.reject):

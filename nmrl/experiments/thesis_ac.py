@@ -72,32 +72,15 @@ def cells(rows: list[dict], key: str) -> dict[str, list[float]]:
 
 
 def family(rows: list[dict], fine: float) -> list[dict]:
-    """T1-T7 at ``fine`` on both co-primary endpoints, decided together (module docstring); every
+    """T1-T7 at ``fine`` on both co-primary endpoints, decided together (module docstring): the rows
+    of each endpoint with its margin, then Holm over all of them (``prereg_stats.decide``); every
     decision "pending" while a contrast lacks a complete cell."""
     from nmrl.analysis import prereg_stats
 
-    out, ok = [], True
-    for key, margin in ENDPOINTS.items():
-        by = cells(rows, key)
-        for name, weights in contrasts(fine):
-            row = {"endpoint": key, "contrast": name, "cells": " ".join(f"{w:+g}*{c}" for c, w in weights.items())}
-            if not all(len(by.get(c, ())) >= 2 for c in weights):
-                ok = False
-                out.append(row)
-                continue
-            samples = [np.asarray(by[c]) for c in weights]
-            r = prereg_stats.contrast(samples, list(weights.values()))
-            e = prereg_stats.contrast_tost(samples, list(weights.values()), margin)
-            out.append({**row, "n": " ".join(str(len(s)) for s in samples), "estimate": r.diff, "lo": r.lo,
-                        "hi": r.hi, "p": r.p, "margin": margin, "tost_p": e.p})
-    if not ok:
-        return [{**r, "decision": "pending"} for r in out]
-    reject = prereg_stats.holm([r["p"] for r in out])
-    equiv = prereg_stats.holm([r["tost_p"] for r in out])
-    for r, pa, rj, pe, eq in zip(out, reject.adjusted, reject.reject, equiv.adjusted, equiv.reject):
-        r.update(p_holm=float(pa), tost_p_holm=float(pe),
-                 decision=("ahead" if r["estimate"] > 0 else "behind") if rj else "equivalent" if eq else "not detected")
-    return out
+    out = [{"endpoint": key, **r, "margin": margin}
+           for key, margin in ENDPOINTS.items()
+           for r in prereg_stats.contrast_rows(cells(rows, key), contrasts(fine), margin)]
+    return prereg_stats.decide(out)
 
 
 def check(rows: list[dict]) -> list[dict]:
