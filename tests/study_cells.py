@@ -7,7 +7,8 @@ NMp diagnosis, the gait stages at every stage's budget). :func:`commands` runs t
 :func:`nmrl.experiments.kit.run_cell` on a cell with the sweep process replaced by a recorder, fresh
 and as a resume, and returns what it would have run (the interpreter and directories as
 placeholders, the points file as its content). tests/data/cell_commands.json holds these commands
-as the code before typed cells produced them (``python tests/study_cells.py`` writes them).
+as the argv cells of commit 172e6ba produced them (recorded by :func:`record` at commit 1baeb2a,
+before the cells became typed data; tests/test_kit_cells.py compares).
 """
 
 from __future__ import annotations
@@ -102,13 +103,29 @@ def commands(study, cell) -> dict:
     return res
 
 
+def parsed(argv: list[str], learner: str) -> dict:
+    """What ``nmrl sweep`` reads from ``argv`` (``["sweep", ...]``) with the learner ``learner`` (a
+    resume's is the saved sweep's): every option's value as the command's parser gives it, and the
+    options given (a listed-points sweep refuses some by their presence); ``--vary``'s values by its field's type, as
+    the command reads them."""
+    from nmrl.cli import arguments, config_options
+
+    from nmrl import options
+
+    lr = config_options.get_learner(learner)
+    args = vars(arguments.build_parser(lr).parse_args(argv))
+    if args.get("vary"):  # its values are read by the varied field's type (nmrl.cli.commands.varied_spec)
+        name, *raw = args["vary"]
+        args["vary"] = [name, *map(options.kind(lr.config, name), raw)]
+    given = sorted({a.split("=", 1)[0] for a in argv if a.startswith("--")})
+    return {"given": given, **{k: v for k, v in args.items() if k != "func"}}
+
+
+def learner_of(argv: list[str]) -> str:
+    return argv[argv.index("--learner") + 1] if "--learner" in argv else "ac"
+
+
 def record() -> dict:
     """Every study's cells' commands (module docstring), by study and cell name."""
     return {k: {n: commands(s, c) for n, c in cells.items()} for k, (s, cells) in every_cell().items()}
 
-
-if __name__ == "__main__":
-    sys.path.insert(0, str(ROOT))
-    data = record()
-    RECORD.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
-    print(RECORD, sum(len(v) for v in data.values()), "cells")

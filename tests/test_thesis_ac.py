@@ -27,7 +27,7 @@ def _doc() -> str:
 def test_every_point_is_the_20_ms_learner_held_in_seconds(dt):
     cell = next(c for c in CELLS if c.name == f"grid/dt{dt:g}")
     k = dt / 0.02
-    steps = int(cell.budget()[1])
+    steps = cell.steps
     assert steps * 32 * dt == pytest.approx(1e5)  # 10^5 simulated seconds per point
     assert len(cell.points) == 24 and sorted({p["seed"] for p in cell.points}) == list(range(8))
     for p in cell.points:
