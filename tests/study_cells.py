@@ -8,7 +8,8 @@ NMp diagnosis, the gait stages at every stage's budget). :func:`commands` runs t
 and as a resume, and returns what it would have run (the interpreter and directories as
 placeholders, the points file as its content). tests/data/cell_commands.json holds these commands
 as the argv cells of commit 172e6ba produced them (recorded by :func:`record` at commit 1baeb2a,
-before the cells became typed data; tests/test_kit_cells.py compares).
+before the cells became typed data; tests/test_kit_cells.py compares). :func:`spec_of` is the sweep
+spec that command makes, as ``nmrl sweep`` reads it.
 """
 
 from __future__ import annotations
@@ -129,3 +130,29 @@ def record() -> dict:
     """Every study's cells' commands (module docstring), by study and cell name."""
     return {k: {n: commands(s, c) for n, c in cells.items()} for k, (s, cells) in every_cell().items()}
 
+
+
+def spec_of(study, cell):
+    """The sweep spec ``nmrl sweep`` makes of the cell's fresh command line (nmrl/cli/commands.py's
+    reading of it), its base config resolved as the sweep saves it in sweep.json."""
+    from nmrl.cli import arguments, commands as cmds, config_options
+    from nmrl.experiments import sweep
+
+    with tempfile.TemporaryDirectory() as tmp:
+        got = commands(study, cell)["fresh"]
+        argv = list(got["argv"])
+        if "points" in got:
+            f = pathlib.Path(tmp) / "points.json"
+            f.write_text(json.dumps(got["points"]))
+            argv[argv.index("POINTS")] = str(f)
+        learner = config_options.get_learner(learner_of(argv))
+        args = arguments.build_parser(learner).parse_args(argv)
+        args.argv = argv
+        base = config_options.config_from_args(args, skip=cmds.sweep_skip(learner))
+        if args.points is not None:
+            spec = cmds.listed_spec(args, learner, base)
+        elif args.vary is not None:
+            spec = cmds.varied_spec(args, learner, base)
+        else:
+            spec = sweep.SweepSpec(ls=(None,), seeds=args.seeds, base=base, field=None, seed0=args.seed0)
+    return dataclasses.replace(spec, base=spec.base.resolved())

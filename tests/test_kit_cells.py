@@ -1,6 +1,6 @@
 """Cells as typed data (nmrl/experiments/kit_cells.py): every study's cells run the same ``nmrl sweep``
 commands as the argv cells they replace (tests/data/cell_commands.json, recorded from that code),
-each cell's names and values are checked against its learner's declarations as it is made, and the
+every published cell makes the spec its sweep.json saved, each cell's names and values are checked against its learner's declarations as it is made, and the
 sweep's own options a cell gives are those of the ``nmrl sweep`` parser."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import pytest
 
 from nmrl.cli import arguments, config_options
 from nmrl.experiments import kit, kit_cells
-from tests.study_cells import RECORD, commands, every_cell, learner_of, parsed
+from tests.study_cells import RECORD, RESULTS, commands, every_cell, learner_of, parsed, spec_of
 
 RECORDED = json.loads(RECORD.read_text())
 CELLS = every_cell()
@@ -118,3 +118,27 @@ def test_one_function_writes_every_cell_option_by_its_declared_flag():
     assert kit_cells.sweep_argv(cell, {"quiet": False}, resume=True) == ["--resume", "--steps", "8"]
     ac = kit.Cell("c", "ac", {"num_envs": 4}, trials=5, vary=("l", (1, 10)))
     assert kit_cells.sweep_argv(ac) == ["--learner", "ac", "--num-envs", "4", "--trials", "5", "--l", "1", "10"]
+
+
+PUBLISHED = {"exploration2": RESULTS / "exploration2" / "runs", "thesis_ac": RESULTS / "thesis_ac",
+             "nmp_diagnosis": RESULTS / "exploration2" / "diagnosis",
+             "gait_stages": RESULTS / "exploration2" / "diagnosis" / "stages"}
+
+
+def test_every_published_cell_is_the_sweep_its_sweep_json_holds():
+    """Each cell whose published copy exists makes the spec that copy's sweep.json saved (the points,
+    seeds, varied values and the resolved base config), up to the budget (the gait stages' cells are
+    one sweep resumed at larger budgets): a study resumed from its published copy continues it."""
+    from nmrl.experiments import sweep
+
+    n = 0
+    for study, root in PUBLISHED.items():
+        s, cells = CELLS[study]
+        for name, cell in cells.items():
+            if not (root / cell.name / "sweep.json").is_file():
+                continue
+            saved, new = sweep.load_spec(root / cell.name), spec_of(s, cell)
+            budget = {k: getattr(saved.base, k) for k in ("steps", "trials")}
+            assert dataclasses.replace(new, base=dataclasses.replace(new.base, **budget)) == saved, (study, name)
+            n += 1
+    assert n == 71
