@@ -1,7 +1,8 @@
 """Cells as typed data (nmrl/experiments/kit_cells.py): every study's cells run the same ``nmrl sweep``
 commands as the argv cells they replace (tests/data/cell_commands.json, recorded from that code),
-every published cell makes the spec its sweep.json saved, each cell's names and values are checked against its learner's declarations as it is made, and the
-sweep's own options a cell gives are those of the ``nmrl sweep`` parser."""
+every published cell makes the spec its sweep.json saved, each cell's names and values are checked
+against its learner's declarations as it is made, and the sweep's own options a cell gives are those
+of the ``nmrl sweep`` parser."""
 
 from __future__ import annotations
 
