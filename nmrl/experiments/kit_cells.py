@@ -105,10 +105,11 @@ class Cell:
         learner = _learner(self.learner)
         for k, v in self.settings.items():
             cls = _owner(learner, k)
-            if cls is None or k in _NOT_SETTINGS or k == learner.sweep_field and self.vary is None:
+            if cls is None or k in _NOT_SETTINGS or k == learner.sweep_field and (self.vary or (k,))[0] == k:
+                swept = f", the seed and the swept {learner.sweep_field}" if learner.sweep_field else " and the seed"
                 raise ValueError(f"setting {k!r} is invalid: a cell's settings are options of the learner "
-                                 f"{learner.name!r} other than the budget and the seed (steps, trials, seeds, "
-                                 f"seed0 and vary are the cell's own)")
+                                 f"{learner.name!r} other than the budget{swept} (steps, trials, vary, seeds and "
+                                 f"seed0 are the cell's own)")
             _check(cls, k, v)
         for k in ("steps", "trials"):
             _check(learner.config, k, getattr(self, k))
