@@ -80,7 +80,7 @@ def test_a_cell_naming_a_field_or_value_its_learner_does_not_allow_is_refused_as
 
 
 def test_every_study_cell_holds_values_its_learner_allows():
-    """Each cell checked as it was made; here again, field by field, by nmrl.options alone."""
+    """Each cell is checked as it is made; here again, field by field, by nmrl.options alone."""
     from nmrl import learners, options
 
     n = 0
