@@ -358,6 +358,26 @@ def test_bad_train_values(tmp_path, argv, message):
     assert not out.exists() and list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize("argv,message", [
+    (["--seed0", "-1"], "seed0=-1 is invalid: must be an integer in [0, 4294967295] (JAX's PRNG seeds are 32-bit; "
+                        "others wrap around to another seed)"),
+    (["--seed0", "4294967295", "--seeds", "2"], "seeds=2 is invalid: the last seed, seed0 + seeds - 1 = 4294967296, "
+                                                "must be an integer in [0, 4294967295] (JAX's PRNG seeds are 32-bit"),
+    (["--seeds", "0"], "seeds=0 is invalid: must be an integer >= 1"),
+])
+def test_a_sweeps_seeds_are_held_to_the_one_seed_range(tmp_path, argv, message):
+    """``--seed0`` and the last seed ``seed0 + seeds - 1`` are checked by the run field ``seed``'s
+    declaration (nmrl.options.check_seed), one line and exit 2, nothing written; the top seed itself
+    is allowed."""
+    out = tmp_path / "sweep"
+    rc, stdout, err = _main(["sweep", *TINY, "--l", "1", "--steps", "25", *argv, "--out", str(out)])
+    assert rc == 2 and stdout == "" and message in one_error_line(err)
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+    from nmrl.experiments import sweep
+
+    sweep.SweepSpec(ls=(1,), seeds=1, seed0=4294967295, base=TrainConfig(steps=25)).validate()
+
+
 def test_bad_out(tmp_path):
     f = tmp_path / "a_file"
     f.write_text("precious\n")

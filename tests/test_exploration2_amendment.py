@@ -5,6 +5,7 @@ Holm's procedure written out."""
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import math
 import pathlib
@@ -21,15 +22,8 @@ REPO = pathlib.Path(__file__).resolve().parents[1]
 RECORD = REPO / "results" / "exploration2" / "runs"
 
 
-def _steps(cell) -> int:
-    a = list(cell.sweep)
-    return int(a[a.index("--steps") + 1])
-
-
-def _without_budget(cell) -> tuple[str, ...]:
-    a = list(cell.sweep)
-    i = a.index("--steps")
-    return tuple(a[:i] + a[i + 2:])
+def _without_budget(cell):
+    return dataclasses.replace(cell, name="", steps=None)
 
 
 @pytest.mark.skipif(not (RECORD / "rows.csv").is_file(), reason="no published record of study 2")
@@ -42,24 +36,22 @@ def test_each_family_cell_is_its_grid_cell_at_twice_the_budget(arm, dt):
     grid = next(c for c in exploration2_rules.later_cells(rows) if c.name == f"grid/dt{dt:g}/{arm}")
     cell = am.family_cell(arm, dt)
     assert _without_budget(cell) == _without_budget(grid) and cell.run_options == grid.run_options
-    assert _steps(grid) == round(16 * ITERATION_S / dt) and _steps(cell) == 2 * _steps(grid)
+    assert grid.steps == round(16 * ITERATION_S / dt) and cell.steps == 2 * grid.steps
     saved = json.loads((RECORD / "grid" / f"dt{dt:g}" / arm / "points" / "s0" / "config.json").read_text())
-    a = list(cell.sweep)
-    assert float(a[a.index("--sigma") + 1]) == saved["sigma"]
+    assert cell.settings["sigma"] == saved["sigma"]
     if arm == "nmp":
-        assert float(a[a.index("--period-s") + 1]) == saved["period_s"]
-    chunks = int(a[a.index("--grad-chunks") + 1]) if "--grad-chunks" in a else 1
-    assert chunks == (saved.get("grad_chunks") or 1)
+        assert cell.settings["period_s"] == saved["period_s"]
+    assert cell.settings.get("grad_chunks", 1) == (saved.get("grad_chunks") or 1)
 
 
 def test_wc_holds_w20s_kl_per_second_and_is_w25_otherwise():
     """Wc(2.5)'s clip eps_c: eps_c^2 / 2.5 ms = 0.3^2 / 20 ms (KL per step ~ eps^2, over delta),
     every other option W(2.5)'s."""
     wc, w = am.wc_cell(), am.family_cell("white", 0.0025)
-    a = list(wc.sweep)
-    eps = float(a[a.index("--clip-eps") + 1])
+    eps = wc.settings["clip_eps"]
     assert eps ** 2 / 0.0025 == pytest.approx(0.3 ** 2 / 0.02, rel=1e-5)
-    assert tuple(a[:len(w.sweep)]) == w.sweep and wc.run_options == w.run_options
+    others = {k: v for k, v in wc.settings.items() if k != "clip_eps"}
+    assert dataclasses.replace(wc, name=w.name, settings=others) == w
 
 
 def _row(cell: str, seed: int, det: float, speed: float, value: str = "") -> dict:

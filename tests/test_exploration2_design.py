@@ -7,12 +7,13 @@ from __future__ import annotations
 import pytest
 
 from nmrl.cli import arguments, commands, config_options
-from nmrl.experiments import exploration2_analysis, exploration2_cells, exploration2_rules
+from nmrl.experiments import exploration2_analysis, exploration2_cells, exploration2_rules, kit_cells
 
 
-def _spec(argv):
+def _spec(cell):
+    """The spec ``nmrl sweep`` makes of the cell's command line (nmrl/experiments/kit_cells.py)."""
     learner = config_options.get_learner("ppo")
-    args = arguments.build_parser(learner).parse_args(["sweep", *argv, "--out", "unused"])
+    args = arguments.build_parser(learner).parse_args(["sweep", *kit_cells.sweep_argv(cell), "--out", "unused"])
     base = config_options.config_from_args(args, skip=commands.sweep_skip(learner))
     if args.vary is None:  # seeds only (a grid cell)
         from nmrl.experiments import sweep
@@ -26,7 +27,7 @@ def _spec(argv):
 
 @pytest.mark.parametrize("cell", exploration2_cells.SIGMA_SCREEN, ids=lambda c: c.name)
 def test_every_screen_cell_is_a_valid_sweep_with_the_preregistered_design(cell):
-    spec = _spec(cell.sweep)
+    spec = _spec(cell)
     cfg = spec.base.resolved()
     assert spec.field == "sigma" and tuple(spec.ls) == (0.064, 0.16, 0.4, 1.0)
     assert [s for _, s in spec.points()][:2] == [100, 101]  # screen seeds are never grid seeds (0-7)
@@ -41,7 +42,7 @@ def test_every_screen_cell_is_a_valid_sweep_with_the_preregistered_design(cell):
 
 def _screen_rows(cell, scores, budget=True, diverged=()):
     """Finished rows of ``cell`` with a mean det score per value (2 seeds: score - 1, score + 1)."""
-    spec = _spec(cell.sweep)
+    spec = _spec(cell)
     out = []
     for v, s in scores.items():
         for k, seed in enumerate((100, 101)):
@@ -59,11 +60,11 @@ def test_the_screen_rule_brackets_sigma_then_screens_the_time_constant():
     # the best sigma at the upper edge: one more value, x 2.5
     rows = _screen_rows(ou, {0.064: 1.0, 0.16: 2.0, 0.4: 3.0, 1.0: 9.0})
     (ext,) = [c for c in exploration2_rules.later_cells(rows) if "ou" in c.name]
-    assert ext.name == ou.name + "+2.5" and _spec(ext.sweep).ls == (2.5,)
+    assert ext.name == ou.name + "+2.5" and _spec(ext).ls == (2.5,)
     # a diverged value is never chosen; the inner best at 0.16 is bracketed: the time constants follow
     rows = _screen_rows(ou, {0.064: 1.0, 0.16: 5.0, 0.4: 3.0, 1.0: 9.0}, diverged=(1.0,))
     (tc,) = [c for c in exploration2_rules.later_cells(rows) if "ou" in c.name]
-    spec = _spec(tc.sweep)
+    spec = _spec(tc)
     assert tc.name == "screen/tc/dt0.0025/ou" and spec.field == "corr_time_s" and spec.ls == (0.01, 0.09)
     assert spec.base.sigma == 0.16 and spec.base.exploration == "ou" and [s for _, s in spec.points()][:2] == [100, 101]
     # the time constant's best at the lower edge (0.01 s beats the sigma cell's 0.03 s): 0.01 / 3 next
@@ -87,11 +88,11 @@ def test_a_period_extension_stops_at_one_control_step():
     assert [c.name for c in e1] == [tc.name + "+0.00666667"]  # l = 3 steps
     rows += _screen_rows(e1[0], {0.00666667: 13.0})
     e2 = [c for c in exploration2_rules.later_cells(rows) if c.name.startswith(tc.name + "+") and c not in e1]
-    assert [c.name for c in e2] == [tc.name + "+0.0025"] and _spec(e2[0].sweep).ls == (0.0025,)
+    assert [c.name for c in e2] == [tc.name + "+0.0025"] and _spec(e2[0]).ls == (0.0025,)
     nms20 = next(c for c in exploration2_cells.SECONDARY_SCREEN if c.name == "screen/sigma/dt0.02/nms")
     rows = _screen_rows(nms20, {0.064: 1.0, 0.16: 9.0, 0.4: 3.0, 1.0: 2.0})
     (tc20,) = [c for c in exploration2_rules._screen_state(rows, nms20)[0]]
-    assert _spec(tc20.sweep).ls == (0.02, 0.18)
+    assert _spec(tc20).ls == (0.02, 0.18)
     rows += _screen_rows(tc20, {0.02: 12.0, 0.18: 1.0})
     add, state = exploration2_rules._screen_state(rows, nms20)
     assert [c.name for c in add] == [tc20.name] and state["period_s"][0] == (0.02, True, [0.02, 0.06, 0.18])
@@ -141,7 +142,7 @@ def _chosen_rows():
     for cell in exploration2_cells.SIGMA_SCREEN:
         rows += _screen_rows(cell, {0.064: 1.0, 0.16: 2.0, 0.4: 5.0, 1.0: 3.0})
     for tc in [c for c in exploration2_rules.later_cells(rows) if c.name.startswith("screen/tc/")]:
-        rows += _screen_rows(tc, dict(zip(_spec(tc.sweep).ls, (1.0, 2.0))))
+        rows += _screen_rows(tc, dict(zip(_spec(tc).ls, (1.0, 2.0))))
     return rows
 
 
@@ -152,37 +153,37 @@ def test_the_grid_follows_the_screen_with_the_preregistered_design():
                "grid/dt0.0025/ou", "grid/dt0.0025/colored", "grid/dt0.0025/nms", "grid/dt0.0025/nmp"]
     assert [n for n in cells if n.startswith("grid/")][:8] == primary
     for name in primary:
-        spec = _spec(cells[name].sweep)
+        spec = _spec(cells[name])
         cfg = spec.base.resolved()
         assert [s for _, s in spec.points()] == list(range(8))  # grid seeds 0-7, one point each
         assert cfg.steps * cfg.control_dt == pytest.approx(16 * 102.4)  # 1.6e3 simulated s per environment
         assert cfg.physics == "c" and cfg.physics_timestep == 0.0025
         assert cfg.env_config().step_stop_prob * 5.0 == pytest.approx(cfg.control_dt)
     # white and the correlated arms at their screened sigma and time constants (the middle values)
-    got = {n: _spec(cells[n].sweep).base for n in primary}
+    got = {n: _spec(cells[n]).base for n in primary}
     assert got["grid/dt0.0025/white"].sigma == 0.4 and got["grid/dt0.0025/ou"].corr_time_s == 0.03
     assert got["grid/dt0.0025/colored"].beta == 0.5 and got["grid/dt0.0025/nmp"].period_s == 0.06
     assert got["grid/dt0.0025/nmp"].period_wise and not got["grid/dt0.0025/nms"].period_wise
     # Ws holds sigma^2 dt at W's 20 ms value (eq. (1)): x sqrt(8) at 2.5 ms, x 2 at 5 ms
     assert got["grid/dt0.0025/ws"].sigma == pytest.approx(0.4 * 8 ** 0.5, rel=1e-5)
     assert got["grid/dt0.0025/ws"].exploration == "white"
-    assert _spec(cells["grid/dt0.005/ws"].sweep).base.sigma == pytest.approx(0.8, rel=1e-5)
+    assert _spec(cells["grid/dt0.005/ws"]).base.sigma == pytest.approx(0.8, rel=1e-5)
     # secondary: the 5 ms column and the sensitivity of W at 2.5 ms, 4 seeds; OU, CN, NMs screened at 20 ms
     for name in ("grid/dt0.005/white", "grid/dt0.005/ws", "grid/dt0.005/nmp",
                  "sensitivity/dt0.0025/white_sigma0.16", "sensitivity/dt0.0025/white_sigma1"):
-        assert [s for _, s in _spec(cells[name].sweep).points()] == [0, 1, 2, 3], name
+        assert [s for _, s in _spec(cells[name]).points()] == [0, 1, 2, 3], name
     assert {"screen/sigma/dt0.02/ou", "screen/sigma/dt0.02/colored", "screen/sigma/dt0.02/nms"} <= set(cells)
     # below 20 ms each device steps its seeds vmapped together; at 20 ms (and the matched-SNR cells) a
     # seed at a time, so that white's 20 ms runs are the SNR cells' runs iteration for iteration
     for name, c in cells.items():
         if not name.startswith("screen/"):
-            dt = _spec(c.sweep).base.control_dt
-            seeds = len(_spec(c.sweep).points())
-            assert c.run_options == (("--group", str(seeds)) if dt < 0.02 else ()), name
-    assert cells["grid/dt0.0025/white"].run_options == ("--group", "8")
+            dt = _spec(c).base.control_dt
+            seeds = len(_spec(c).points())
+            assert c.run_options == ({"group": seeds} if dt < 0.02 else {}), name
+    assert cells["grid/dt0.0025/white"].run_options == {"group": 8}
     # below 20 ms each minibatch's gradient in 8 parts of 64 unrolls, but in white's 2.5 ms grid cell
     for name, c in cells.items():
-        cfg = _spec(c.sweep).base.resolved()
+        cfg = _spec(c).base.resolved()
         want = 1 if name.startswith("screen/") or cfg.control_dt >= 0.02 or name == "grid/dt0.0025/white" else 8
         assert cfg.grad_chunks == want, name
         assert cfg.batch_size // cfg.num_envs // cfg.grad_chunks * cfg.num_envs in (64, 512), name
@@ -357,18 +358,17 @@ def test_the_asymptote_runs_white_against_the_best_correlated_arm_at_4x_the_budg
     cells = {c.name: c for c in exploration2_rules.later_cells(rows)}
     assert [n for n in cells if n.startswith("asymptote/")] == ["asymptote/dt0.005/white", "asymptote/dt0.005/colored"]
     for name in ("asymptote/dt0.005/white", "asymptote/dt0.005/colored"):
-        spec = _spec(cells[name].sweep)
+        spec = _spec(cells[name])
         cfg = spec.base.resolved()
         assert [s for _, s in spec.points()] == [0, 1, 2, 3]
         assert cfg.control_dt == 0.005 and cfg.steps * cfg.control_dt == pytest.approx(64 * 102.4)
-    assert _spec(cells["asymptote/dt0.005/colored"].sweep).base.beta == 0.5  # its 2.5 ms choice
+    assert _spec(cells["asymptote/dt0.005/colored"]).base.beta == 0.5  # its 2.5 ms choice
 
 
 def test_the_nm_periods_arms_take_the_papers_correlation_time_to_five_digits():
-    """nms and nmp run at alpha = 0.8 per 20 ms as a correlation time, -0.02 s / ln 0.8, written
-    with 5 digits (the cells' options, unchanged since the study began)."""
+    """nms and nmp run at alpha = 0.8 per 20 ms as a correlation time, -0.02 s / ln 0.8, to 5 digits
+    (the cells' settings, unchanged since the study began)."""
     import math
 
     for arm in ("nms", "nmp"):
-        options = exploration2_cells.ARMS[arm]
-        assert options[options.index("--corr-time-s") + 1] == "0.08963" == f"{-0.02 / math.log(0.8):.5f}"
+        assert exploration2_cells.ARMS[arm]["corr_time_s"] == 0.08963 == round(-0.02 / math.log(0.8), 5)

@@ -11,14 +11,13 @@ import pytest
 
 from nmrl.experiments import kit, kit_progress
 
-TINY = ("--learner", "ppo", "--num-envs", "4", "--batch-size", "4", "--num-minibatches", "1", "--epochs", "1",
-        "--value-layers", "1", "--value-width", "8", "--policy-layers", "1", "--policy-width", "8",
-        "--physics", "c", "--devices", "1")
+TINY = {"num_envs": 4, "batch_size": 4, "num_minibatches": 1, "epochs": 1, "value_layers": 1, "value_width": 8,
+        "policy_layers": 1, "policy_width": 8, "physics": "c"}
 
 
 def _tiny_study(tmp_path):
-    cell = kit.Cell("screen/a", (*TINY, "--steps", "20", "--vary", "sigma", "0.5", "1.0", "--seeds", "1",
-                                 "--seed0", "7"))
+    cell = kit.Cell("screen/a", "ppo", TINY, steps=20, vary=("sigma", (0.5, 1.0)), seeds=1, seed0=7,
+                    run_options={"devices": "1"})
     return kit.Study("tiny", (cell,), kit.Endpoint(seconds=0.2, rollouts=2, start_noise=0.05))
 
 
@@ -58,8 +57,7 @@ def test_a_study_runs_scores_publishes_and_continues_from_its_published_copy(tmp
     assert [r["steps"] for r in kit.run(study, tmp_path / "same", published=pub)] == [20, 20]
     assert started == []
     monkeypatch.undo()
-    longer = dataclasses.replace(study, cells=(dataclasses.replace(
-        study.cells[0], sweep=tuple("40" if x == "20" else x for x in study.cells[0].sweep)),))
+    longer = dataclasses.replace(study, cells=(dataclasses.replace(study.cells[0], steps=40),))
     rows2 = kit.run(longer, tmp_path / "fresh", published=pub)
     assert [r["steps"] for r in rows2] == [40, 40]
     first = [json.loads(line) for line in (tmp_path / "fresh/screen/a/points/sigma0.5_s7/metrics.jsonl").open()]
@@ -77,7 +75,7 @@ def test_a_cell_is_at_its_budget_when_every_point_is_saved_there_or_diverged(tmp
     kit.run(study, tmp_path / "out")
     d = tmp_path / "out" / "screen/a"
     cell = study.cells[0]
-    longer = dataclasses.replace(cell, sweep=tuple("40" if x == "20" else x for x in cell.sweep))
+    longer = dataclasses.replace(cell, steps=40)
     assert kit.at_budget(cell, d) and not kit.at_budget(longer, d)
     a, b = (d / "points" / n for n in ("sigma0.5_s7", "sigma1_s7"))
     with open(a / "metrics.jsonl", "a") as fh:  # a diverged chunk after its last save: frozen at 20
@@ -98,8 +96,7 @@ def test_a_cell_is_at_its_budget_when_every_point_is_saved_there_or_diverged(tmp
     shutil.copytree(a, b)
     (d / "results.csv").unlink()
     assert kit.at_budget(cell, d)
-    assert not kit.at_budget(dataclasses.replace(cell, sweep=tuple(x for x in cell.sweep if x not in ("--steps", "20"))),
-                             d)
+    assert not kit.at_budget(dataclasses.replace(cell, steps=None), d)
 
 
 def test_progress_reads_each_cells_chunks_and_time_left_from_its_files(tmp_path):
@@ -126,7 +123,7 @@ def test_progress_reads_each_cells_chunks_and_time_left_from_its_files(tmp_path)
     point("e", "p0", [4.0, 6.0])
     point("e", "p1", [])  # 0 of 40 steps, priced by p0's chunks: 4 chunks of 5 s
     point("f", "p0", [])
-    cells = tuple(kit.Cell(n, ("--seeds", "2", "--steps", str(b)))
+    cells = tuple(kit.Cell(n, seeds=2, steps=b)
                   for n, b in (("a", 20), ("b", 45), ("c", 40), ("d", 20), ("e", 40), ("f", 40)))
     rows = kit_progress.progress(kit.Study("t", cells, endpoint=None), tmp_path)
     got = {r["cell"]: r for r in rows}
@@ -163,7 +160,7 @@ def test_a_row_holds_the_runs_endpoints_from_its_files(tmp_path):
           {"step": 20, "reward_per_s": 42.0, "forward_speed": [1.0, 2.0, 3.0]})
     point("stale", [{"step": 10, "avg_reward": 0.2, "forward_speed": 0.1}],
           {"step": 5, "reward_per_s": 1.0, "forward_speed": [9.0]})
-    rows = {r["point"]: r for r in kit.rows(kit.Study("t", (kit.Cell("c", ()),), endpoint=None), tmp_path)}
+    rows = {r["point"]: r for r in kit.rows(kit.Study("t", (kit.Cell("c"),), endpoint=None), tmp_path)}
     f = rows["fresh"]
     assert (f["seed"], f["field"], f["value"], f["steps"], f["budget"], f["diverged"]) == (3, "sigma", 0.4, 20, 20, False)
     assert f["avg_reward_per_s"] == pytest.approx(0.6 / 0.02) and f["auc_reward_per_s"] == pytest.approx(-0.2 / 0.02)
@@ -179,7 +176,7 @@ def test_a_cell_of_listed_points_refuses_a_sweep_of_other_points(tmp_path):
     d.mkdir()
     (d / "sweep.json").write_text(json.dumps({"points": [{"name": "a", "l": 1, "beta_theta": 1e-05, "seed": 0}]}))
     study = kit.Study(name="t", cells=(), endpoint=None)
-    other = kit.Cell("c", ("--steps", "10"), points=({"name": "a", "l": 2, "beta_theta": 1e-05, "seed": 0},))
+    other = kit.Cell("c", steps=10, points=({"name": "a", "l": 2, "beta_theta": 1e-05, "seed": 0},))
     with pytest.raises(kit.StudyError, match="other points"):
         kit.run_cell(study, other, tmp_path)
     assert [p.name for p in d.iterdir()] == ["sweep.json"]
@@ -202,7 +199,7 @@ signal.signal(signal.SIGINT, save_and_stop)
 time.sleep(60)
 """
 kit._nmrl = lambda: [sys.executable, "-c", FAKE_SWEEP]
-study = kit.Study(name="t", cells=(kit.Cell("c", ("--seeds", "1")),), endpoint=None)
+study = kit.Study(name="t", cells=(kit.Cell("c", seeds=1),), endpoint=None)
 try:
     kit.run_cell(study, study.cells[0], pathlib.Path(sys.argv[1]))
 except kit.StudyStopped as e:
@@ -246,11 +243,11 @@ def test_a_cells_run_options_are_given_on_its_start_and_every_resume(tmp_path, m
 
     monkeypatch.setattr(kit, "_nmrl", lambda: [sys.executable, "-c", _RECORDING_SWEEP])
     study = kit.Study(name="t", cells=(), endpoint=None)
-    cell = kit.Cell("c", ("--seeds", "2", "--steps", "10"), run_options=("--group", "2"))
+    cell = kit.Cell("c", seeds=2, steps=10, run_options={"group": 2})
     kit.run_cell(study, cell, tmp_path)  # starts it
     kit.run_cell(study, cell, tmp_path)  # resumes it
     start, resume = [json.loads(line) for line in (tmp_path / "argv.jsonl").read_text().splitlines()]
-    assert start[:4] == ["sweep", "--seeds", "2", "--steps"] and "--resume" not in start
+    assert start[:6] == ["sweep", "--learner", "ac", "--steps", "10", "--seeds"] and "--resume" not in start
     assert resume[:4] == ["sweep", "--resume", "--steps", "10"]
     for argv in (start, resume):
         assert argv[argv.index("--group") + 1] == "2" and argv[-2] == "--out"
@@ -279,7 +276,7 @@ def test_each_measurement_runs_after_every_cell_on_the_rows_so_far(tmp_path, mon
     def measure(name):
         return lambda out, rows: calls.append((name, tuple(r["cell"] for r in rows)))
 
-    study = kit.Study(name="t", cells=(kit.Cell("a", ("--steps", "10")), kit.Cell("b", ("--steps", "10"))),
+    study = kit.Study(name="t", cells=(kit.Cell("a", steps=10), kit.Cell("b", steps=10)),
                       endpoint=None, measurements=(kit.Measurement("m1", measure("m1")),
                                                    kit.Measurement("m2", measure("m2"))))
     kit.run(study, tmp_path)
@@ -313,7 +310,7 @@ def test_a_study_resumed_from_its_published_copy_continues_its_measurements(tmp_
             measured.append("pics")
             (out / "pics" / "made.txt").write_text("x")
 
-    cells = (kit.Cell("a", ("--steps", "10")), kit.Cell("b", ("--steps", "10")))
+    cells = (kit.Cell("a", steps=10), kit.Cell("b", steps=10))
     study = kit.Study(name="t", cells=cells[:1], endpoint=None,
                       measurements=(kit.Measurement("log.txt", log), kit.Measurement("pics", folder)))
     kit.run(study, tmp_path / "first")
@@ -347,10 +344,10 @@ def test_a_cell_the_rule_adds_runs_where_the_rule_puts_it(tmp_path, monkeypatch)
 
     def later(rows):
         have = {r["cell"] for r in rows}
-        return [*([kit.Cell("x", ("--steps", "10"))] if "a" in have and "x" not in have else []),
-                kit.Cell("c", ("--steps", "10"))]
+        return [*([kit.Cell("x", steps=10)] if "a" in have and "x" not in have else []),
+                kit.Cell("c", steps=10)]
 
-    study = kit.Study(name="t", cells=(kit.Cell("a", ("--steps", "10")),), endpoint=None, later=later)
+    study = kit.Study(name="t", cells=(kit.Cell("a", steps=10),), endpoint=None, later=later)
     kit.run(study, tmp_path)
     assert ran == ["a", "x", "c"]
     assert [c.name for c in kit.all_cells(study, tmp_path)] == ["a", "x", "c"]

@@ -94,7 +94,7 @@ def test_each_cell_is_one_points_sweep_of_the_specs_configs(spec):
         final = timescale_cells.points_cell("final", dt, fnames, fcfgs)
         assert (cell.name, final.name) == (f"grid/dt{dt:g}", f"final/dt{dt:g}")
         for c, want_names, want in ((cell, names, cfgs), (final, fnames, fcfgs)):
-            steps = int(c.sweep[c.sweep.index("--steps") + 1])
+            steps = c.steps
             sw = sweep.SweepSpec(ls=(None,), seeds=1, base=TrainConfig(steps=steps), field=None, overrides=c.points)
             sw.validate()
             assert sw.names() == want_names and sw.point_configs() == want

@@ -25,7 +25,7 @@ import sys
 import numpy as np
 
 from nmrl.experiments import kit, kit_cli
-from nmrl.experiments.exploration2_cells import ARMS, ENDPOINT, GRID_SEEDS, base, grid_cell
+from nmrl.experiments.exploration2_cells import ARMS, ENDPOINT, GRID_SEEDS, cell, grid_cell
 
 ITERATIONS = 32  #: twice the grid's 16
 #: each arm's grid settings at each control step (the screen's choices; tests check them against
@@ -54,15 +54,15 @@ def family_cell(arm: str, dt: float) -> kit.Cell:
 def wc_cell() -> kit.Cell:
     """W(2.5)'s cell with the clip :data:`WC_CLIP`."""
     cell = family_cell("white", 0.0025)
-    return dataclasses.replace(cell, name=_name("wc", 0.0025), sweep=(*cell.sweep, "--clip-eps", f"{WC_CLIP:.6g}"))
+    return dataclasses.replace(cell, name=_name("wc", 0.0025),
+                               settings={**cell.settings, "clip_eps": float(f"{WC_CLIP:.6g}")})
 
 
 def sigma_cell(arm: str) -> kit.Cell:
     """``arm`` at 20 ms with sigma :data:`SIGMA_CHECK`, seeds 0-3, :data:`ITERATIONS` (a seed at a
     time, as its family cell)."""
-    return kit.Cell(f"amendment/sigma/dt0.02/{arm}",
-                    (*base(0.02, ITERATIONS), *ARMS[arm], "--vary", "sigma", *map(str, SIGMA_CHECK),
-                     "--seeds", str(SIGMA_SEEDS), "--seed0", "0"))
+    return cell(f"amendment/sigma/dt0.02/{arm}", 0.02, ITERATIONS, ARMS[arm], vary=("sigma", SIGMA_CHECK),
+                seeds=SIGMA_SEEDS, seed0=0)
 
 
 CELLS = (family_cell("nmp", 0.02), family_cell("white", 0.02), sigma_cell("white"), sigma_cell("nmp"),

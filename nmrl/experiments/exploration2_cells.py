@@ -28,14 +28,13 @@ SIGMAS = (0.064, 0.16, 0.4, 1.0)
 SCREEN_SEED0, SCREEN_SEEDS, SCREEN_ITERATIONS = 100, 2, 4
 #: the paper's alpha = 0.8 per 20 ms step as a correlation time, to the 5 digits the cells' options give
 NM_CORR_TIME_S = round(PAPER_CORR_TIME_S, 5)
-#: each arm's exploration options at the middle of its screened time constant
+#: each arm's exploration settings at the middle of its screened time constant
 ARMS = {
-    "white": ("--exploration", "white"),
-    "ou": ("--exploration", "ou", "--corr-time-s", "0.03"),
-    "colored": ("--exploration", "colored", "--beta", "0.5"),
-    "nms": ("--exploration", "nm-periods", "--period-s", "0.06", "--corr-time-s", str(NM_CORR_TIME_S)),
-    "nmp": ("--exploration", "nm-periods", "--period-s", "0.06", "--corr-time-s", str(NM_CORR_TIME_S),
-            "--period-wise", "true"),
+    "white": {"exploration": "white"},
+    "ou": {"exploration": "ou", "corr_time_s": 0.03},
+    "colored": {"exploration": "colored", "beta": 0.5},
+    "nms": {"exploration": "nm-periods", "period_s": 0.06, "corr_time_s": NM_CORR_TIME_S},
+    "nmp": {"exploration": "nm-periods", "period_s": 0.06, "corr_time_s": NM_CORR_TIME_S, "period_wise": True},
 }
 
 #: the arms in the order tables and figures list them (ws: white with sigma by eq. (1))
@@ -44,20 +43,29 @@ ARM_ORDER = ("white", "ws", "ou", "colored", "nms", "nmp")
 ARM_COLORS = {arm: f"C{i}" for i, arm in enumerate(ARM_ORDER)}
 
 
-def base(dt: float, iterations: int) -> tuple[str, ...]:
-    """The options every cell at control step ``dt`` shares (module docstring)."""
-    steps = round(iterations * ITERATION_S / dt)
-    return ("--learner", "ppo", "--num-envs", "64", "--value-layers", "2", "--value-width", "64",
-            "--batch-size", "512", "--num-minibatches", "32", "--epochs", "8", "--reward-scale", f"{dt / DELTA_0:g}",
-            "--control-dt", f"{dt:g}", "--trial-s", "5", "--physics", "c", "--physics-timestep", "0.0025",
-            "--steps", str(steps))
+def base(dt: float) -> dict:
+    """The settings every cell at control step ``dt`` shares (module docstring); the reward scale and
+    the control step to 6 significant digits (``:g``), the values the published runs' configs hold."""
+    return {"num_envs": 64, "value_layers": 2, "value_width": 64, "batch_size": 512, "num_minibatches": 32,
+            "epochs": 8, "reward_scale": float(f"{dt / DELTA_0:g}"), "control_dt": float(f"{dt:g}"), "trial_s": 5.0,
+            "physics": "c", "physics_timestep": 0.0025}
+
+
+def steps(dt: float, iterations: int) -> int:
+    """The budget of ``iterations`` PPO iterations at control step ``dt``, in control steps per environment."""
+    return round(iterations * ITERATION_S / dt)
+
+
+def cell(name: str, dt: float, iterations: int, settings: dict, **points) -> kit.Cell:
+    """A PPO cell at control step ``dt`` with :func:`base`'s settings and ``settings``, a budget of
+    ``iterations`` iterations, and ``points`` (``vary``, ``seeds``, ``seed0``, ``run_options``)."""
+    return kit.Cell(name, "ppo", {**base(dt), **settings}, steps=steps(dt, iterations), **points)
 
 
 def sigma_cell(arm: str, dt: float) -> kit.Cell:
     """``arm``'s sigma screen at control step ``dt``: every value of :data:`SIGMAS`, the screen's seeds and budget."""
-    return kit.Cell(f"screen/sigma/dt{dt:g}/{arm}",
-                    (*base(dt, SCREEN_ITERATIONS), *ARMS[arm], "--vary", "sigma", *map(str, SIGMAS),
-                     "--seeds", str(SCREEN_SEEDS), "--seed0", str(SCREEN_SEED0)))
+    return cell(f"screen/sigma/dt{dt:g}/{arm}", dt, SCREEN_ITERATIONS, ARMS[arm], vary=("sigma", SIGMAS),
+                seeds=SCREEN_SEEDS, seed0=SCREEN_SEED0)
 
 
 #: the sigma screen in run order (docs/exploration-study-2.md): white and nm-periods learned as wholes
@@ -106,17 +114,11 @@ def grid_cell(arm: str, dt: float, choice: dict, seeds: int, name: str | None = 
     cells step a seed at a time, so that white's runs there are the same runs, iteration for
     iteration, as the matched-SNR cells of fewer seeds and iterations."""
     name = name or f"grid/dt{dt:g}/{arm}"
-    options = list(ARMS["white" if arm == "ws" else arm])
-    for field, value in choice.items():
-        flag = "--" + field.replace("_", "-")
-        if flag in options:
-            options[options.index(flag) + 1] = f"{value:.6g}"
-        else:
-            options += [flag, f"{value:.6g}"]
+    settings = {**ARMS["white" if arm == "ws" else arm], **{k: float(f"{v:.6g}") for k, v in choice.items()}}
     if dt < 0.02 and name not in WHOLE_GRADIENT:
-        options += ["--grad-chunks", str(GRAD_CHUNKS)]
-    return kit.Cell(name, (*base(dt, iterations), *options, "--seeds", str(seeds), "--seed0", "0"),
-                    run_options=("--group", str(seeds)) if dt < 0.02 else ())
+        settings["grad_chunks"] = GRAD_CHUNKS
+    return cell(name, dt, iterations, settings, seeds=seeds, seed0=0,
+                run_options={"group": seeds} if dt < 0.02 else {})
 
 
 SNR_SEEDS = 3  #: seeds of the matched policies (0-2: the grid's white at 20 ms holds their iteration 16)

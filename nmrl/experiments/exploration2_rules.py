@@ -9,12 +9,15 @@ twice), then the grid of the primary settings, the secondary parts and the check
 
 from __future__ import annotations
 
+import dataclasses
+
 from nmrl.experiments import kit
 from nmrl.experiments.exploration2_cells import (ARMS, ASYMPTOTE_ITERATIONS, CORRELATED, GRID_SEEDS, MAX_EXTENSIONS,
                                                  PRIMARY, SCREEN_ITERATIONS, SCREEN_SEED0, SCREEN_SEEDS,
                                                  SECONDARY_SCREEN, SECONDARY_SEEDS, SIGMA_FACTOR, SIGMA_MAX,
                                                  SIGMA_SCREEN, SNR_POLICY_ITERATIONS, SNR_SEEDS, TIME_CONSTANTS,
-                                                 arm_and_dt, asymptote_name, base, grid_cell, grid_name,
+                                                 arm_and_dt, asymptote_name, cell as cell_of, grid_cell,
+                                                 grid_name,
                                                  scaled_white_sigma, snr_name)
 
 
@@ -74,18 +77,14 @@ def _extension(cell: kit.Cell, rows: list[dict], factor: float) -> kit.Cell | No
     if not edge or n_ext >= MAX_EXTENSIONS:
         return None
     nxt = best * factor if best == values[-1] else best / factor
-    argv = list(cell.sweep)
-    i = argv.index("--vary")
-    if argv[i + 1] == "period_s":
+    field = cell.vary[0]
+    if field == "period_s":
         _, dt = arm_and_dt(cell.name)
         if round(best / dt) <= 1:
             return None
         nxt = max(nxt, dt)
-    j = i + 2
-    while j < len(argv) and not argv[j].startswith("--"):
-        j += 1
-    argv[i + 2:j] = [f"{nxt:.6g}"]
-    return kit.Cell(f"{cell.name}+{nxt:.6g}", tuple(argv))
+    nxt = float(f"{nxt:.6g}")
+    return dataclasses.replace(cell, name=f"{cell.name}+{nxt:.6g}", vary=(field, (nxt,)))
 
 
 def _screen_state(rows: list[dict], cell: kit.Cell) -> tuple[list[kit.Cell], dict]:
@@ -109,13 +108,9 @@ def _screen_state(rows: list[dict], cell: kit.Cell) -> tuple[list[kit.Cell], dic
     if arm not in TIME_CONSTANTS:
         return [], decided
     field, vals, factor = TIME_CONSTANTS[arm]
-    options = list(ARMS[arm])
-    k = options.index("--" + field.replace("_", "-"))
-    del options[k:k + 2]  # the field is varied instead
-    tc = kit.Cell(f"screen/tc/dt{dt:g}/{arm}",
-                  (*base(dt, SCREEN_ITERATIONS), *options, "--sigma", f"{sigma[0]:.6g}",
-                   "--vary", field, f"{vals[0]:g}", f"{vals[2]:g}",
-                   "--seeds", str(SCREEN_SEEDS), "--seed0", str(SCREEN_SEED0)))
+    settings = {k: v for k, v in ARMS[arm].items() if k != field}  # the field is varied instead
+    tc = cell_of(f"screen/tc/dt{dt:g}/{arm}", dt, SCREEN_ITERATIONS, {**settings, "sigma": float(f"{sigma[0]:.6g}")},
+                 vary=(field, (float(f"{vals[0]:g}"), float(f"{vals[2]:g}"))), seeds=SCREEN_SEEDS, seed0=SCREEN_SEED0)
     tc_rows = _finished(rows, tc.name)
     if tc_rows is None:
         return [tc], decided

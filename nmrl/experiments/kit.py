@@ -1,10 +1,11 @@
 """A study as data: cells that are ``nmrl sweep`` commands, an endpoint, and one runner.
 
-A :class:`Study` names its cells in run order; a :class:`Cell` is a directory under the study's
-(``screen/dt0.0025/white``) and the options of one ``nmrl sweep`` (every point of a cell is one
-compiled program: the values of one traced field x seeds, or the points the cell lists, differing in
-several traced fields and the seed: ``nmrl sweep --points``). :func:`run` brings every cell to its
-budget and scores it:
+A :class:`Study` names its cells in run order; a :class:`Cell` (nmrl/experiments/kit_cells.py) is a
+directory under the study's (``screen/dt0.0025/white``) and one ``nmrl sweep`` as typed data: its
+learner, settings, budget and points, checked against the learner's declarations as it is made
+(every point of a cell is one compiled program: the values of one traced field x seeds, or the
+points the cell lists, differing in several traced fields and the seed: ``nmrl sweep --points``).
+:func:`run` brings every cell to its budget and scores it:
 
 * a cell with a ``sweep.json`` is continued (``nmrl sweep --resume``, its budget given again),
   unless its files show that the resume has nothing to do (:func:`at_budget`);
@@ -12,8 +13,9 @@ budget and scores it:
   seeded from there (sweep.json, every point's config.json, metrics.jsonl and compact.npz: the
   compact continuation states, every environment starting a new trial); any other starts fresh;
   a measurement's file missing but published is seeded the same way (:func:`seed_measurements`);
-* each sweep runs as its own ``nmrl sweep`` process (niced by the caller), so that its devices,
-  memory and signals are its own; a signal stops the study after the sweep saves, with its status;
+* each sweep runs as its own ``nmrl sweep`` process (niced by the caller), its command line made
+  from the cell by ``kit_cells.sweep_argv`` alone, so that its devices, memory and signals are its
+  own; a signal stops the study after the sweep saves, with its status;
 * every point at its budget gets ``endpoint.json``: the deterministic policy's reward per second
   over the study's rollouts from perturbed starts (nmrl/analysis/endpoint.py), once per step (a
   study whose endpoint is None scores its points from their metrics alone, in its measurements);
@@ -42,8 +44,9 @@ import shutil
 import subprocess
 import sys
 import tempfile
-from typing import Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
+from nmrl.experiments.kit_cells import Cell, sweep_argv
 from nmrl.paper.control_step import DELTA_0
 from nmrl.runs import signals, store
 
@@ -67,36 +70,6 @@ class StudyStopped(RuntimeError):
     def __init__(self, cell: str, status: int):
         super().__init__(f"cell {cell} stopped with status {status}")
         self.cell, self.status = cell, status
-
-
-@dataclasses.dataclass(frozen=True)
-class Cell:
-    name: str  #: directory under the study's, e.g. "screen/dt0.0025/white"
-    sweep: tuple[str, ...]  #: ``nmrl sweep`` options that define the points (not --out/--resume)
-    #: the points one by one (``nmrl sweep --points``: dicts of a name and the config fields it sets);
-    #: () : the options above make the points
-    points: tuple[dict, ...] = ()
-    #: ``nmrl sweep`` options of how this cell runs, not what it computes (e.g. ``--group``), given
-    #: on its start and on every resume after the study's own (:attr:`Study.run_options`)
-    run_options: tuple[str, ...] = ()
-
-    def budget(self) -> tuple[str, ...]:
-        """The budget options among :attr:`sweep` (given again on a resume)."""
-        out, a = [], list(self.sweep)
-        for i, x in enumerate(a):
-            if x in ("--steps", "--trials") and i + 1 < len(a):
-                out += [x, a[i + 1]]
-        return tuple(out)
-
-    def budget_limit(self) -> tuple[str, int] | None:
-        """The state counter the budget bounds and its limit: ``("step", N)`` for ``--steps N``,
-        ``("trials", N)`` for ``--trials N``; None without a budget or with one that is no count."""
-        b = self.budget()
-        for option, counter in (("--steps", "step"), ("--trials", "trials")):
-            if option in b:
-                limit = b[b.index(option) + 1]
-                return (counter, int(limit)) if limit.isdigit() else None
-        return None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -124,8 +97,8 @@ class Study:
     cells: tuple[Cell, ...]
     #: the deterministic endpoint every point is scored by; None: none (the study's numbers are its own)
     endpoint: Endpoint | None = Endpoint()
-    #: ``nmrl sweep`` options of how a cell runs (not what it computes)
-    run_options: tuple[str, ...] = ("--checkpoint-every", "1", "--quiet")
+    #: how a cell runs, not what it computes (nmrl/experiments/kit_cells.py's ``SweepOptions``)
+    run_options: Mapping[str, Any] = dataclasses.field(default_factory=lambda: {"checkpoint_every": 1, "quiet": True})
     #: the study's rule for later cells: from the rows so far, the cells that follow (run after
     #: ``cells``, as they appear; a rule reads only finished cells' rows)
     later: Callable[[list[dict]], Sequence[Cell]] | None = None
@@ -204,7 +177,7 @@ def run_cell(study: Study, cell: Cell, out: pathlib.Path, published: pathlib.Pat
     d = out / cell.name
     if published is not None:
         seed_from(published / cell.name, d)
-    how = (*study.run_options, *cell.run_options)  # how the cell runs, on its start and every resume
+    how = {**study.run_options, **cell.run_options}  # how the cell runs, on its start and every resume
     if (d / "sweep.json").exists():
         saved = json.loads((d / "sweep.json").read_text()).get("points", [])
         if cell.points and saved != json.loads(json.dumps(list(cell.points))):
@@ -212,14 +185,14 @@ def run_cell(study: Study, cell: Cell, out: pathlib.Path, published: pathlib.Pat
                              f"settings chose them); move it away to run the cell's points")
         if at_budget(cell, d):
             return
-        rc = _sweep([*_nmrl(), "sweep", "--resume", *cell.budget(), *how, "--out", str(d)])
+        rc = _sweep([*_nmrl(), "sweep", *sweep_argv(cell, how, resume=True), "--out", str(d)])
     elif cell.points:
         with tempfile.TemporaryDirectory() as tmp:  # the sweep records its points in its sweep.json
             f = pathlib.Path(tmp) / "points.json"
             f.write_text(json.dumps(list(cell.points)))
-            rc = _sweep([*_nmrl(), "sweep", *cell.sweep, "--points", str(f), *how, "--out", str(d)])
+            rc = _sweep([*_nmrl(), "sweep", *sweep_argv(cell, how, points_file=str(f)), "--out", str(d)])
     else:
-        rc = _sweep([*_nmrl(), "sweep", *cell.sweep, *how, "--out", str(d)])
+        rc = _sweep([*_nmrl(), "sweep", *sweep_argv(cell, how), "--out", str(d)])
     if rc != 0:
         raise StudyStopped(cell.name, rc)
     guard = signals.active()  # a signal to the study's process alone (under a command's guard) stops it here

@@ -73,8 +73,7 @@ def kit_study(spec: TimescaleSpec, out: pathlib.Path, phases: Sequence[str] = PH
     if "plot" in phases:
         steps.append(kit.Measurement("timescale.png", lambda o, rows: figures(o)))
     return kit.Study(name="timescale", cells=grid_cells(spec), endpoint=None,
-                     run_options=("--checkpoint-every", str(spec.checkpoint_every),
-                                  *(() if progress else ("--quiet",))),
+                     run_options={"checkpoint_every": spec.checkpoint_every, **({} if progress else {"quiet": True})},
                      later=final_cells(spec, out), measurements=tuple(steps))
 
 

@@ -51,7 +51,7 @@ from typing import Sequence
 
 from nmrl import learners
 from nmrl.analysis import plots, stats
-from nmrl.options import SEED_MAX, check_seed
+from nmrl.options import check_seed
 from nmrl.runs import distributed as dist, driver, errors, lock, preflight, store
 from nmrl.runs.resume import existing_step, given_changes
 from nmrl.runs.signals import setting_up, stop_setup
@@ -118,13 +118,7 @@ class SweepSpec:
         dup = sorted({l for l in self.ls if self.ls.count(l) > 1})
         if dup:
             raise ValueError(f"duplicate {f} values {dup}: each value may appear once")
-        if not isinstance(self.seeds, int) or isinstance(self.seeds, bool) or not 1 <= self.seeds <= SEED_MAX + 1:
-            raise ValueError(f"seeds={self.seeds!r} is invalid: must be an integer in [1, {SEED_MAX + 1}] (the "
-                             f"seeds 0..seeds-1 are 32-bit PRNG seeds)")
-        if not isinstance(self.seed0, int) or isinstance(self.seed0, bool) or \
-                not 0 <= self.seed0 <= SEED_MAX + 1 - self.seeds:
-            raise ValueError(f"seed0={self.seed0!r} is invalid: must be an integer >= 0 with seed0 + seeds - 1 <= "
-                             f"{SEED_MAX} (32-bit PRNG seeds)")
+        self._validate_seeds()
         bad = [l for l in self.first if l not in self.ls]
         if bad or len(set(self.first)) != len(self.first):
             raise ValueError(f"first={list(self.first)} is invalid: the {f} values that run first must be "
@@ -132,6 +126,20 @@ class SweepSpec:
         for v in self.ls:  # the points differ in the value and the seed, whose bounds are checked above
             cfg = self.base if f is None else dataclasses.replace(self.base, **{f: v})
             preflight.check_config(dataclasses.replace(cfg, seed=0))  # the bounds of ``nmrl train``
+
+    def _validate_seeds(self) -> None:
+        """``seeds`` an integer >= 1, and every seed ``seed0 .. seed0 + seeds - 1`` one the run field
+        ``seed`` allows (nmrl.options.check_seed: the one seed range); ValueError naming the value."""
+        if not isinstance(self.seeds, int) or isinstance(self.seeds, bool) or self.seeds < 1:
+            raise ValueError(f"seeds={self.seeds!r} is invalid: must be an integer >= 1")
+        check_seed(self.seed0, "seed0")
+        last = self.seed0 + self.seeds - 1
+        try:
+            check_seed(last)
+        except ValueError as e:
+            allowed = str(e).split(" is invalid: ", 1)[1]
+            raise ValueError(f"seeds={self.seeds!r} is invalid: the last seed, seed0 + seeds - 1 = {last}, {allowed}") \
+                from None
 
     def _validate_overrides(self) -> None:
         """The listed points: distinct plain names, fields of the config other than the budget, the

@@ -56,8 +56,7 @@ def grid_cell(dt: float, seeds: int = SEEDS, seconds_per_env: float = SECONDS_PE
             c = at_control_step(b, dt, period)
             names.append(point_name(period, s))
             configs.append(c.__class__(**{**c.__dict__, "seed": s, "steps": steps}))
-    return kit.Cell(cell_name(dt), ("--learner", "ac", "--steps", str(steps)), points=points_of(names, configs),
-                    run_options=("--group", str(GROUP)))
+    return kit.Cell(cell_name(dt), "ac", steps=steps, points=points_of(names, configs), run_options={"group": GROUP})
 
 
 #: the comparator's step-size check: the stationary arm at 2.5 ms with both step sizes times these
@@ -77,8 +76,8 @@ def check_cell() -> kit.Cell:
             names.append(f"{arm_name(None)}_x{f:.3g}_s{s}")
             configs.append(c.__class__(**{**c.__dict__, "seed": s, "beta_theta": float(f"{theta * f:.6g}"),
                                           "beta_v": float(f"{v * f:.6g}")}))
-    return kit.Cell(f"check/dt{CHECK_DT:g}", ("--learner", "ac", "--steps", str(b.steps)),
-                    points=points_of(names, configs), run_options=("--group", str(CHECK_SEEDS)))
+    return kit.Cell(f"check/dt{CHECK_DT:g}", "ac", steps=b.steps, points=points_of(names, configs),
+                    run_options={"group": CHECK_SEEDS})
 
 
 #: the cells in run order: the cheap 20 ms cell first (its arms show whether the budget walks), then

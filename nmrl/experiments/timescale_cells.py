@@ -39,8 +39,7 @@ def points_of(names: Sequence[str], configs: Sequence[TrainConfig]) -> tuple[dic
 
 def points_cell(phase: str, dt: float, names: list[str], configs: list[TrainConfig]) -> kit.Cell:
     """The cell of ``phase`` at ``dt`` that runs ``configs`` (one budget) as points named ``names``."""
-    return kit.Cell(cell_name(phase, dt), ("--learner", "ac", "--steps", str(configs[0].steps)),
-                    points=points_of(names, configs))
+    return kit.Cell(cell_name(phase, dt), "ac", steps=configs[0].steps, points=points_of(names, configs))
 
 
 def grid_cells(spec: TimescaleSpec) -> tuple[kit.Cell, ...]:

@@ -23,7 +23,6 @@ import jax
 
 from nmrl import learners, tasks
 from nmrl.learners.contract import Config
-from nmrl.options import SEED_MAX  # noqa: F401 - the seeds of a sweep (nmrl.runs.driver)
 from nmrl.runs import bounds, distributed as dist, io_errors, lock, memory, store
 from nmrl.runs.errors import OutOfMemory, RunError
 from nmrl.runs.store import RUN_FILES

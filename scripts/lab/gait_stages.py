@@ -26,7 +26,8 @@ import json
 import pathlib
 
 from nmrl.experiments import kit
-from nmrl.experiments.exploration2_cells import ARMS, ENDPOINT, ITERATION_S, base
+from nmrl.experiments.exploration2_cells import ARMS, ENDPOINT, ITERATION_S
+from nmrl.experiments.exploration2_cells import cell as e2cell
 
 SEEDS = 2
 CONTROL_DT = 0.02
@@ -39,8 +40,8 @@ CSV = "stages.csv"
 
 def cell(arm: str, iterations: int) -> kit.Cell:
     """``arm``'s cell at 20 ms with a budget of ``iterations`` PPO iterations (the same directory at every budget)."""
-    return kit.Cell(f"dt{CONTROL_DT:g}/{arm}", (*base(CONTROL_DT, iterations), *ARMS[arm], "--seeds", str(SEEDS),
-                                                 "--seed0", "0"), run_options=("--group", str(SEEDS)))
+    return e2cell(f"dt{CONTROL_DT:g}/{arm}", CONTROL_DT, iterations, ARMS[arm], seeds=SEEDS, seed0=0,
+                  run_options={"group": SEEDS})
 
 
 def measure(arm: str, d: pathlib.Path, iteration: int) -> list[dict]:

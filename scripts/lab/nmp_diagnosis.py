@@ -22,19 +22,19 @@ import pathlib
 import shutil
 
 from nmrl.experiments import exploration2_diagnosis, kit
-from nmrl.experiments.exploration2_cells import ARMS, ENDPOINT, GRID_ITERATIONS, base
+from nmrl.experiments.exploration2_cells import ARMS, ENDPOINT, GRID_ITERATIONS, cell
 
 SEEDS = 2
 VARIANTS = {
-    "nmp_sigma0.4": ("--sigma", "0.4"),
-    "nmp_sigma0.16": ("--sigma", "0.16"),
-    "nmp_sigma1_fixed_std": ("--sigma", "1", "--learn-std", "false"),
+    "nmp_sigma0.4": {"sigma": 0.4},
+    "nmp_sigma0.16": {"sigma": 0.16},
+    "nmp_sigma1_fixed_std": {"sigma": 1.0, "learn_std": False},
     # a trust region per second: a period of 0.06 s is 3 control steps, so the clip of its ratio is
     # widened by sqrt(3) (KL grows as the log-ratio squared): NMp's KL per second then matches white's
-    "nmp_sigma1_clip0.52": ("--sigma", "1", "--clip-eps", "0.52"),
+    "nmp_sigma1_clip0.52": {"sigma": 1.0, "clip_eps": 0.52},
     # the noise nearly white (AR coefficient exp(-0.02 / 0.01) = 0.14 per step) with the period-wise
     # ratio kept: separates learning on periods as wholes from the noise's correlation
-    "nmp_sigma1_corr0.01": ("--sigma", "1", "--corr-time-s", "0.01"),
+    "nmp_sigma1_corr0.01": {"sigma": 1.0, "corr_time_s": 0.01},
 }
 
 
@@ -68,9 +68,8 @@ def noise_scales(out: pathlib.Path) -> list[dict]:
 
 
 def cells() -> tuple[kit.Cell, ...]:
-    return tuple(kit.Cell(f"dt0.02/{name}", (*base(0.02, GRID_ITERATIONS), *ARMS["nmp"], *extra, "--seeds", str(SEEDS),
-                                             "--seed0", "0"), run_options=("--group", str(SEEDS)))
-                 for name, extra in VARIANTS.items())
+    return tuple(cell(f"dt0.02/{name}", 0.02, GRID_ITERATIONS, {**ARMS["nmp"], **extra}, seeds=SEEDS, seed0=0,
+                      run_options={"group": SEEDS}) for name, extra in VARIANTS.items())
 
 
 def main() -> None:

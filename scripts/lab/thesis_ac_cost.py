@@ -28,9 +28,7 @@ def main() -> None:
     out = pathlib.Path(a.out)
     total = 0.0
     for cell in CELLS:
-        steps = int(cell.budget()[1]) * a.chunks * CHUNK_S / SECONDS_PER_ENV
-        short = dataclasses.replace(cell, sweep=tuple(str(round(steps)) if i > 0 and cell.sweep[i - 1] == "--steps"
-                                                      else x for i, x in enumerate(cell.sweep)))
+        short = dataclasses.replace(cell, steps=round(cell.steps * a.chunks * CHUNK_S / SECONDS_PER_ENV))
         kit.run(kit.Study(name="cost", cells=(short,), endpoint=None), out)
         walls = []
         for m in sorted((out / cell.name / "points").glob("*/metrics.jsonl")):
