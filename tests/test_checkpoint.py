@@ -7,7 +7,6 @@ share, so they do not compile it again.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 import pathlib

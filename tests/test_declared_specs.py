@@ -6,7 +6,6 @@ line naming it and what its declaration allows (exit 2, nothing written), and ev
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import pathlib
 

@@ -6,7 +6,6 @@ computation (nmrl/experiments/ppo_gradsnr.py), the matched states against the co
 from __future__ import annotations
 
 import csv
-import dataclasses
 import json
 
 import jax

@@ -8,7 +8,6 @@ against the same runs on C physics made another way.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 
 import jax

@@ -9,7 +9,6 @@ float32 limits, ``json`` line by line, the bytes of arrays actually allocated).
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import errno
 import json
 import logging

@@ -3,7 +3,6 @@ by one, differing in several traced fields and the seed, as one program that equ
 
 from __future__ import annotations
 
-import dataclasses
 import json
 
 import numpy as np

@@ -5,7 +5,6 @@ exploration process on every task with each learner that takes it."""
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import pathlib
 

@@ -301,8 +301,9 @@ def evaluate(
             span = (len(det["pos"]) - 1) * config.environment.control_dt  # the whole rollout (--seconds)
             every = strobe_every(span)
             title = f"{run.name}, step {step}, deterministic policy"  # the strobe adds its spacing and span
-            plot_strobe(det["pos"], config.environment.control_dt, stage / STROBE, every_s=every, span_s=span, title=title)
-            write_gif(det["pos"], config.environment.control_dt, stage / GIF)
+            dt = config.environment.control_dt
+            plot_strobe(det["pos"], dt, stage / STROBE, every_s=every, span_s=span, title=title)
+            write_gif(det["pos"], dt, stage / GIF)
             with atomic_path(stage / TRAJECTORY) as tmp:
                 np.savez(tmp, pos=np.asarray(det["pos"], np.float32), control_dt=np.float64(config.environment.control_dt))
             result["files"] = {"strobe": str(out_dir / STROBE), "gif": str(out_dir / GIF),

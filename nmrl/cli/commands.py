@@ -205,8 +205,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         values = getattr(args, field, None) if field is not None else None
         plain = options.build(learner.config, **given_options(args, skip=sweep_skip(learner)))
         if field is not None and values is not None and options.value(plain, field) != options.value(base, field):
-            raise ValueError(f"--exploration {args.exploration or ''} sets {field}={options.value(base, field)!r}, which "
-                             f"the sweep varies (--{field} {' '.join(map(str, values))}): give one of the two")
+            raise ValueError(f"--exploration {args.exploration or ''} sets {field}={options.value(base, field)!r}, "
+                             f"which the sweep varies (--{field} {' '.join(map(str, values))}): give one of the two")
         if field is not None and values is None and not args.resume:
             raise ValueError(f"--{field} is required (the values of the sweep, e.g. --l 1 2 3 5 10 15 20 30)")
         spec = sweep.SweepSpec(ls=tuple(values or (1,)) if field is not None else (None,), seeds=args.seeds,

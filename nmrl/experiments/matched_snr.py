@@ -20,7 +20,6 @@ Rows (``snr.csv``): seed, iteration, control step, arm, and ppo_gradsnr's statis
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import pathlib
 from typing import Any, Sequence

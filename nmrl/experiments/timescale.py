@@ -68,9 +68,10 @@ def at_control_step(base: TrainConfig, control_dt: float, period_seconds: float 
         l, lam = _as_int(period_seconds / control_dt, "period_seconds / control_dt"), base.lam
     delta = _as_int(base.delta / k, "Delta_0 * delta_0 / control_dt") if k < 1 else max(1, math.floor(base.delta / k))
     paper = base.environment.env == tasks.PAPER  # a task keeps its own end of a trial and its rates (above)
+    stop_prob = base.environment.stop_prob
     cfg = options.replace(
         base, control_dt=control_dt, l=l, lam=lam, delta=delta,
-        gamma=base.gamma ** k, alpha=base.alpha ** k, stop_prob=base.environment.stop_prob * k if paper else base.environment.stop_prob,
+        gamma=base.gamma ** k, alpha=base.alpha ** k, stop_prob=stop_prob * k if paper else stop_prob,
         reward_scale=base.reward_scale * k if paper else base.reward_scale,
     )
     cfg.validate()

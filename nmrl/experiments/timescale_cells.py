@@ -33,8 +33,8 @@ def points_of(names: Sequence[str], configs: Sequence[TrainConfig]) -> tuple[dic
     (but the budget) that differs from the actor-critic's defaults."""
     default = TrainConfig()
     keep = [k for k in options.leaves(TrainConfig) if k not in (*BUDGET_FIELDS, "seed")]
-    return tuple({"name": n, **{k: options.value(c, k) for k in keep if options.value(c, k) != options.value(default, k)},
-                  "seed": c.budget.seed} for n, c in zip(names, configs))
+    changed = [{k: v for k, v in options.flat(c).items() if k in keep and v != options.value(default, k)} for c in configs]
+    return tuple({"name": n, **d, "seed": c.budget.seed} for n, c, d in zip(names, configs, changed))
 
 
 def points_cell(phase: str, dt: float, names: list[str], configs: list[TrainConfig]) -> kit.Cell:

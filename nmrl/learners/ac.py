@@ -65,7 +65,7 @@ def action_map(env):
 
 
 def make(config: TrainConfig, env=None, **kw):
-    """``make_train`` with the run's environment (``tasks.make_env(config.env, ...)`` unless given)
+    """``make_train`` with the run's environment (``tasks.make_env(config.environment.env, ...)`` unless given)
     and its :func:`action_map`."""
     cfg = config.resolved()
     env = env or tasks.make_env(cfg.environment.env, cfg.environment.env_config())

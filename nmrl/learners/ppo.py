@@ -115,8 +115,8 @@ def _sample_per_env(proc: explore.Process, ns: explore.NoiseState, keys: jax.Arr
 
 def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None, num_shards: int = 1) -> PPOTrainer:
     """Build the pure functions of a PPO run (module docstring; ``env`` as for the actor-critic:
-    ``tasks.make_env(config.environment.env, config.environment.env_config())`` by default). With ``num_shards`` > 1, ``chunk`` is written
-    for ``jax.shard_map`` over the environment axis of ``env`` and ``noise``: every draw is made per
+    ``tasks.make_env(config.environment.env, config.environment.env_config())`` by default). With
+    ``num_shards`` > 1, ``chunk`` is written for ``jax.shard_map`` over the environment axis of ``env`` and ``noise``: every draw is made per
     environment from the shared key, the minibatches take the same unrolls, and the sums behind the
     losses, gradients and statistics are ``psum``-ed over ``axis_name``."""
     check_shards(config.budget.num_envs, num_shards, axis_name)

@@ -50,8 +50,8 @@ def _train_devices(cfg: Config, devices: int | None = None) -> list:
         return jax.local_devices()[:n]
     devs = sharding.process_devices(n)
     if cfg.budget.num_envs % len(devs):
-        raise RunError(f"num_envs={cfg.budget.num_envs} is invalid for {jax.process_count()} processes with {n} device(s) "
-                       f"each: the environments are split over all {len(devs)} devices, so N must be a multiple "
+        raise RunError(f"num_envs={cfg.budget.num_envs} is invalid for {jax.process_count()} processes with {n} "
+                       f"device(s) each: the environments are split over all {len(devs)} devices, so N must be a multiple "
                        f"of {len(devs)}")
     return devs
 

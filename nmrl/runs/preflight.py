@@ -55,8 +55,8 @@ def check_config(cfg: Config) -> None:
         ts = cfg.environment.physics_timestep or physics_timestep()
         n = cfg.environment.control_dt / ts
         if abs(n - round(n)) > 1e-6 or round(n) < 1:
-            raise ValueError(f"control_dt={cfg.environment.control_dt!r} is invalid: must be a whole multiple of the physics "
-                             f"timestep {ts:g} s (e.g. {ts:g}, {2 * ts:g}, {4 * ts:g}; --physics-timestep sets it)")
+            raise ValueError(f"control_dt={cfg.environment.control_dt!r} is invalid: must be a whole multiple of the "
+                             f"physics timestep {ts:g} s (e.g. {ts:g}, {2 * ts:g}, {4 * ts:g}; --physics-timestep sets it)")
     if cfg.environment.physics == "c":  # the model the run steps: the paper's or the task's
         from nmrl.physics.mujoco_c import check_supported
 

@@ -12,7 +12,6 @@ one). Every refusal happens before anything is written: this module only reads.
 
 from __future__ import annotations
 
-import dataclasses
 import pathlib
 import sys
 import time

@@ -128,9 +128,10 @@ def run(policy: Policy, read: Callable[[Holds], list[Point]], lay_out: Callable[
             dist.barrier(policy.barrier)  # several processes: all have read the runs before process 0 writes
             guard.stop_setup()
             cfg = ps[0].cfg
-            if one and cfg.budget.steps is not None and cfg.budget.steps % cfg.budget.chunk_steps:
-                end = math.ceil(cfg.budget.steps / cfg.budget.chunk_steps) * cfg.budget.chunk_steps
-                print(f"note: the budget of {cfg.budget.steps} steps is not a whole number of chunks of {cfg.budget.chunk_steps}: "
+            b = cfg.budget
+            if one and b.steps is not None and b.steps % b.chunk_steps:
+                end = math.ceil(b.steps / b.chunk_steps) * b.chunk_steps
+                print(f"note: the budget of {b.steps} steps is not a whole number of chunks of {b.chunk_steps}: "
                       f"the run stops after whole chunks, at step {end}", file=sys.stderr, flush=True)
             at = int(ps[0].ts.step) if one else 0  # the step a stop before the first chunk reports
             done0 = int(ps[0].ts.step) if cfg.budget.steps is not None else int(ps[0].ts.trials)
