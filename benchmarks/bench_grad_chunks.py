@@ -23,6 +23,8 @@ import sys
 
 from benchmarks import worker_main
 
+from nmrl import options
+
 SMOKE = {"seeds": 2, "num_envs": 4, "batch_size": 8, "control_dt": 0.02, "chunks": (1, 2)}
 
 
@@ -47,12 +49,12 @@ def _worker(quick: bool, smoke: bool) -> dict:
         size = dict(num_envs=64, batch_size=512, num_minibatches=2 if quick else 4)
     calls, compiles, work = {}, {}, None
     for c in chunks:
-        cfg = PPOConfig(**size, grad_chunks=c, control_dt=dt, reward_scale=dt / 0.02, value_layers=2,
+        cfg = options.build(PPOConfig, **size, grad_chunks=c, control_dt=dt, reward_scale=dt / 0.02, value_layers=2,
                         value_width=64, physics="c", physics_timestep=0.0025, trial_s=5.0).resolved()
-        tr = make_ppo(cfg, HalfCheetah(dataclasses.replace(cfg.env_config(), threads=max(1, cores // n_dev))))
+        tr = make_ppo(cfg, HalfCheetah(dataclasses.replace(cfg.environment.env_config(), threads=max(1, cores // n_dev))))
         st = jax.jit(jax.vmap(tr.init))(jnp.stack([jax.random.PRNGKey(s) for s in range(seeds)]))
         calls[c], compiles[c] = points_call(tr.chunk, st, seeds, n_dev, seeds)
-        work = seeds * cfg.num_envs * cfg.chunk_steps
+        work = seeds * cfg.budget.num_envs * cfg.budget.chunk_steps
     times = interleave(calls, rounds)
     rates = {f"chunks_{c}": timing(times[c], work)["control_steps_per_s"] for c in chunks}
     over = {f"chunks_{c}": statistics.median(a / b for a, b in zip(times[1], times[c])) for c in chunks[1:]}

@@ -29,6 +29,8 @@ os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.expanduser("~/.cache/
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
+from nmrl import options
+
 #: chunk length (control steps per environment per call); the same in quick and full mode so a
 #: quick run reuses the full run's persistent compile cache
 CHUNK_STEPS = 32
@@ -121,7 +123,7 @@ def measure(batch: int, chunk_steps: int, rounds: int) -> dict:
     from nmrl.learners.ac_train import make_train
     from nmrl.runs.loop import compile_chunk
 
-    cfg = TrainConfig(num_envs=batch, chunk_steps=chunk_steps, l=10, seed=0)
+    cfg = options.build(TrainConfig, num_envs=batch, chunk_steps=chunk_steps, l=10, seed=0)
     trainer = make_train(cfg)
     env = trainer.env
     work = batch * chunk_steps

@@ -37,6 +37,8 @@ import time
 
 from benchmarks import worker_main
 
+from nmrl import options
+
 LS = (1, 2, 3, 5, 10, 15, 20, 30)
 SEEDS = 3
 NUM_ENVS = 32
@@ -117,11 +119,11 @@ def _worker(quick: bool, smoke: bool) -> dict:
     T = SMOKE["chunk_steps"] if smoke else 10 if quick else 40
 
     def sweep(physics: str, n_use: int, group: int = 1, arctan: str = "fast"):
-        cfgs = [TrainConfig(num_envs=num_envs, chunk_steps=T, l=l, seed=s, physics=physics,
+        cfgs = [options.build(TrainConfig, num_envs=num_envs, chunk_steps=T, l=l, seed=s, physics=physics,
                             arctan=arctan).resolved() for l in ls for s in range(seeds)]
-        env_cfg = dataclasses.replace(cfgs[0].env_config(), threads=max(1, cores // n_use))
+        env_cfg = dataclasses.replace(cfgs[0].environment.env_config(), threads=max(1, cores // n_use))
         tr = make_train(cfgs[0], HalfCheetah(env_cfg))
-        keys = jnp.stack([jax.random.PRNGKey(c.seed) for c in cfgs])
+        keys = jnp.stack([jax.random.PRNGKey(c.budget.seed) for c in cfgs])
         ts = jax.jit(jax.vmap(tr.init))(keys, points.stack_trees([Hyper.from_config(c) for c in cfgs]))
         call, compile_s = points_call(tr.chunk, ts, len(cfgs), n_use, group)
         return call, compile_s, len(cfgs) * num_envs * T
@@ -159,13 +161,13 @@ def _worker(quick: bool, smoke: bool) -> dict:
         mb = 2 if smoke else 4
         ppo = {}
         for physics in ("c", "mjx"):
-            cfg = PPOConfig(num_envs=ENV_BATCH, control_dt=dt, reward_scale=dt / 0.02, value_layers=2,
+            cfg = options.build(PPOConfig, num_envs=ENV_BATCH, control_dt=dt, reward_scale=dt / 0.02, value_layers=2,
                             value_width=64, num_minibatches=mb, physics=physics).resolved()
             tr = make_ppo(cfg)
             st = jax.jit(tr.init)(jax.random.PRNGKey(0))
             t0 = time.perf_counter()
             fn = jax.jit(tr.chunk, donate_argnums=0).lower(st).compile()
-            b2 = {"st": st, "compile_s": time.perf_counter() - t0, "work": ENV_BATCH * cfg.chunk_steps}
+            b2 = {"st": st, "compile_s": time.perf_counter() - t0, "work": ENV_BATCH * cfg.budget.chunk_steps}
 
             def call(fn=fn, b2=b2):
                 b2["st"], m = fn(b2["st"])
@@ -218,16 +220,16 @@ def _ppo_group(n_dev: int, cores: int, rounds: int, quick: bool, smoke: bool) ->
     from nmrl.paper.env import HalfCheetah
 
     seeds, dt = (2, 0.02) if smoke else (8, 0.0025)
-    cfg = PPOConfig(num_envs=4 if smoke else ENV_BATCH, batch_size=4 if smoke else 128 if quick else 512,
+    cfg = options.build(PPOConfig, num_envs=4 if smoke else ENV_BATCH, batch_size=4 if smoke else 128 if quick else 512,
                     num_minibatches=1, control_dt=dt, reward_scale=dt / 0.02,
                     value_layers=2, value_width=64, physics="c", physics_timestep=0.0025, trial_s=5.0).resolved()
-    tr = make_ppo(cfg, HalfCheetah(dataclasses.replace(cfg.env_config(), threads=max(1, cores // n_dev))))
+    tr = make_ppo(cfg, HalfCheetah(dataclasses.replace(cfg.environment.env_config(), threads=max(1, cores // n_dev))))
     calls, compiles = {}, {}
     for group in (1, seeds):
         st = jax.jit(jax.vmap(tr.init))(jnp.stack([jax.random.PRNGKey(s) for s in range(seeds)]))
         calls[group], compiles[group] = points_call(tr.chunk, st, seeds, n_dev, group)
     times = interleave(calls, max(1, rounds // 2) if not smoke else 1)
-    work = seeds * cfg.num_envs * cfg.chunk_steps
+    work = seeds * cfg.budget.num_envs * cfg.budget.chunk_steps
     rates = {f"group_{g}": timing(times[g], work)["control_steps_per_s"] for g in calls}
     return {"seeds": seeds, "control_dt": dt, "num_minibatches": cfg.num_minibatches, "rates": rates,
             "grouped_over_one_at_a_time": statistics.median(a / b for a, b in zip(times[1], times[seeds])),

@@ -38,6 +38,8 @@ import time
 
 from benchmarks import subprocess_env
 
+from nmrl import options
+
 #: per-size settings: PPOConfig overrides shared by both contenders, native chunks timed per round,
 #: rounds, timed calls per profile piece
 SIZES = {
@@ -123,7 +125,7 @@ def profile(cfg, reps: int) -> dict:
 
     tr = make_ppo(cfg)
     c = tr.config
-    n, steps = c.num_envs, c.unrolls_per_env * c.unroll_length
+    n, steps = c.budget.num_envs, c.unrolls_per_env * c.unroll_length
     key = jax.random.PRNGKey(0)
     st = jax.jit(tr.init)(key)
     states = st.env
@@ -132,8 +134,8 @@ def profile(cfg, reps: int) -> dict:
     roll, roll_c = _compile(tr.rollout, st, key)
     (_, data), roll_t = _timed(roll, st, key, reps=reps)
     learn = _learn_s(c, st, data, key, reps)
-    tiny_v = _learn_s(dataclasses.replace(c, **TINY), st, data, key, reps)
-    tiny_pv = _learn_s(dataclasses.replace(c, **TINY_BOTH), st, data, key, reps)
+    tiny_v = _learn_s(options.replace(c, **TINY), st, data, key, reps)
+    tiny_pv = _learn_s(options.replace(c, **TINY_BOTH), st, data, key, reps)
     one_epoch = _learn_s(dataclasses.replace(c, epochs=1), st, data, key, reps)
     r, p, u = statistics.median(roll_t), statistics.median(phys_t), learn["s"]
     it = r + u
@@ -171,7 +173,7 @@ class Native:
         self.st = jax.jit(self.tr.init)(jax.random.PRNGKey(0))
         self.fn, self.compile_s = _compile(self.tr.chunk, self.st)
         self.chunks = chunks
-        self.work = self.tr.config.num_envs * self.tr.config.chunk_steps
+        self.work = self.tr.config.budget.num_envs * self.tr.config.budget.chunk_steps
 
     def round(self) -> dict:
         import jax
@@ -189,7 +191,7 @@ def brax_round(cfg, timeout: float) -> dict:
     """``nmrl baseline ppo --devices 1`` for WARMUP + 1 iterations at ``cfg``'s batch settings."""
     from benchmarks.bench_baseline import WARMUP
 
-    opts = ["--num-envs", str(cfg.num_envs), "--batch-size", str(cfg.batch_size), "--num-minibatches",
+    opts = ["--num-envs", str(cfg.budget.num_envs), "--batch-size", str(cfg.batch_size), "--num-minibatches",
             str(cfg.num_minibatches), "--unroll-length", str(cfg.unroll_length)]
     with tempfile.TemporaryDirectory(prefix="nmrl_bench_brax_") as tmp:
         out = pathlib.Path(tmp) / "ppo"
@@ -206,7 +208,7 @@ def brax_round(cfg, timeout: float) -> dict:
         rows = [r for r in rows if r["step"] > 0]
         rates = [r["steps_per_s"] for r in rows[WARMUP:]]
         steady = statistics.median(rates)
-        spi = cfg.num_envs * cfg.iteration_steps
+        spi = cfg.budget.num_envs * cfg.iteration_steps
         return {"control_steps_per_s": steady, "per_iteration_steps_per_s": [r["steps_per_s"] for r in rows],
                 "compile_s": sum(r["wall_s"] for r in rows[:WARMUP]) - WARMUP * spi / steady,
                 "avg_reward": rows[-1].get("train_reward_per_step"), "wall_s": time.perf_counter() - t0,
@@ -218,7 +220,7 @@ def run(quick: bool = False, smoke: bool = False) -> dict:
     from nmrl.learners.ppo_config import PPOConfig
 
     size = SIZES["smoke" if smoke else "quick" if quick else "full"]
-    cfg = PPOConfig(**size["cfg"]).resolved()
+    cfg = options.build(PPOConfig, **size["cfg"]).resolved()
     t0 = time.perf_counter()
     load0 = _load()
     native = Native(cfg, size["chunks"])
@@ -284,10 +286,10 @@ def sizing(dts=(0.02, 0.005), reps: int = 2, vmap_check: bool = True) -> dict:
     key = jax.random.PRNGKey(0)
     for dt in dts:
         for expl, names in (("white", tuple(VARIANTS)), ("colored", COLORED_VARIANTS)):
-            base = PPOConfig(control_dt=dt, exploration=expl, **SIZING_BASE).resolved()
+            base = options.build(PPOConfig, control_dt=dt, exploration=expl, **SIZING_BASE).resolved()
             tr = make_ppo(base)
             st = jax.jit(tr.init)(key)
-            n, steps = base.num_envs, base.iteration_steps
+            n, steps = base.budget.num_envs, base.iteration_steps
             row0 = {"control_dt": dt, "exploration": expl, "control_steps_per_iteration": n * steps}
             if expl == "white":
                 phys, pc = _compile(_physics(tr.env, n, steps), st.env, key)
@@ -301,7 +303,7 @@ def sizing(dts=(0.02, 0.005), reps: int = 2, vmap_check: bool = True) -> dict:
                                     "load_avg": _load()})
             print(f"sizing dt={dt} {expl}: rollout {r:.1f} s", file=sys.stderr, flush=True)
             for name in names:
-                cfg = dataclasses.replace(base, **VARIANTS[name])
+                cfg = options.replace(base, **VARIANTS[name])
                 u = _learn_s(cfg, st, data, key, reps)
                 work = n * steps
                 res["settings"].append({**row0, "name": name, "rollout_s": r, "update_s": u["s"],
@@ -324,7 +326,7 @@ def vmap_two_points(reps: int) -> dict:
     from nmrl.learners.ppo import make_ppo
     from nmrl.learners.ppo_config import PPOConfig
 
-    cfg = PPOConfig(**SIZING_BASE, **VARIANTS["p4x32_v2x64_e4"]).resolved()
+    cfg = options.build(PPOConfig, **SIZING_BASE, **VARIANTS["p4x32_v2x64_e4"]).resolved()
     tr = make_ppo(cfg)
 
     def it(st, key):
@@ -349,7 +351,7 @@ def vmap_two_points(reps: int) -> dict:
         t0 = time.perf_counter()
         jax.block_until_ready(two(sts, keys))
         t_two.append(time.perf_counter() - t0)
-    work = 2 * cfg.num_envs * cfg.iteration_steps
+    work = 2 * cfg.budget.num_envs * cfg.iteration_steps
     return {"setting": "20 ms, white, p4x32_v2x64_e4, one minibatch per epoch",
             "two_one_after_another_s": t_one, "two_vmapped_s": t_two,
             "control_steps_per_s_sequential": work / statistics.median(t_one),

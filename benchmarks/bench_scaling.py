@@ -33,6 +33,8 @@ import subprocess
 import sys
 import time
 
+from nmrl import options
+
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 POINTS = 2
@@ -53,10 +55,10 @@ def _worker(modes: list[str], rounds: int, num_envs: int = NUM_ENVS, chunk_steps
     from nmrl.runs.loop import compile_chunk
 
     devs = jax.local_devices()
-    configs = [TrainConfig(num_envs=num_envs, chunk_steps=chunk_steps, l=L, seed=s).resolved()
+    configs = [options.build(TrainConfig, num_envs=num_envs, chunk_steps=chunk_steps, l=L, seed=s).resolved()
                for s in range(POINTS)]
     trainer = make_train(configs[0])
-    keys = jnp.stack([jax.random.PRNGKey(c.seed) for c in configs])
+    keys = jnp.stack([jax.random.PRNGKey(c.budget.seed) for c in configs])
     hypers = jax.tree.map(lambda *x: jnp.stack(x), *[Hyper.from_config(c) for c in configs])
     stacked = jax.block_until_ready(jax.jit(jax.vmap(trainer.init))(keys, hypers))
     program = jax.vmap(trainer.chunk)

@@ -24,6 +24,8 @@ import time
 
 from benchmarks import worker_main
 
+from nmrl import options
+
 LS = (1, 2, 3, 5, 10, 15, 20, 30)
 SEEDS = 3
 NUM_ENVS = 32  # per point, the layout of nmrl sweep (scripts/run/fig3_paper.sh)
@@ -50,10 +52,10 @@ def _worker(quick: bool, smoke: bool = False) -> dict:
     num_envs, old_num_envs = (SMOKE["num_envs"], SMOKE["old_num_envs"]) if smoke else (NUM_ENVS, OLD_NUM_ENVS)
 
     def build(n_envs, chunk_steps):
-        cfgs = [TrainConfig(num_envs=n_envs, chunk_steps=chunk_steps, l=l, seed=s).resolved()
+        cfgs = [options.build(TrainConfig, num_envs=n_envs, chunk_steps=chunk_steps, l=l, seed=s).resolved()
                 for l in ls for s in range(seeds)]
         tr = make_train(cfgs[0])
-        keys = jnp.stack([jax.random.PRNGKey(c.seed) for c in cfgs])
+        keys = jnp.stack([jax.random.PRNGKey(c.budget.seed) for c in cfgs])
         hyp = points.stack_trees([Hyper.from_config(c) for c in cfgs])
         return tr, jax.jit(jax.vmap(tr.init))(keys, hyp), len(cfgs)
 

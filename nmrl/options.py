@@ -9,7 +9,17 @@ the learner's ``Hyper`` pytree: a sweep's points may differ in it, one compiled 
 value), the values it allows (a :class:`Range` or ``choices``), its command-line spelling where it is
 not the field name with dashes, how the command line reads a value where not by its type, and
 whether it is an option at all. A setting that several configs hold is declared once and taken by
-the others with :func:`same_as` (their own default). From the declarations come:
+the others with :func:`same_as` (their own default).
+
+**Groups.** A config holds groups of fields as fields of its own, each made by :func:`group` (a
+learner's ``environment``, ``budget`` and PPO's ``noise``: ``config.environment.control_dt``), and
+every field of a group is declared in the group's class. The declared fields of a config are its
+*leaves*: its own fields and, in their place, the leaves of its groups, each named by its field name
+alone (its *flat name*, unique in the config; :func:`leaves`). Everything below works on leaves by
+flat name: the command line walks the nesting, :func:`flat` is the config as one flat dict in leaf
+order (config.json and the run's identity, the same for a grouped config as for one whose fields
+are all its own), :func:`build` and :func:`replace` make or change a config by flat names (a sweep's
+points, ``--vary``, a preset), refusing an unknown name in one line. From the declarations come:
 
 * :func:`helps`: the help of every option (``Learner.help``; nmrl/cli/config_options.py builds one option per field);
 * :func:`traced`: the traced fields (``Learner.hyper_fields``, what ``nmrl sweep --vary`` takes);
@@ -51,6 +61,8 @@ SEED_MAX = 2**32 - 1
 MAX_EVAL_SECONDS = 600.0
 #: the metadata key of a declaration in a dataclass field
 KEY = "nmrl.option"
+#: the metadata key of a group's class in the field that holds it (:func:`group`)
+GROUP_KEY = "nmrl.group"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -148,14 +160,100 @@ def run_option(name: str, default: Any, help: str | None = None) -> Any:
     return option(default, **meta)
 
 
+def group(cls: type) -> Any:
+    """A dataclass field that holds the group ``cls`` (a dataclass of declared fields), by default
+    ``cls()``: its fields are leaves of the config that holds it (module docstring)."""
+    return dataclasses.field(default_factory=cls, metadata={GROUP_KEY: cls})
+
+
+@functools.lru_cache(maxsize=None)
+def leaves(cls: type) -> dict[str, tuple[tuple[str, ...], type]]:
+    """Flat name -> (the attribute path from a ``cls`` to the leaf, the class that declares it), in
+    leaf order: ``cls``'s fields, each group's leaves in its place. TypeError for a flat name twice."""
+    out: dict[str, tuple[tuple[str, ...], type]] = {}
+    for f in dataclasses.fields(cls):
+        sub = f.metadata.get(GROUP_KEY)
+        inner = {k: ((f.name, *path), owner) for k, (path, owner) in leaves(sub).items()} if sub else \
+            {f.name: ((f.name,), cls)}
+        twice = sorted(set(inner) & set(out))
+        if twice:
+            raise TypeError(f"{cls.__name__}: the field name(s) {twice} occur twice among its leaves")
+        out.update(inner)
+    return out
+
+
+def groups(cls: type) -> dict[str, type]:
+    """Group field name -> its class, the groups ``cls`` holds directly."""
+    return {f.name: f.metadata[GROUP_KEY] for f in dataclasses.fields(cls) if GROUP_KEY in f.metadata}
+
+
+def _owner(cls: type, name: str) -> tuple[type, str]:
+    """(the class that declares the leaf ``name`` of ``cls``, its field name there); KeyError if none."""
+    path, owner = leaves(cls)[name]
+    return owner, path[-1]
+
+
+def field(cls: type, name: str) -> dataclasses.Field:
+    """The dataclass field of the leaf ``name`` of ``cls`` (its default, its metadata)."""
+    owner, attr = _owner(cls, name)
+    return owner.__dataclass_fields__[attr]
+
+
+def value(config: Any, name: str) -> Any:
+    """The value of the leaf ``name`` of ``config``, read along its path."""
+    for attr in leaves(type(config))[name][0]:
+        config = getattr(config, attr)
+    return config
+
+
+def flat(config: Any) -> dict[str, Any]:
+    """The config as one dict, flat name -> value, in leaf order (config.json's layout)."""
+    return {name: value(config, name) for name in leaves(type(config))}
+
+
+def _unknown(cls: type, names: Any) -> None:
+    """ValueError in one line naming the flat names of ``names`` that ``cls`` has no leaf of."""
+    bad = sorted(set(names) - set(leaves(cls)))
+    if bad:
+        raise ValueError(f"{', '.join(bad)}: no such field of {cls.__name__} (its fields: {', '.join(leaves(cls))})")
+
+
+def build(cls: type, **values: Any) -> Any:
+    """A ``cls`` whose leaves are ``values`` by flat name, every other leaf at its default
+    (:func:`_unknown`'s ValueError for a name ``cls`` has no leaf of)."""
+    _unknown(cls, values)
+    kw = {}
+    for f in dataclasses.fields(cls):
+        sub = f.metadata.get(GROUP_KEY)
+        if sub is not None:
+            kw[f.name] = build(sub, **{k: v for k, v in values.items() if k in leaves(sub)})
+        elif f.name in values:
+            kw[f.name] = values[f.name]
+    return cls(**kw)
+
+
+def replace(config: Any, **values: Any) -> Any:
+    """``config`` with the leaves ``values`` (by flat name) replaced, in whichever group they are
+    (:func:`_unknown`'s ValueError for a name the config has no leaf of)."""
+    cls = type(config)
+    _unknown(cls, values)
+    kw = {}
+    for name, sub in groups(cls).items():
+        inner = {k: v for k, v in values.items() if k in leaves(sub)}
+        if inner:
+            kw[name] = replace(getattr(config, name), **inner)
+    own = {k: v for k, v in values.items() if leaves(cls)[k][0] == (k,)}
+    return dataclasses.replace(config, **own, **kw) if own or kw else config
+
+
 def declaration(cls: type, name: str) -> Option:
-    """The declaration of the field ``name`` of the dataclass ``cls`` (an empty one if it has none)."""
-    return cls.__dataclass_fields__[name].metadata.get(KEY, Option())
+    """The declaration of the leaf ``name`` of the dataclass ``cls`` (an empty one if it has none)."""
+    return field(cls, name).metadata.get(KEY, Option())
 
 
 def declarations(cls: type) -> dict[str, Option]:
-    """Field name -> declaration, in field order."""
-    return {f.name: declaration(cls, f.name) for f in dataclasses.fields(cls)}
+    """Flat name -> declaration, in leaf order."""
+    return {name: declaration(cls, name) for name in leaves(cls)}
 
 
 def flag(cls: type, name: str) -> str:
@@ -175,11 +273,12 @@ def traced(cls: type) -> tuple[str, ...]:
 
 @functools.lru_cache(maxsize=None)
 def _hint(cls: type, name: str) -> Any:
-    """The annotation of the field ``name`` of ``cls`` (None if it cannot be resolved). Cached per class
+    """The annotation of the leaf ``name`` of ``cls`` (None if it cannot be resolved). Cached per class
     and field: resolving a class's annotations (``typing.get_type_hints``) costs ~1 ms, and a sweep
     checks every field of every point (10,000 points: minutes, before the cache)."""
     try:
-        return typing.get_type_hints(cls)[name]
+        owner, attr = _owner(cls, name)
+        return typing.get_type_hints(owner)[attr]
     except Exception:  # noqa: BLE001 - an unresolvable annotation: no kind
         return None
 
@@ -250,33 +349,33 @@ def check_value(name: str, value: Any, kind_: type | None, decl: Option = Option
 
 
 def check(config: Any, skip: frozenset[str] = frozenset(), limits: bool = True) -> None:
-    """:func:`check_value` for every field of the dataclass ``config`` (but ``skip``; each value of a
-    :func:`is_sequence` field), in field order: ValueError for the first that is not allowed. A
+    """:func:`check_value` for every leaf of the dataclass ``config`` (but ``skip``; each value of a
+    :func:`is_sequence` field), in leaf order: ValueError for the first that is not allowed. A
     config's ``validate`` checks without ``limits`` (what is meaningless anywhere);
     nmrl/runs/bounds.py with them, before a run."""
     cls = type(config)
     for name, decl in declarations(cls).items():
         if name in skip:
             continue
-        value = getattr(config, name)
+        v = value(config, name)
         if is_sequence(cls, name):
-            if not isinstance(value, (tuple, list)) or not value:
-                raise invalid(name, value, "give one or more values")
-            for v in value:
-                check_value(name, v, kind(cls, name), decl, limits)
+            if not isinstance(v, (tuple, list)) or not v:
+                raise invalid(name, v, "give one or more values")
+            for x in v:
+                check_value(name, x, kind(cls, name), decl, limits)
         else:
-            check_value(name, value, kind(cls, name), decl, limits)
+            check_value(name, v, kind(cls, name), decl, limits)
 
 
 def hyper_leaves(cls: type) -> tuple[str, ...]:
     """The leaves of ``cls``'s ``Hyper``: one per traced field (``traced=True``: the field's name) or per
     derived leaf (a field declared ``traced="leaf"``), in the order of the fields."""
-    leaves: list[str] = []
-    for field, decl in declarations(cls).items():
-        leaf = field if decl.traced is True else decl.traced
-        if leaf and leaf not in leaves:
-            leaves.append(leaf)
-    return tuple(leaves)
+    out: list[str] = []
+    for name, decl in declarations(cls).items():
+        leaf = name if decl.traced is True else decl.traced
+        if leaf and leaf not in out:
+            out.append(leaf)
+    return tuple(out)
 
 
 def hyper_values(hyper: type, config: Any, derived: Mapping[str, Callable[[Any], Any]] = {}) -> Any:  # noqa: B006
@@ -286,12 +385,12 @@ def hyper_values(hyper: type, config: Any, derived: Mapping[str, Callable[[Any],
     import jax.numpy as jnp  # not at import: the command line sets JAX's devices first
 
     cls = type(config)
-    leaves = hyper_leaves(cls)
-    if tuple(hyper._fields) != leaves:
-        raise TypeError(f"{hyper.__name__}{tuple(hyper._fields)} is not the traced values {leaves} of {cls.__name__}")
-    missing = sorted(set(leaves) - set(traced(cls)) - set(derived))
+    names = hyper_leaves(cls)
+    if tuple(hyper._fields) != names:
+        raise TypeError(f"{hyper.__name__}{tuple(hyper._fields)} is not the traced values {names} of {cls.__name__}")
+    missing = sorted(set(names) - set(traced(cls)) - set(derived))
     if missing:
         raise TypeError(f"{cls.__name__}: no function for the derived traced value(s) {missing}")
     dtype = {int: jnp.int32, float: jnp.float32}
     return hyper(**{leaf: derived[leaf](config) if leaf in derived
-                    else jnp.asarray(getattr(config, leaf), dtype[kind(cls, leaf)]) for leaf in leaves})
+                    else jnp.asarray(value(config, leaf), dtype[kind(cls, leaf)]) for leaf in names})

@@ -50,7 +50,7 @@ def test_train_writes_the_run_of_the_command_line(tmp_path):
     # the same run, up to float rounding where the two processes split the environments over devices
     np.testing.assert_allclose([r["avg_reward"] for r in cli_rows], [r["avg_reward"] for r in rows], rtol=1e-5)
     trainer = nmrl.make_train(cfg)
-    ts = jax.jit(trainer.init)(jax.random.PRNGKey(cfg.seed))
+    ts = jax.jit(trainer.init)(jax.random.PRNGKey(cfg.budget.seed))
     _, m = jax.jit(trainer.chunk)(ts)
     np.testing.assert_allclose(float(m["avg_reward"]), rows[0]["avg_reward"], rtol=1e-6)
 

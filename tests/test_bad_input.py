@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nmrl import cli
+from nmrl import cli, options
 from nmrl.runs import checkpoint, driver as run, loop, signals
 from nmrl.analysis import evaluate
 from nmrl.learners.ac_config import TrainConfig
@@ -86,7 +86,7 @@ def foreign_same_shape(tmp_path_factory) -> pathlib.Path:
 def foreign_16_envs(tmp_path_factory) -> pathlib.Path:
     """A checkpoint at step 75 of a 16-environment run with 1000-step chunks (the issue's case)."""
     c = tmp_path_factory.mktemp("foreign16") / "C"
-    cfg = TrainConfig(num_envs=16, chunk_steps=1000, hidden_actor=8, hidden_critic=8, steps=2000).resolved()
+    cfg = options.build(TrainConfig, num_envs=16, chunk_steps=1000, hidden_actor=8, hidden_critic=8, steps=2000).resolved()
     tr = make_train(cfg)
     ts = jax.jit(tr.init)(jax.random.PRNGKey(0))
     checkpoint.save(c, ts.replace(step=jnp.int32(75)), cfg)
@@ -507,7 +507,7 @@ def test_a_diverging_run_exits_3_says_so_and_keeps_its_last_good_checkpoint(tmp_
 
 
 def test_progress_eta_after_resume_uses_this_sessions_speed(capsys):
-    cfg = TrainConfig(num_envs=8, chunk_steps=25, steps=100)
+    cfg = options.build(TrainConfig, num_envs=8, chunk_steps=25, steps=100)
     bar = loop.Progress(cfg, True, done0=50)
     bar.t0 -= 10.0  # 25 steps in 10 s: the last 25 need 10 s more
     row = {"step": 75, "trials": 3, "total_steps": 600, "steps_per_s": 60.0, "avg_reward": -0.5,
@@ -523,7 +523,7 @@ def test_progress_eta_after_resume_uses_this_sessions_speed(capsys):
 def test_return_per_trial_is_the_chunks_reward_over_its_ended_trials():
     """A chunk of 25 steps of 8 environments at -0.5 per step collects -100 over the 4 trials that
     ended in it: -25 per trial (the renewal estimate of the episode return); None without a trial."""
-    cfg = TrainConfig(num_envs=8, chunk_steps=25, steps=100)
+    cfg = options.build(TrainConfig, num_envs=8, chunk_steps=25, steps=100)
     m = {"step": 75, "trials": 9, "avg_reward": -0.5, "forward_speed": 0.0, "trials_in_chunk": 4}
     assert loop.metrics_row(cfg, m, wall=2.0)["return_per_trial"] == pytest.approx(-25.0)
     assert loop.metrics_row(cfg, {**m, "trials_in_chunk": 0}, wall=2.0)["return_per_trial"] is None
@@ -563,7 +563,7 @@ def test_a_long_chunk_without_heartbeats_gets_a_line_every_tick(capsys, monkeypa
     import time
 
     monkeypatch.setattr(loop, "TICK_S", 0.3)
-    cfg = TrainConfig(num_envs=8, chunk_steps=25, steps=100)
+    cfg = options.build(TrainConfig, num_envs=8, chunk_steps=25, steps=100)
     bar = loop.Progress(cfg, True)
     time.sleep(1.2)
     first = [l for l in capsys.readouterr().err.splitlines() if "the chunk has run" in l]

@@ -7,6 +7,7 @@ import jax
 import numpy as np
 import pytest
 
+from nmrl import options
 from nmrl.experiments import belief_ratio
 from nmrl.learners import ppo, ppo_config
 from nmrl.learners import ppo_networks as nn_
@@ -16,7 +17,7 @@ from tests.tiny_env import TinyEnv
 
 
 def test_both_densities_are_the_dense_conditionals_of_their_histories():
-    cfg = ppo_config.PPOConfig(**dict(TINY, exploration="ou", sigma=0.9, corr_time_s=0.1,
+    cfg = options.build(ppo_config.PPOConfig, **dict(TINY, exploration="ou", sigma=0.9, corr_time_s=0.1,
                                       learning_rate=3e-2)).resolved()
     env = TinyEnv(stop_prob=0.08)
     tr = ppo.make_ppo(cfg, env)
@@ -54,6 +55,6 @@ def test_both_densities_are_the_dense_conditionals_of_their_histories():
 
 
 def test_compare_refuses_a_process_with_periods():
-    cfg = ppo_config.PPOConfig(**dict(TINY, exploration="nm-periods"))
+    cfg = options.build(ppo_config.PPOConfig, **dict(TINY, exploration="nm-periods"))
     with pytest.raises(ValueError, match="ou, colored"):
         belief_ratio.parts(cfg, None, jax.random.PRNGKey(0), TinyEnv())

@@ -7,7 +7,6 @@ share, so they do not compile it again.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 import pathlib
@@ -20,6 +19,7 @@ import jax
 import numpy as np
 import pytest
 
+from nmrl import options
 from nmrl.runs import checkpoint
 from nmrl.runs.checkpoint import CheckpointError
 from nmrl.learners.ac_config import TrainConfig
@@ -29,7 +29,7 @@ REPO = pathlib.Path(__file__).resolve().parents[1]
 # orbax leaves an asyncio callback behind when a restore fails ("Event loop is closed"); harmless.
 pytestmark = pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")
 
-CFG = TrainConfig(num_envs=4, chunk_steps=5, hidden_actor=8, hidden_critic=8, steps=15, seed=0)
+CFG = options.build(TrainConfig, num_envs=4, chunk_steps=5, hidden_actor=8, hidden_critic=8, steps=15, seed=0)
 
 
 def _same(a, b) -> bool:
@@ -67,7 +67,7 @@ class Reference:
     def __init__(self):
         self.trainer = make_train(CFG)
         self.chunk = jax.jit(self.trainer.chunk)
-        self.states = [jax.device_put(jax.jit(self.trainer.init)(jax.random.PRNGKey(CFG.seed)))]
+        self.states = [jax.device_put(jax.jit(self.trainer.init)(jax.random.PRNGKey(CFG.budget.seed)))]
         self.metrics = [None]
 
     def state(self, k: int):
@@ -127,7 +127,7 @@ def test_metadata_and_config(good_run, ref):
     for dist in ("nmrl", "jax", "jaxlib", "mujoco", "flax", "orbax-checkpoint", "numpy"):
         assert meta["versions"][dist], dist
     assert meta["versions"]["jax"] == jax.__version__
-    assert meta["config"] == dataclasses.asdict(ref.trainer.config)
+    assert meta["config"] == options.flat(ref.trainer.config)
     assert meta["model_file"] == "models/half_cheetah.xml" and len(meta["model_sha256"]) == 64
     assert "git_commit" in meta
     assert meta["extra"] == {"note": "one chunk"}
@@ -323,13 +323,13 @@ def test_other_schema(good_run, ref, tmp_path):
 @pytest.mark.parametrize("field,value", [("num_envs", 8), ("hidden_actor", 16), ("hidden_critic", 4),
                                          ("chunk_steps", 7), ("control_dt", 0.01), ("l", 5)])
 def test_incompatible_config(good_run, ref, field, value):
-    other = ref.trainer._replace(config=dataclasses.replace(ref.trainer.config, **{field: value}))
+    other = ref.trainer._replace(config=options.replace(ref.trainer.config, **{field: value}))
     msg = _raises(lambda: checkpoint.restore(good_run, other), good_run / "checkpoints" / "5", field)
     assert "incompatible" in msg
 
 
 def test_budget_may_change(good_run, ref):
-    other = ref.trainer._replace(config=dataclasses.replace(ref.trainer.config, steps=1000))
+    other = ref.trainer._replace(config=options.replace(ref.trainer.config, steps=1000))
     assert _same(checkpoint.restore(good_run, other), ref.state(1))
 
 
@@ -410,10 +410,11 @@ import jax
 from nmrl.runs import checkpoint
 from nmrl.learners.ac_config import TrainConfig
 from nmrl.learners.ac_train import make_train
-cfg = TrainConfig(**json.loads(sys.argv[2]))
+from nmrl import options
+cfg = options.build(TrainConfig, **json.loads(sys.argv[2]))
 install_signal_inside_save(int(sys.argv[3]), 10, [])
 tr = make_train(cfg)
-ts = jax.device_put(jax.jit(tr.init)(jax.random.PRNGKey(cfg.seed)))
+ts = jax.device_put(jax.jit(tr.init)(jax.random.PRNGKey(cfg.budget.seed)))
 chunk = jax.jit(tr.chunk)
 for _ in range(3):
     ts, _ = chunk(ts)
@@ -431,7 +432,7 @@ def test_killed_inside_a_save_leaves_the_previous_checkpoint_restorable(ref, cac
     ref.state(1)  # the chunk is compiled (and in the persistent cache) before the children start
     runs = {sig: tmp_path / f"run_{sig.name}" for sig in (signal.SIGKILL, signal.SIGTERM)}
     procs = {
-        sig: subprocess.Popen([sys.executable, "-c", _SCRIPT, str(run), json.dumps(dataclasses.asdict(CFG)),
+        sig: subprocess.Popen([sys.executable, "-c", _SCRIPT, str(run), json.dumps(options.flat(CFG)),
                                str(int(sig))], cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
         for sig, run in runs.items()
     }

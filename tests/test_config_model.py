@@ -1,7 +1,7 @@
 """One config model: a run's settings are each declared and checked in one place.
 
 * the environment (``--env``, ``--physics``, the control step, the stop rule, the trial length, the
-  timestep) is :class:`nmrl.tasks.EnvFields`: every learner's config inherits the same declarations,
+  timestep) is :class:`nmrl.tasks.EnvFields`: every learner's config holds it as its group ``environment``,
   and the study's and the baseline's options are made from them;
 * a bad ``--env`` or ``--physics`` is refused in one line naming the value and what is allowed, exit
   status 2, nothing written, by every command, for the paper's robot and for a Gymnasium task;
@@ -101,7 +101,7 @@ def test_physics_c_checks_the_model_of_the_environment_the_run_steps(monkeypatch
     seen = []
     monkeypatch.setattr(mujoco_c, "check_supported", lambda m: seen.append((m.nq, m.nu)))
     control_dt = 0.02 if env == tasks.PAPER else 0.008
-    preflight.check_config(TrainConfig(env=env, physics="c", control_dt=control_dt))
+    preflight.check_config(options.build(TrainConfig, env=env, physics="c", control_dt=control_dt))
     model = tasks.mj_model(env)
     assert seen == [(model.nq, model.nu)]
     assert env == tasks.PAPER or (model.nq, model.nu) != (tasks.mj_model(tasks.PAPER).nq, tasks.mj_model(tasks.PAPER).nu)

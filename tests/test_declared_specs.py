@@ -6,7 +6,6 @@ line naming it and what its declaration allows (exit 2, nothing written), and ev
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import pathlib
 
@@ -44,7 +43,7 @@ def test_every_study_option_parses_into_its_field(monkeypatch):
     assert _study(monkeypatch, argv) == TimescaleSpec(
         dts=(0.01, 0.005), periods=(None, 0.2), beta_theta_grid=(1e-5,), beta_v_grid=(1e-4, 3e-4), grid_seconds=10.0,
         final_seconds=20.0, chunk_seconds=5.0, seeds=2, num_envs=8, checkpoint_every=2, gradvar_envs=16,
-        gradvar_batches=4, beta_theta_cap=1e-5, physics="c", base=dataclasses.replace(base, env="hopper-v5"))
+        gradvar_batches=4, beta_theta_cap=1e-5, physics="c", base=options.replace(base, env="hopper-v5"))
     assert _study(monkeypatch, []) == TimescaleSpec()
     for none in ("none", "1"):
         assert _study(monkeypatch, ["--periods", none, "0.1"]).periods == (None, 0.1)

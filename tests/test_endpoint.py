@@ -6,6 +6,7 @@ import jax
 import numpy as np
 import pytest
 
+from nmrl import options
 from nmrl.analysis import endpoint, evaluate
 from nmrl.learners.ppo import make_ppo
 from nmrl.learners.ppo_config import PPOConfig
@@ -35,7 +36,7 @@ def test_perturb_is_the_same_on_both_physics():
 
 
 def test_endpoint_without_noise_is_the_deterministic_rollout_of_nmrl_eval():
-    cfg = PPOConfig(num_envs=4, batch_size=4, num_minibatches=1, value_layers=1, value_width=8,
+    cfg = options.build(PPOConfig, num_envs=4, batch_size=4, num_minibatches=1, value_layers=1, value_width=8,
                     policy_layers=1, policy_width=8).resolved()
     st = make_ppo(cfg).init(jax.random.PRNGKey(0))
     params = {"policy": st.policy, "obs_stats": st.obs_stats}
@@ -53,7 +54,7 @@ def test_endpoint_without_noise_is_the_deterministic_rollout_of_nmrl_eval():
 def test_endpoint_and_eval_use_the_runs_physics_timestep():
     """A 2.5 ms run on a 2.5 ms physics timestep: its endpoint and eval rollouts step that physics
     (the model's own 5 ms timestep cannot make a 2.5 ms control step)."""
-    cfg = PPOConfig(num_envs=4, batch_size=4, num_minibatches=1, value_layers=1, value_width=8, policy_layers=1,
+    cfg = options.build(PPOConfig, num_envs=4, batch_size=4, num_minibatches=1, value_layers=1, value_width=8, policy_layers=1,
                     policy_width=8, control_dt=0.0025, physics_timestep=0.0025, physics="c").resolved()
     st = make_ppo(cfg).init(jax.random.PRNGKey(0))
     params = {"policy": st.policy, "obs_stats": st.obs_stats}
@@ -73,7 +74,7 @@ def test_the_noisy_endpoint_is_a_plain_loop_of_the_policy_with_its_scaled_noise(
     from nmrl.analysis import eval_env
     from nmrl.learners import ppo_policy
 
-    cfg = PPOConfig(num_envs=4, batch_size=4, num_minibatches=1, value_layers=1, value_width=8, policy_layers=1,
+    cfg = options.build(PPOConfig, num_envs=4, batch_size=4, num_minibatches=1, value_layers=1, value_width=8, policy_layers=1,
                     policy_width=8, physics="c", **exploration).resolved()
     st = make_ppo(cfg).init(jax.random.PRNGKey(0))
     params = {"policy": st.policy, "obs_stats": st.obs_stats}

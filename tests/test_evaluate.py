@@ -13,6 +13,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from nmrl import options
 from nmrl.runs import checkpoint
 from nmrl.analysis import evaluate
 from nmrl.runs.checkpoint import CheckpointError
@@ -20,7 +21,7 @@ from nmrl.paper.env import MODEL_PATH, REWARD_TERMS
 from nmrl.learners.ac_config import TrainConfig
 from nmrl.learners.ac_train import make_train
 
-CFG = TrainConfig(num_envs=4, chunk_steps=5, hidden_actor=8, hidden_critic=8, steps=10, seed=1)
+CFG = options.build(TrainConfig, num_envs=4, chunk_steps=5, hidden_actor=8, hidden_critic=8, steps=10, seed=1)
 SECONDS = 1.0
 POLICY_KEYS = {"avg_reward", "forward_speed", "distance", "terms", "ground_share", "gait", "nonfinite"}
 
@@ -31,7 +32,7 @@ def run(tmp_path_factory):
     out = tmp_path_factory.mktemp("eval_run")
     trainer = make_train(CFG)
     chunk = jax.jit(trainer.chunk)
-    ts = jax.device_put(jax.jit(trainer.init)(jax.random.PRNGKey(CFG.seed)))
+    ts = jax.device_put(jax.jit(trainer.init)(jax.random.PRNGKey(CFG.budget.seed)))
     for _ in range(2):
         ts, _ = chunk(ts)
         checkpoint.save(out, ts, trainer.config)
@@ -107,8 +108,8 @@ def test_json_well_formed(result, run):
     for k in ("run_dir", "step", "seconds", "seed", "control_dt", "l", "deterministic", "exploring"):
         assert k in back, k
     assert back["run_dir"] == str(run) and back["step"] == 10 and back["seed"] == 0
-    assert back["seconds"] == SECONDS and back["control_dt"] == CFG.control_dt and back["l"] == CFG.l
-    assert back["steps"] == round(SECONDS / CFG.control_dt)
+    assert back["seconds"] == SECONDS and back["control_dt"] == CFG.environment.control_dt and back["l"] == CFG.l
+    assert back["steps"] == round(SECONDS / CFG.environment.control_dt)
     _check_policy(back["deterministic"])
     _check_policy(back["exploring"])
     assert back["deterministic"] != back["exploring"]  # the noise changes the trial
@@ -122,7 +123,7 @@ def test_pictures(result, run):
     assert result["files"] == {"strobe": str(png), "gif": str(gif), "trajectory": str(traj)}
     with np.load(traj) as z:
         pos, dt = z["pos"], float(z["control_dt"])
-    assert dt == CFG.control_dt and pos.shape == (round(SECONDS / CFG.control_dt) + 1, 10, 2)
+    assert dt == CFG.environment.control_dt and pos.shape == (round(SECONDS / CFG.environment.control_dt) + 1, 10, 2)
     assert np.all(np.isfinite(pos))
     np.testing.assert_allclose(pos[0, 0], [0.0, 0.1], atol=1e-5)  # frame 0: hind paw at (0, 0.1) m (Sec. V-C)
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -130,7 +131,7 @@ def test_pictures(result, run):
     assert 200 <= img.shape[0] <= 3000 and 300 <= img.shape[1] <= 3000, img.shape
     assert img[..., :3].std() > 5  # not blank
     frames = iio.imread(gif, index=None)
-    n_expected = round(SECONDS / CFG.control_dt) // round(1 / (25 * CFG.control_dt)) + 1
+    n_expected = round(SECONDS / CFG.environment.control_dt) // round(1 / (25 * CFG.environment.control_dt)) + 1
     assert frames.shape[0] == n_expected and frames.shape[1] >= 100 and frames.shape[2] >= 200
     assert iio.immeta(gif)["duration"] == 40  # 25 frames per second of simulated time
     assert not list((run / "eval").glob(".*tmp*"))
@@ -196,7 +197,7 @@ def compact_run(run, tmp_path_factory):
     trainer = make_train(CFG)
     ts = checkpoint.restore(run, trainer)
     checkpoint.save_compact(out, ts, trainer.config)
-    (out / checkpoint.RUN_CONFIG).write_text(json.dumps(dataclasses.asdict(CFG)))
+    (out / checkpoint.RUN_CONFIG).write_text(json.dumps(options.flat(CFG)))
     return out
 
 
@@ -225,7 +226,7 @@ def test_compact_policy_bad_step_and_foreign_config(compact_run, tmp_path):
     other = tmp_path / "other"
     other.mkdir()
     (other / checkpoint.COMPACT_FILE).write_bytes((compact_run / checkpoint.COMPACT_FILE).read_bytes())
-    (other / checkpoint.RUN_CONFIG).write_text(json.dumps(dataclasses.asdict(dataclasses.replace(CFG, l=7))))
+    (other / checkpoint.RUN_CONFIG).write_text(json.dumps(options.flat(dataclasses.replace(CFG, l=7))))
     with pytest.raises(checkpoint.ForeignCheckpoint, match="l=10 in the checkpoint but 7"):
         evaluate.evaluate(other, seconds=SECONDS, render=False)
     data = bytearray((compact_run / checkpoint.COMPACT_FILE).read_bytes())
@@ -258,7 +259,7 @@ def test_initial_pose_is_the_models_reset_pose(run):
     cfg, theta, _ = checkpoint.restore_policy(run)
     traj = evaluate.rollout(cfg, theta, seconds=SECONDS, seed=0, exploring=False)
     pos = traj["pos"]
-    assert pos.shape == (round(SECONDS / CFG.control_dt) + 1, 10, 2)
+    assert pos.shape == (round(SECONDS / CFG.environment.control_dt) + 1, 10, 2)
     assert np.all(np.isfinite(pos))
     m = mujoco.MjModel.from_xml_path(str(MODEL_PATH))
     d = mujoco.MjData(m)  # qpos = the model's qpos0
@@ -353,7 +354,7 @@ def moving_run(tmp_path_factory):
     """A checkpoint whose actor moves the robot: random output weights (the initial policy is 0)."""
     out = tmp_path_factory.mktemp("moving_run")
     trainer = make_train(CFG)
-    ts = jax.jit(trainer.init)(jax.random.PRNGKey(CFG.seed))
+    ts = jax.jit(trainer.init)(jax.random.PRNGKey(CFG.budget.seed))
     rng = np.random.default_rng(0)
     o = ts.theta["params"]["output"]
     out_layer = {"kernel": jnp.asarray(2.0 * rng.normal(size=o["kernel"].shape), jnp.float32),
@@ -372,7 +373,7 @@ def test_eval_numbers_equal_an_independent_c_mujoco_rollout(moving_run, capsys):
     run_dir, theta = moving_run
     assert cli.main(["eval", str(run_dir), "--seconds", str(SECONDS), "--seed", "0", "--no-render"]) == 0
     det = json.loads(capsys.readouterr().out)["deterministic"]
-    rows = _c_rollout(theta, round(SECONDS / CFG.control_dt))
+    rows = _c_rollout(theta, round(SECONDS / CFG.environment.control_dt))
     want = {k: float(np.mean([r[k] for r in rows])) for k in REWARD_TERMS}
     assert want["r8_speed"] > 0.3 and want["r10_limit"] < -1.0  # the policy moves and meets its limits
     for k in REWARD_TERMS:

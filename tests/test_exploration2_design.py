@@ -32,11 +32,11 @@ def test_every_screen_cell_is_a_valid_sweep_with_the_preregistered_design(cell):
     assert spec.field == "sigma" and tuple(spec.ls) == (0.064, 0.16, 0.4, 1.0)
     assert [s for _, s in spec.points()][:2] == [100, 101]  # screen seeds are never grid seeds (0-7)
     # 4 iterations of 102.4 simulated seconds per environment, trials of 5 s, 2.5 ms physics, C
-    assert cfg.steps * cfg.control_dt == pytest.approx(4 * 102.4)
-    assert cfg.iteration_steps * cfg.control_dt == pytest.approx(102.4)
-    assert cfg.env_config().step_stop_prob * 5.0 == pytest.approx(cfg.control_dt)
-    assert cfg.physics == "c" and cfg.physics_timestep == 0.0025
-    assert cfg.reward_scale == pytest.approx(cfg.control_dt / 0.02)
+    assert cfg.budget.steps * cfg.environment.control_dt == pytest.approx(4 * 102.4)
+    assert cfg.iteration_steps * cfg.environment.control_dt == pytest.approx(102.4)
+    assert cfg.environment.env_config().step_stop_prob * 5.0 == pytest.approx(cfg.environment.control_dt)
+    assert cfg.environment.physics == "c" and cfg.environment.physics_timestep == 0.0025
+    assert cfg.reward_scale == pytest.approx(cfg.environment.control_dt / 0.02)
     assert (cfg.batch_size * cfg.num_minibatches * cfg.epochs, cfg.value_layers, cfg.value_width) == (131072, 2, 64)
 
 
@@ -47,8 +47,8 @@ def _screen_rows(cell, scores, budget=True, diverged=()):
     for v, s in scores.items():
         for k, seed in enumerate((100, 101)):
             out.append({"cell": cell.name, "point": f"{spec.field}{v:g}_s{seed}", "seed": seed,
-                        "field": spec.field, "value": v, "steps": spec.base.steps if budget else 0,
-                        "budget": spec.base.steps, "diverged": v in diverged, "det_reward_per_s": s - 1 + 2 * k})
+                        "field": spec.field, "value": v, "steps": spec.base.budget.steps if budget else 0,
+                        "budget": spec.base.budget.steps, "diverged": v in diverged, "det_reward_per_s": s - 1 + 2 * k})
     return out
 
 
@@ -66,7 +66,7 @@ def test_the_screen_rule_brackets_sigma_then_screens_the_time_constant():
     (tc,) = [c for c in exploration2_rules.later_cells(rows) if "ou" in c.name]
     spec = _spec(tc)
     assert tc.name == "screen/tc/dt0.0025/ou" and spec.field == "corr_time_s" and spec.ls == (0.01, 0.09)
-    assert spec.base.sigma == 0.16 and spec.base.exploration == "ou" and [s for _, s in spec.points()][:2] == [100, 101]
+    assert spec.base.noise.sigma == 0.16 and spec.base.noise.exploration == "ou" and [s for _, s in spec.points()][:2] == [100, 101]
     # the time constant's best at the lower edge (0.01 s beats the sigma cell's 0.03 s): 0.01 / 3 next
     rows += _screen_rows(tc, {0.01: 8.0, 0.09: 1.0})
     names = [c.name for c in exploration2_rules.later_cells(rows) if "ou" in c.name]
@@ -156,18 +156,18 @@ def test_the_grid_follows_the_screen_with_the_preregistered_design():
         spec = _spec(cells[name])
         cfg = spec.base.resolved()
         assert [s for _, s in spec.points()] == list(range(8))  # grid seeds 0-7, one point each
-        assert cfg.steps * cfg.control_dt == pytest.approx(16 * 102.4)  # 1.6e3 simulated s per environment
-        assert cfg.physics == "c" and cfg.physics_timestep == 0.0025
-        assert cfg.env_config().step_stop_prob * 5.0 == pytest.approx(cfg.control_dt)
+        assert cfg.budget.steps * cfg.environment.control_dt == pytest.approx(16 * 102.4)  # 1.6e3 simulated s per environment
+        assert cfg.environment.physics == "c" and cfg.environment.physics_timestep == 0.0025
+        assert cfg.environment.env_config().step_stop_prob * 5.0 == pytest.approx(cfg.environment.control_dt)
     # white and the correlated arms at their screened sigma and time constants (the middle values)
     got = {n: _spec(cells[n]).base for n in primary}
-    assert got["grid/dt0.0025/white"].sigma == 0.4 and got["grid/dt0.0025/ou"].corr_time_s == 0.03
-    assert got["grid/dt0.0025/colored"].beta == 0.5 and got["grid/dt0.0025/nmp"].period_s == 0.06
+    assert got["grid/dt0.0025/white"].sigma == 0.4 and got["grid/dt0.0025/ou"].noise.corr_time_s == 0.03
+    assert got["grid/dt0.0025/colored"].noise.beta == 0.5 and got["grid/dt0.0025/nmp"].noise.period_s == 0.06
     assert got["grid/dt0.0025/nmp"].period_wise and not got["grid/dt0.0025/nms"].period_wise
     # Ws holds sigma^2 dt at W's 20 ms value (eq. (1)): x sqrt(8) at 2.5 ms, x 2 at 5 ms
     assert got["grid/dt0.0025/ws"].sigma == pytest.approx(0.4 * 8 ** 0.5, rel=1e-5)
-    assert got["grid/dt0.0025/ws"].exploration == "white"
-    assert _spec(cells["grid/dt0.005/ws"]).base.sigma == pytest.approx(0.8, rel=1e-5)
+    assert got["grid/dt0.0025/ws"].noise.exploration == "white"
+    assert _spec(cells["grid/dt0.005/ws"]).base.noise.sigma == pytest.approx(0.8, rel=1e-5)
     # secondary: the 5 ms column and the sensitivity of W at 2.5 ms, 4 seeds; OU, CN, NMs screened at 20 ms
     for name in ("grid/dt0.005/white", "grid/dt0.005/ws", "grid/dt0.005/nmp",
                  "sensitivity/dt0.0025/white_sigma0.16", "sensitivity/dt0.0025/white_sigma1"):
@@ -177,16 +177,16 @@ def test_the_grid_follows_the_screen_with_the_preregistered_design():
     # seed at a time, so that white's 20 ms runs are the SNR cells' runs iteration for iteration
     for name, c in cells.items():
         if not name.startswith("screen/"):
-            dt = _spec(c).base.control_dt
+            dt = _spec(c).base.environment.control_dt
             seeds = len(_spec(c).points())
             assert c.run_options == ({"group": seeds} if dt < 0.02 else {}), name
     assert cells["grid/dt0.0025/white"].run_options == {"group": 8}
     # below 20 ms each minibatch's gradient in 8 parts of 64 unrolls, but in white's 2.5 ms grid cell
     for name, c in cells.items():
         cfg = _spec(c).base.resolved()
-        want = 1 if name.startswith("screen/") or cfg.control_dt >= 0.02 or name == "grid/dt0.0025/white" else 8
+        want = 1 if name.startswith("screen/") or cfg.environment.control_dt >= 0.02 or name == "grid/dt0.0025/white" else 8
         assert cfg.grad_chunks == want, name
-        assert cfg.batch_size // cfg.num_envs // cfg.grad_chunks * cfg.num_envs in (64, 512), name
+        assert cfg.batch_size // cfg.budget.num_envs // cfg.grad_chunks * cfg.budget.num_envs in (64, 512), name
     assert not any(c.run_options for n, c in cells.items() if n.startswith("screen/"))
     # nothing of the grid before every primary setting is chosen
     assert not [c for c in exploration2_rules.later_cells(rows[:-4]) if not c.name.startswith("screen/")]
@@ -361,8 +361,8 @@ def test_the_asymptote_runs_white_against_the_best_correlated_arm_at_4x_the_budg
         spec = _spec(cells[name])
         cfg = spec.base.resolved()
         assert [s for _, s in spec.points()] == [0, 1, 2, 3]
-        assert cfg.control_dt == 0.005 and cfg.steps * cfg.control_dt == pytest.approx(64 * 102.4)
-    assert _spec(cells["asymptote/dt0.005/colored"]).base.beta == 0.5  # its 2.5 ms choice
+        assert cfg.environment.control_dt == 0.005 and cfg.budget.steps * cfg.environment.control_dt == pytest.approx(64 * 102.4)
+    assert _spec(cells["asymptote/dt0.005/colored"]).base.noise.beta == 0.5  # its 2.5 ms choice
 
 
 def test_the_nm_periods_arms_take_the_papers_correlation_time_to_five_digits():

@@ -44,7 +44,7 @@ def test_the_declared_fields_are_the_specs():
 def test_ppo_holds_the_declared_fields():
     for name, decl in options.declarations(fields.ExplorationFields).items():
         assert options.declaration(ppo_config.PPOConfig, name) is decl, name
-    assert ppo_config.PPOConfig().exploration == "white" and fields.ExplorationFields().exploration is None
+    assert ppo_config.PPOConfig().noise.exploration == "white" and fields.ExplorationFields().exploration is None
 
 
 @pytest.mark.parametrize("cmd", ["train", "sweep"])
@@ -109,5 +109,5 @@ def test_the_spec_and_a_config_refuse_by_the_declaration(kwargs):
     with pytest.raises(ValueError) as spec:
         explore.ExplorationSpec(**kwargs)
     with pytest.raises(ValueError) as config:
-        ppo_config.PPOConfig(exploration=kwargs["kind"], **{name: value}).validate()
+        options.build(ppo_config.PPOConfig, exploration=kwargs["kind"], **{name: value}).validate()
     assert str(spec.value) == str(config.value) == str(declared.value)

@@ -22,13 +22,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from nmrl import cli
+from nmrl import cli, options
 from nmrl.runs import checkpoint, devices, driver as run, store
 from nmrl.experiments import sweep
 from nmrl.learners.ac_config import TrainConfig
 from nmrl.learners.ac_train import make_train
 
-BASE = TrainConfig(num_envs=8, chunk_steps=25, steps=50, hidden_actor=8, hidden_critic=8,
+BASE = options.build(TrainConfig, num_envs=8, chunk_steps=25, steps=50, hidden_actor=8, hidden_critic=8,
                    beta_theta=1e-3, beta_v=1e-3)
 FLOATS = ("avg_reward", "forward_speed", "td_mean", "td_std", "theta_norm", "v_norm")
 INTS = ("step", "trials", "periods", "trials_in_chunk", "periods_in_chunk")

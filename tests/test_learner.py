@@ -40,6 +40,7 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 from jax.flatten_util import ravel_pytree  # noqa: E402
 
+from nmrl import options
 from nmrl.paper import networks  # noqa: E402
 from nmrl.learners.ac_config import Hyper, TrainConfig  # noqa: E402
 from nmrl.learners.ac_train import make_train  # noqa: E402
@@ -57,7 +58,7 @@ TINY = dict(hidden_actor=5, hidden_critic=6, beta_theta=0.02, beta_v=0.05, gamma
 def tiny_config(**kw) -> TrainConfig:
     base = dict(TINY, num_envs=1, chunk_steps=50, steps=100, delta=1, l=1)
     base.update(kw)
-    return TrainConfig(**base)
+    return options.build(TrainConfig, **base)
 
 
 # --------------------------------------------------------------------------- reference pieces
@@ -122,7 +123,7 @@ def reference_run(cfg: TrainConfig, env, seed: int, n_steps: int, every: int):
 
     Returns a list of (theta_vec, v_vec, z_list, y_list) after every ``every`` steps, and counts.
     """
-    N, l, delta = cfg.num_envs, cfg.l, cfg.delta
+    N, l, delta = cfg.budget.num_envs, cfg.l, cfg.delta
     alpha, sigma, gamma, lam = cfg.alpha, cfg.sigma, cfg.gamma, cfg.lam
     theta0, v0, k_env, key = initial_params(cfg, env, jax.random.key(seed))
     actor, critic = Flat(theta0), Flat(v0)
@@ -391,7 +392,7 @@ def test_same_seed_same_run_different_seed_differs():
     ],
 )
 def test_bad_config_raises_value_error(kw, pattern):
-    cfg = TrainConfig(**{**dict(steps=None, trials=None), **kw})
+    cfg = options.build(TrainConfig, **{**dict(steps=None, trials=None), **kw})
     with pytest.raises(ValueError, match=pattern):
         cfg.validate()
     with pytest.raises(ValueError, match=pattern):
@@ -411,7 +412,7 @@ def test_divergence_guard_freezes_parameters():
     frozen = [(flat(ts.theta), flat(ts.v)) for ts, _ in hist[first:]]
     for th, v in frozen:
         assert np.all(np.isfinite(th)) and np.all(np.isfinite(v))
-        assert np.linalg.norm(th) < cfg.max_param_norm and np.linalg.norm(v) < cfg.max_param_norm
+        assert np.linalg.norm(th) < cfg.budget.max_param_norm and np.linalg.norm(v) < cfg.budget.max_param_norm
         np.testing.assert_array_equal(th, frozen[0][0])
         np.testing.assert_array_equal(v, frozen[0][1])
     assert div == sorted(div)  # once diverged, always diverged
@@ -497,7 +498,7 @@ def test_optax_update_equals_hand_written_update(num_envs):
         assert int(opt.count) == instants  # the optimizer steps only where some period ended
         assert float(opt.hyperparams["learning_rate"]) == np.float32(beta)
     # the same 25 control steps as one chunk of the scan
-    _, hist = run_learner(dataclasses.replace(cfg, chunk_steps=25), env, seed=4, n_chunks=1)
+    _, hist = run_learner(options.replace(cfg, chunk_steps=25), env, seed=4, n_chunks=1)
     whole = hist[-1][0]
     np.testing.assert_allclose(flat(whole.theta), flat(ts.theta), rtol=1e-6, atol=1e-7)
     np.testing.assert_allclose(flat(whole.v), flat(ts.v), rtol=1e-6, atol=1e-7)
@@ -538,7 +539,7 @@ OUTCOME_CHUNKS = 40  # 4000 control steps per env (~1000 trials in all); ~1.5 s 
 
 
 def test_halfcheetah_learning_raises_average_reward():
-    cfg = TrainConfig(**OUTCOME, steps=OUTCOME["chunk_steps"] * OUTCOME_CHUNKS)
+    cfg = options.build(TrainConfig, **OUTCOME, steps=OUTCOME["chunk_steps"] * OUTCOME_CHUNKS)
     trainer = make_train(cfg)
     init, chunk = jax.jit(trainer.init), jax.jit(trainer.chunk)
     key = jax.random.key(0)

@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 from flax import struct
 
-from nmrl import cli, learners
+from nmrl import cli, learners, options, tasks
 from nmrl.analysis import evaluate
 from nmrl.cli import arguments, config_options
 from nmrl.experiments import sweep
@@ -34,17 +34,28 @@ SKIP = {"wall_s", "steps_per_s"}
 
 
 @dataclasses.dataclass(frozen=True)
-class ToyConfig:
-    lr: float = 1e-4  #: step size of the update
-    sigma: float = 0.3  #: std of the white exploration noise
+class ToyBudget:
     seed: int = 0
     num_envs: int = 2
     chunk_steps: int = 5
     steps: int | None = None
     trials: int | None = None
-    control_dt: float = 0.02
-    stop_prob: float = 0.02
     max_param_norm: float = 1e5
+
+
+@dataclasses.dataclass(frozen=True)
+class ToyEnvironment(tasks.EnvFields):
+    """The paper's robot, stopping a trial with probability 0.02 per control step."""
+
+    stop_prob: float = options.same_as(tasks.EnvFields, "stop_prob", 0.02)
+
+
+@dataclasses.dataclass(frozen=True)
+class ToyConfig:
+    lr: float = 1e-4  #: step size of the update
+    sigma: float = 0.3  #: std of the white exploration noise
+    budget: ToyBudget = options.group(ToyBudget)
+    environment: ToyEnvironment = options.group(ToyEnvironment)
 
     def validate(self) -> None:
         if not (isinstance(self.lr, (int, float)) and self.lr >= 0):
@@ -52,16 +63,13 @@ class ToyConfig:
         if not (isinstance(self.sigma, (int, float)) and self.sigma > 0):
             raise ValueError(f"sigma={self.sigma!r} is invalid: must be > 0")
         for name in ("num_envs", "chunk_steps"):
-            if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 1):
-                raise ValueError(f"{name}={getattr(self, name)!r} is invalid: must be an integer >= 1")
-        self.env_config().validate()
+            if not (isinstance(getattr(self.budget, name), int) and getattr(self.budget, name) >= 1):
+                raise ValueError(f"{name}={getattr(self.budget, name)!r} is invalid: must be an integer >= 1")
+        self.environment.env_config().validate()
 
     def resolved(self) -> "ToyConfig":
         self.validate()
-        return dataclasses.replace(self, steps=10) if self.steps is None and self.trials is None else self
-
-    def env_config(self) -> EnvConfig:
-        return EnvConfig(control_dt=self.control_dt, stop_prob=self.stop_prob, auto_reset=True)
+        return options.replace(self, steps=10) if self.budget.steps is None and self.budget.trials is None else self
 
 
 class ToyHyper(NamedTuple):
@@ -94,8 +102,8 @@ class ToyTrainer(NamedTuple):
 
 def make_toy(config: ToyConfig, env=None, *, axis_name=None, num_shards: int = 1) -> ToyTrainer:
     cfg = config.resolved()
-    env = env or HalfCheetah(cfg.env_config())
-    N = cfg.num_envs
+    env = env or HalfCheetah(cfg.environment.env_config())
+    N = cfg.budget.num_envs
     n_local = N // num_shards
 
     def psum(x):
@@ -120,7 +128,7 @@ def make_toy(config: ToyConfig, env=None, *, axis_name=None, num_shards: int = 1
         r_mean = psum(jnp.sum(es.reward)) / N
         g = psum(jnp.einsum("n,ni,nj->ij", es.reward - ts.baseline, obs, xi)) / N
         w = ts.w + ts.hyper.lr * g
-        ok = jnp.isfinite(jnp.linalg.norm(w)) & (jnp.linalg.norm(w) < cfg.max_param_norm) & ~ts.diverged
+        ok = jnp.isfinite(jnp.linalg.norm(w)) & (jnp.linalg.norm(w) < cfg.budget.max_param_norm) & ~ts.diverged
         new = ts.replace(w=jnp.where(ok, w, ts.w), baseline=ts.baseline + 0.1 * (r_mean - ts.baseline), env=es,
                          key=key, step=ts.step + 1, trials=ts.trials + psum(jnp.sum(es.done > 0).astype(jnp.int32)),
                          diverged=ts.diverged | ~ok)
@@ -128,7 +136,7 @@ def make_toy(config: ToyConfig, env=None, *, axis_name=None, num_shards: int = 1
                      "trials": psum(jnp.sum(es.done > 0).astype(jnp.int32))}
 
     def chunk(ts):
-        ts, s = jax.lax.scan(step, ts, None, length=cfg.chunk_steps)
+        ts, s = jax.lax.scan(step, ts, None, length=cfg.budget.chunk_steps)
         return ts, {"avg_reward": jnp.mean(s["reward"]), "forward_speed": jnp.mean(s["speed"]),
                     "trials_in_chunk": jnp.sum(s["trials"]), "step": ts.step, "trials": ts.trials,
                     "diverged": ts.diverged, "w_norm": jnp.linalg.norm(ts.w)}
@@ -149,7 +157,7 @@ TOY = learners.register(learners.Learner(
     doc="a linear policy with a trivial update (tests only)", help={"lr": "toy step size"}, sweep_field="lr",
     describe=lambda c: {"lr": float(c.lr), "sigma": float(c.sigma)}))
 
-CFG = ToyConfig(lr=3e-4, steps=15)
+CFG = options.build(ToyConfig, lr=3e-4, steps=15)
 
 
 def _rows(d):
@@ -169,7 +177,7 @@ def uninterrupted(tmp_path_factory):
 
 def test_config_json_and_checkpoints_name_the_learner(uninterrupted):
     d = uninterrupted
-    assert json.loads((d / store.CONFIG_FILE).read_text()) == {"learner": "toy", **dataclasses.asdict(CFG.resolved())}
+    assert json.loads((d / store.CONFIG_FILE).read_text()) == {"learner": "toy", **options.flat(CFG.resolved())}
     assert checkpoint.load_run_config(d) == CFG.resolved()
     meta = checkpoint.load_metadata(d)
     assert meta["learner"] == "toy" and meta["step"] == 15
@@ -192,8 +200,8 @@ def test_resume_is_bit_identical(uninterrupted, tmp_path):
         np.testing.assert_array_equal(a, b)
     # a checkpoint of this learner is refused by another learner's trainer
     with pytest.raises(checkpoint.ForeignCheckpoint, match="toy"):
-        checkpoint.restore(d, learners.get("ac").make(learners.get("ac").config(num_envs=2, hidden_actor=4,
-                                                                                 hidden_critic=4)))
+        checkpoint.restore(d, learners.get("ac").make(options.build(learners.get("ac").config, num_envs=2,
+                                                                                   hidden_actor=4, hidden_critic=4)))
 
 
 @pytest.mark.slow  # ~55 s cold; by default test_sweep and test_layout check both for the paper's learner
@@ -219,7 +227,7 @@ def test_sweep_point_equals_the_run_alone_and_continues_from_compact_state(unint
         shutil.rmtree(d / "checkpoints")
         with np.load(d / store.COMPACT_FILE) as z:
             assert int(z["step"]) == 15 and "w" in z.files and "baseline" in z.files
-    sweep.run_sweep(dataclasses.replace(spec, base=dataclasses.replace(spec.base, steps=25)), out, resume=True,
+    sweep.run_sweep(dataclasses.replace(spec, base=options.replace(spec.base, steps=25)), out, resume=True,
                     progress=False)
     d = sweep.point_dir(out, 3e-4, 0, "lr")
     got = store.read_metrics(d)
@@ -328,14 +336,17 @@ def test_cli_sweep_varies_any_traced_field(tmp_path, capsys):
 
 
 def test_the_config_protocol_is_what_register_requires_and_every_learner_has_it():
-    """``Config`` (the type nmrl.runs reads) names exactly the fields :func:`register` requires, and
-    every built-in learner's config has them with ``resolved`` and ``validate``."""
-    import dataclasses
-
+    """``Config`` (the type nmrl.runs reads) names exactly the groups :func:`register` requires, its
+    ``Budget`` the budget's fields, and every built-in learner's config has them with ``resolved`` and
+    ``validate``."""
+    from nmrl import tasks
     from nmrl.learners import contract
 
-    assert set(contract.Config.__annotations__) == set(contract.COMMON_FIELDS)
+    assert set(contract.Config.__annotations__) == {"environment", "budget"}
+    assert set(contract.Budget.__annotations__) == set(contract.COMMON_FIELDS)
     for name in contract.names():
         cls = contract.get(name).config
-        assert set(contract.COMMON_FIELDS) <= {f.name for f in dataclasses.fields(cls)}, name
+        groups = options.groups(cls)
+        assert set(contract.COMMON_FIELDS) <= set(options.leaves(groups["budget"])), name
+        assert issubclass(groups["environment"], tasks.EnvFields), name
         assert callable(cls.resolved) and callable(cls.validate), name

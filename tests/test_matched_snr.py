@@ -6,7 +6,6 @@ computation (nmrl/experiments/ppo_gradsnr.py), the matched states against the co
 from __future__ import annotations
 
 import csv
-import dataclasses
 import json
 
 import jax
@@ -15,6 +14,7 @@ import numpy as np
 import pytest
 from jax.flatten_util import ravel_pytree
 
+from nmrl import options
 from nmrl.experiments import exploration2, exploration2_analysis, exploration2_cells, matched_snr, ppo_gradsnr
 from nmrl.learners import ppo, ppo_config
 from nmrl.learners import ppo_losses as L
@@ -31,7 +31,7 @@ PERIODIC = dict(TINY, num_envs=2, batch_size=4, unroll_s=0.12, exploration="nm-p
 def test_the_period_wise_gradient_estimate_is_the_periods_dense_density_times_their_advantage():
     """g_e = grad (1/UT) sum_p A_p log pi(period p), the period's density from the dense covariance
     (5) of its noise (no filter) and the change of variables, against make_batch's sums."""
-    cfg = ppo_config.PPOConfig(**PERIODIC).resolved()
+    cfg = options.build(ppo_config.PPOConfig, **PERIODIC).resolved()
     env = TinyEnv(stop_prob=0.0)  # no trial resets: every unroll starts a period (6 = 2 periods)
     tr = ppo.make_ppo(cfg, env)
     st = tr.init(jax.random.PRNGKey(3))
@@ -52,7 +52,7 @@ def test_the_period_wise_gradient_estimate_is_the_periods_dense_density_times_th
     w = np.broadcast_to(start.T, adv.shape) > 0
     a = adv[w]
     adv = np.where(w, (adv - a.mean()) / (a.std() + 1e-8), 0.0)
-    C = dense_cov(cfg.spec().process(cfg.control_dt), np.array([1, 0, 0], bool))
+    C = dense_cov(cfg.noise.spec().process(cfg.environment.control_dt), np.array([1, 0, 0], bool))
     Cinv, (_, logdet) = np.linalg.inv(C), np.linalg.slogdet(2 * np.pi * C)
     grads = []
     for e in range(N):
@@ -76,20 +76,20 @@ def test_the_period_wise_gradient_estimate_is_the_periods_dense_density_times_th
 def _point(tmp_path, cfg, st, name="p"):
     d = tmp_path / name
     d.mkdir()
-    (d / "config.json").write_text(json.dumps(dataclasses.asdict(cfg)))
+    (d / "config.json").write_text(json.dumps(options.flat(cfg)))
     compact.save_compact(d, st, cfg)
     return d
 
 
 def test_a_matched_state_holds_the_points_networks_at_another_control_step(tmp_path):
     env = TinyEnv(stop_prob=0.1)
-    cfg = ppo_config.PPOConfig(**dict(TINY, exploration="white", seed=5)).resolved()
+    cfg = options.build(ppo_config.PPOConfig, **dict(TINY, exploration="white", seed=5)).resolved()
     st = ppo.make_ppo(cfg, env).init(jax.random.PRNGKey(99))  # networks unlike seed 5's
     st = st.replace(obs_stats=st.obs_stats._replace(mean=st.obs_stats.mean + 0.3))
     d = _point(tmp_path, cfg, st)
     saved = np.load(d / "compact.npz")
     at = matched_snr.config_at(cfg, 0.01, {"exploration": "nm-periods", "sigma": 0.5, "period_s": 0.04})
-    assert at.control_dt == 0.01 and at.reward_scale == pytest.approx(0.5) and at.unroll_length == 10
+    assert at.environment.control_dt == 0.01 and at.reward_scale == pytest.approx(0.5) and at.unroll_length == 10
     m = matched_snr.matched_state(at, d, env=env)
     for part in ("policy", "value", "obs_stats"):
         leaves = jax.tree.leaves(getattr(m, part))
@@ -104,8 +104,8 @@ def test_a_matched_state_holds_the_points_networks_at_another_control_step(tmp_p
 
 def test_the_measurement_writes_every_group_once_and_continues(tmp_path, monkeypatch):
     env = TinyEnv(stop_prob=0.1)
-    cfg = ppo_config.PPOConfig(**dict(TINY, exploration="white", seed=0)).resolved()
-    pts = {s: _point(tmp_path, dataclasses.replace(cfg, seed=s), ppo.make_ppo(cfg, env).init(jax.random.PRNGKey(s)),
+    cfg = options.build(ppo_config.PPOConfig, **dict(TINY, exploration="white", seed=0)).resolved()
+    pts = {s: _point(tmp_path, options.replace(cfg, seed=s), ppo.make_ppo(cfg, env).init(jax.random.PRNGKey(s)),
                      f"s{s}") for s in (0, 1)}
     arms = {"white": {0.02: {"exploration": "white", "sigma": 1.0}, 0.01: {"exploration": "white", "sigma": 1.0}}}
     path = tmp_path / "snr.csv"

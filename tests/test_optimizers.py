@@ -32,6 +32,7 @@ import numpy as np  # noqa: E402
 import optax  # noqa: E402
 import pytest  # noqa: E402
 
+from nmrl import options
 from nmrl import cli  # noqa: E402
 from nmrl.runs import checkpoint  # noqa: E402
 from nmrl.learners.ac_config import PRESETS, TrainConfig  # noqa: E402
@@ -125,9 +126,9 @@ def test_presets_name_the_papers_rule():
     assert (cfg.beta_theta, cfg.beta_v) == (2e-6, 1e-5)
     assert (PRESETS["paper"]["actor_opt"], PRESETS["paper"]["critic_opt"]) == ("sgd", "sgd")
     # a config.json written before the vocabulary (no actor_opt/critic_opt) resolves to sgd
-    old = {k: v for k, v in dataclasses.asdict(TrainConfig().resolved()).items()
+    old = {k: v for k, v in options.flat(TrainConfig().resolved()).items()
            if k not in ("actor_opt", "critic_opt")}
-    assert checkpoint.identity_config(TrainConfig(**old)) == checkpoint.identity_config(TrainConfig())
+    assert checkpoint.identity_config(options.build(TrainConfig, **old)) == checkpoint.identity_config(TrainConfig())
 
 
 def test_every_preset_names_a_valid_rule_and_fast_keeps_its_meaning():
@@ -193,7 +194,7 @@ def clip(g: np.ndarray, c: float) -> np.ndarray:
 
 def _step_through(cfg, env, n_steps, key=5):
     """(before, after) state pairs of ``n_steps`` one-step chunks."""
-    trainer = make_train(dataclasses.replace(cfg, chunk_steps=1, steps=n_steps), env)
+    trainer = make_train(options.replace(cfg, chunk_steps=1, steps=n_steps), env)
     chunk = jax.jit(trainer.chunk)
     ts = jax.jit(trainer.init)(jax.random.key(key))
     pairs = []
@@ -296,7 +297,7 @@ def test_step_size_of_a_chain_stays_traced():
 # --------------------------------------------------------------------------- identity and checkpoints
 
 #: The tiny Half-Cheetah trainer of tests/test_checkpoint.py, with a stateful chain on both networks.
-CFG = TrainConfig(num_envs=4, chunk_steps=5, hidden_actor=8, hidden_critic=8, steps=15, seed=0, l=2, delta=1,
+CFG = options.build(TrainConfig, num_envs=4, chunk_steps=5, hidden_actor=8, hidden_critic=8, steps=15, seed=0, l=2, delta=1,
                   actor_opt="clip:5,adam:b1=0.8", critic_opt="adam,clip:0.5", beta_theta=1e-3, beta_v=1e-3)
 
 
@@ -346,12 +347,12 @@ def test_checkpoint_carries_adam_state_and_resume_equals_uninterrupted(tmp_path)
 
 def _write_run_config(d, cfg: TrainConfig) -> None:
     d.mkdir(parents=True)
-    (d / "config.json").write_text(json.dumps(dataclasses.asdict(cfg.resolved()), indent=2) + "\n")
+    (d / "config.json").write_text(json.dumps(options.flat(cfg.resolved()), indent=2) + "\n")
 
 
 def test_resume_with_another_chain_is_refused(tmp_path, capsys):
     run = tmp_path / "run"
-    _write_run_config(run, TrainConfig(num_envs=4, steps=10, actor_opt="clip:10,sgd"))
+    _write_run_config(run, options.build(TrainConfig, num_envs=4, steps=10, actor_opt="clip:10,sgd"))
     before = sorted(p.name for p in run.iterdir())
     assert cli.main(["train", "--resume", "--out", str(run), "--actor-opt", "sgd", "--quiet"]) == 2
     err = capsys.readouterr().err
@@ -365,9 +366,9 @@ def test_resume_with_another_chain_is_refused(tmp_path, capsys):
 def test_sweep_resume_with_another_chain_is_refused(tmp_path, capsys):
     out = tmp_path / "sweep"
     out.mkdir()
-    base = TrainConfig(num_envs=4, trials=10, critic_opt="adam").resolved()
+    base = options.build(TrainConfig, num_envs=4, trials=10, critic_opt="adam").resolved()
     (out / "sweep.json").write_text(json.dumps({"ls": [1, 10], "seeds": 1, "first": [],
-                                                "base": dataclasses.asdict(base)}))
+                                                "base": options.flat(base)}))
     assert cli.main(["sweep", "--resume", "--l", "1", "--out", str(out), "--critic-opt", "clip:1,sgd",
                      "--quiet"]) == 2
     err = capsys.readouterr().err

@@ -78,7 +78,7 @@ class _OtherOrder(NamedTuple):
 
 
 def test_ppo_hyper_from_the_declarations_gives_the_same_chunk_bit_for_bit():
-    cfg = ppo_config.PPOConfig(num_envs=2, batch_size=4, num_minibatches=2, epochs=2, unroll_s=0.1, policy_layers=2,
+    cfg = options.build(ppo_config.PPOConfig, num_envs=2, batch_size=4, num_minibatches=2, epochs=2, unroll_s=0.1, policy_layers=2,
                                policy_width=8, value_layers=2, value_width=8, control_dt=0.02, exploration="ou",
                                sigma=0.7, corr_time_s=0.05, discount_horizon_s=0.3, clip_eps=0.2).resolved()
     f32 = np.float32
@@ -109,7 +109,7 @@ def test_ppo_hyper_from_the_declarations_gives_the_same_chunk_bit_for_bit():
 ])
 def test_config_validate_refuses_a_value_outside_its_declared_range(cls, field, value):
     with pytest.raises(ValueError, match=rf"^{field}={value!r} is invalid: "):
-        cls(**{field: value}).validate()
+        options.build(cls, **{field: value}).validate()
 
 
 @pytest.mark.parametrize("cls, field, value, allowed", [
@@ -118,7 +118,7 @@ def test_config_validate_refuses_a_value_outside_its_declared_range(cls, field, 
 ])
 def test_a_cap_of_sense_is_checked_before_a_run_not_by_validate(cls, field, value, allowed):
     """Code may set a step size beyond 1 (a test that makes a run diverge on purpose); a run may not."""
-    cfg = cls(**{field: value})
+    cfg = options.build(cls, **{field: value})
     cfg.validate()
     with pytest.raises(ValueError, match=rf"^{field}={value!r} is invalid: must be in {re.escape(allowed)}"):
         bounds.check(cfg)
@@ -144,17 +144,17 @@ def test_every_learner_takes_every_32_bit_unsigned_seed(learner):
     top = 2**32 - 1
     keys = {tuple(np.asarray(jax.random.PRNGKey(s)).tolist()) for s in (0, 2**31 - 1, 2**31, top)}
     assert len(keys) == 4  # JAX gives each of these seeds a key of its own
-    cfg(seed=top).validate()
+    options.build(cfg, seed=top).validate()
     for bad in (top + 1, -1):
         with pytest.raises(ValueError, match=rf"^seed={bad} is invalid: must be an integer in \[0, {top}\]"):
-            cfg(seed=bad).validate()
+            options.build(cfg, seed=bad).validate()
 
 
 def test_ppo_takes_every_exploration_process():
     lr = learners.get("ppo")
     assert lr.explorations == explore.KINDS
     for kind in explore.KINDS:
-        ppo_config.PPOConfig(exploration=kind).resolved()
+        options.build(ppo_config.PPOConfig, exploration=kind).resolved()
 
 
 @pytest.mark.parametrize("learner, expect", [("ac", {"l": 5}), ("ppo", {"period_s": 0.1})])
@@ -166,7 +166,7 @@ def test_exploration_options_are_parsed_under_the_spec_names(learner, expect):
                                             "nm-periods", "--period-s", "0.1"])
     assert args.period_s == 0.1 and not any(k.startswith("x_") for k in vars(args))
     cfg = config_options.config_from_args(args)
-    assert {k: getattr(cfg, k) for k in expect} == expect  # l = round(0.1 s / 0.02 s)
+    assert {k: options.value(cfg, k) for k in expect} == expect  # l = round(0.1 s / 0.02 s)
 
 
 @pytest.mark.parametrize("learner", ["ac", "ppo"])
@@ -179,6 +179,6 @@ def test_traced_fields_are_the_ones_a_sweep_may_vary(learner):
     varied = {"ac": dict(l=3, gamma=0.9, beta_v=0.1), "ppo": dict(clip_eps=0.1, sigma=2.0, gae_horizon_s=1.0)}
     static = {"ac": dict(hidden_actor=7), "ppo": dict(order=3)}
     if learner == "ppo":
-        base = dataclasses.replace(base, exploration="colored")
-    assert learners.program_key(dataclasses.replace(base, **varied[learner])) == learners.program_key(base)
-    assert learners.program_key(dataclasses.replace(base, **static[learner])) != learners.program_key(base)
+        base = options.replace(base, exploration="colored")
+    assert learners.program_key(options.replace(base, **varied[learner])) == learners.program_key(base)
+    assert learners.program_key(options.replace(base, **static[learner])) != learners.program_key(base)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from nmrl import options
 from nmrl.learners import ppo_losses as L
 
 
@@ -96,7 +97,7 @@ def test_period_wise_ppo_with_one_step_periods_is_the_per_step_ppo():
     from nmrl.learners.ppo import make_ppo
     from nmrl.learners.ppo_config import PPOConfig
 
-    cfg = PPOConfig(exploration="nm-periods", period_s=0.02, corr_time_s=0.0896, num_envs=4, batch_size=4,
+    cfg = options.build(PPOConfig, exploration="nm-periods", period_s=0.02, corr_time_s=0.0896, num_envs=4, batch_size=4,
                     num_minibatches=2, epochs=2, value_layers=1, value_width=8, policy_layers=1, policy_width=8,
                     unroll_s=0.1, physics="c")
     out = []
@@ -116,7 +117,7 @@ def test_period_wise_ppo_learns_on_longer_periods_and_is_refused_without_periods
     from nmrl.learners.ppo import make_ppo
     from nmrl.learners.ppo_config import PPOConfig
 
-    cfg = PPOConfig(exploration="nm-periods", period_s=0.1, num_envs=4, batch_size=4, num_minibatches=1,
+    cfg = options.build(PPOConfig, exploration="nm-periods", period_s=0.1, num_envs=4, batch_size=4, num_minibatches=1,
                     epochs=1, value_layers=1, value_width=8, policy_layers=1, policy_width=8, period_wise=True,
                     physics="c")
     tr = make_ppo(cfg)
@@ -125,4 +126,4 @@ def test_period_wise_ppo_learns_on_longer_periods_and_is_refused_without_periods
     assert np.isfinite(float(m["policy_loss"])) and not bool(st.diverged)
     assert not np.allclose(np.asarray(jax.tree.leaves(st.policy)[0]), np.asarray(jax.tree.leaves(st0.policy)[0]))
     with pytest.raises(ValueError, match="period_wise"):
-        PPOConfig(exploration="white", period_wise=True).validate()
+        options.build(PPOConfig, exploration="white", period_wise=True).validate()

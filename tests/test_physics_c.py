@@ -8,7 +8,6 @@ against the same runs on C physics made another way.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 
 import jax
@@ -17,7 +16,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from nmrl import cli
+from nmrl import cli, options
 from nmrl.paper import geometry as g
 from nmrl.paper.env import MODEL_PATH, EnvConfig, HalfCheetah
 from nmrl.learners.ac_config import TrainConfig
@@ -165,7 +164,7 @@ def test_cli_refuses_physics_c_off_the_cpu(monkeypatch, tmp_path, capsys):
 def test_physics_is_part_of_the_identity_and_mjx_runs_keep_theirs():
     mjx_ident = identity.identity_config(TrainConfig())
     assert "physics" not in mjx_ident  # runs made before the option keep their digest
-    assert identity.identity_config(TrainConfig(physics="c"))["physics"] == "c"
+    assert identity.identity_config(options.build(TrainConfig, physics="c"))["physics"] == "c"
 
 
 TINY = ["--preset", "fast", "--hidden-actor", "8", "--hidden-critic", "8", "--num-envs", "4",
@@ -191,12 +190,12 @@ def test_resume_on_c_is_bit_exact_and_keeps_its_physics(tmp_path, capsys):
 def test_a_sweep_point_on_c_equals_the_run_alone(tmp_path):
     from nmrl.experiments import sweep
 
-    base = TrainConfig(num_envs=4, chunk_steps=25, steps=50, hidden_actor=8, hidden_critic=8, beta_theta=1e-3,
+    base = options.build(TrainConfig, num_envs=4, chunk_steps=25, steps=50, hidden_actor=8, hidden_critic=8, beta_theta=1e-3,
                        beta_v=1e-3, physics="c")
     out = tmp_path / "sweep"
     sweep.run_sweep(sweep.SweepSpec(ls=(1, 3), seeds=1, base=base), out, progress=False, plot=False)
     alone = tmp_path / "alone"
-    run.train(dataclasses.replace(base, l=3, seed=0), alone, progress=False)
+    run.train(options.replace(base, l=3, seed=0), alone, progress=False)
     for a, b in zip(_rows(alone), _rows(sweep.point_dir(out, 3, 0))):
         assert a.keys() == b.keys()
         for k in a:

@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 import scipy.stats
 
-from nmrl import explore
+from nmrl import explore, options
 from nmrl.learners import contract, ppo, ppo_config
 from nmrl.learners import ppo_losses as L
 from nmrl.learners import ppo_networks as nn_
@@ -113,7 +113,7 @@ def _random_batch(rng, cfg, B, obs_dim, act_dim, K=1):
 def test_minibatch_loss_matches_numpy():
     """The whole loss of one minibatch (white noise, learned std, tanh, normalised observations and
     advantages) against a float64 NumPy implementation of Brax's compute_ppo_loss."""
-    cfg = ppo_config.PPOConfig(**TINY, exploration="white", sigma=0.8, entropy_cost=0.01, clip_eps=0.2,
+    cfg = options.build(ppo_config.PPOConfig, **TINY, exploration="white", sigma=0.8, entropy_cost=0.01, clip_eps=0.2,
                                reward_scale=0.5, discount_horizon_s=0.1, gae_horizon_s=0.05, control_dt=0.02)
     env = TinyEnv()
     tr = ppo.make_ppo(cfg, env)
@@ -133,7 +133,7 @@ def test_minibatch_loss_matches_numpy():
     out = _np_mlp(st.policy, obs_n)
     mu, raw = out[..., :n], out[..., n:]
     std = np.log1p(np.exp(raw)) + cfg.min_std
-    s = cfg.sigma * std
+    s = cfg.noise.sigma * std
     logp = np.sum(scipy.stats.norm.logpdf(d(b.x), mu, s), axis=-1)
     values = _np_mlp(st.value, obs_n)[..., 0]
     boot = _np_mlp(st.value, (d(b.next_obs) - d(stats.mean)) / d(stats.std))[..., 0]
@@ -158,7 +158,7 @@ def test_minibatch_loss_matches_numpy():
 def _nm_cfg(**kw):
     base = dict(TINY, exploration="nm-periods", sigma=0.7, period_s=0.12, corr_time_s=0.05)
     base.update(kw)
-    return ppo_config.PPOConfig(**base)
+    return options.build(ppo_config.PPOConfig, **base)
 
 
 @pytest.fixture(scope="module")
@@ -193,7 +193,7 @@ def test_exact_likelihood_ratio_matches_dense_gaussian(nm_trainer):
     tr = nm_trainer
     cfg = tr.config
     T, n = cfg.unroll_length, 2
-    proc = cfg.spec().process(cfg.control_dt)
+    proc = cfg.noise.spec().process(cfg.environment.control_dt)
     phi, sigma, period = float(proc.phi[0]), float(proc.sigma), int(proc.period)
     assert (T, period) == (5, 6)
     rng = np.random.default_rng(7)
@@ -250,7 +250,7 @@ def test_exact_likelihood_ratio_matches_dense_gaussian(nm_trainer):
 
 
 def test_minibatches_are_whole_unrolls_each_once_per_epoch():
-    cfg = ppo_config.PPOConfig(num_envs=2, batch_size=4, num_minibatches=3, epochs=1, unroll_s=0.08, policy_layers=1,
+    cfg = options.build(ppo_config.PPOConfig, num_envs=2, batch_size=4, num_minibatches=3, epochs=1, unroll_s=0.08, policy_layers=1,
                                policy_width=4, value_layers=1, value_width=4)
     tr = ppo.make_ppo(cfg, TinyEnv())
     N, U, T = 2, cfg.unrolls_per_env, cfg.unroll_length
@@ -289,7 +289,7 @@ def test_chunk_vmap_over_points_equals_each_point_alone():
                     corr_time_s=0.2, period_s=0.3, gae_horizon_s=0.1, seed=1)]
     assert contract.program_key(cfgs[0]) == contract.program_key(cfgs[1])
     tr = ppo.make_ppo(cfgs[0], env)
-    states = [tr.init(jax.random.PRNGKey(c.seed), ppo_config.Hyper.from_config(c.resolved())) for c in cfgs]
+    states = [tr.init(jax.random.PRNGKey(c.budget.seed), ppo_config.Hyper.from_config(c.resolved())) for c in cfgs]
     chunk = jax.jit(tr.chunk)
     alone = [chunk(s) for s in states]
     both_s, both_m = jax.jit(jax.vmap(tr.chunk))(jax.tree.map(lambda *a: jnp.stack(a), *states))
@@ -308,23 +308,23 @@ def test_defaults_are_the_brax_baseline_and_times_are_in_seconds():
     base = json.loads((REPO / "results/baseline_ppo/ppo_s0/config.json").read_text())
     c = ppo_config.PPOConfig().resolved()
     h = ppo_config.Hyper.from_config(c)
-    assert (c.unroll_length, c.batch_size, c.num_minibatches, c.epochs, c.num_envs) == (
+    assert (c.unroll_length, c.batch_size, c.num_minibatches, c.epochs, c.budget.num_envs) == (
         base["unroll_length"], base["batch_size"], base["num_minibatches"], base["num_updates_per_batch"],
         base["num_envs"])
     assert (c.learning_rate, c.entropy_cost, c.reward_scale, c.normalize_obs) == (
         base["learning_rate"], base["entropy_cost"], base["reward_scaling"], base["normalize_observations"])
     assert ((c.policy_width,) * c.policy_layers, (c.value_width,) * c.value_layers) == (
         tuple(base["policy_hidden"]), tuple(base["value_hidden"]))
-    assert (c.control_dt, c.stop_prob) == (base["control_dt"], base["stop_prob"])
+    assert (c.environment.control_dt, c.environment.stop_prob) == (base["control_dt"], base["stop_prob"])
     assert float(h.gamma) == np.float32(base["discounting"]) and float(h.lam) == np.float32(0.95)
-    assert c.iteration_steps * c.num_envs == base["batch_size"] * base["num_minibatches"] * base["unroll_length"]
-    assert nn_.ACTION_SCALE == 20.0 and c.exploration == "white"
+    assert c.iteration_steps * c.budget.num_envs == base["batch_size"] * base["num_minibatches"] * base["unroll_length"]
+    assert nn_.ACTION_SCALE == 20.0 and c.noise.exploration == "white"
     # 5 ms: the same seconds, 4x the steps; the discount per second unchanged
-    f = ppo_config.PPOConfig(control_dt=0.005).resolved()
+    f = options.build(ppo_config.PPOConfig, control_dt=0.005).resolved()
     hf = ppo_config.Hyper.from_config(f)
     assert f.unroll_length == 80 and f.iteration_steps == 4 * c.iteration_steps
     np.testing.assert_allclose(float(hf.gamma) ** 4, 0.95, rtol=1e-6)
-    nm = ppo_config.PPOConfig(exploration="nm-periods", control_dt=0.005).resolved()
+    nm = options.build(ppo_config.PPOConfig, exploration="nm-periods", control_dt=0.005).resolved()
     assert int(ppo_config.Hyper.from_config(nm).process.period) == 40  # 0.2 s
 
 
@@ -337,17 +337,17 @@ def test_defaults_are_the_brax_baseline_and_times_are_in_seconds():
 ])
 def test_bad_config_names_the_value(kw, name):
     with pytest.raises(ValueError, match=name):
-        ppo_config.PPOConfig(**kw).resolved()
+        options.build(ppo_config.PPOConfig, **kw).resolved()
 
 
 def test_registered_and_config_round_trips():
     lr = contract.get("ppo")
-    c = ppo_config.PPOConfig(exploration="ou", corr_time_s=0.3, seed=4).resolved()
+    c = options.build(ppo_config.PPOConfig, exploration="ou", corr_time_s=0.3, seed=4).resolved()
     assert contract.of(c) is lr and contract.config_from_dict(json.loads(json.dumps(contract.config_dict(c)))) == c
     assert set(lr.policy_fields) <= set(lr.compact_fields)
     assert {f.name for f in dataclasses.fields(ppo.PPOState)} >= {"step", "trials", "diverged", "key", "hyper",
                                                                    *lr.env_fields, *lr.compact_fields}
-    assert set(lr.hyper_fields) <= {f.name for f in dataclasses.fields(ppo_config.PPOConfig)}
+    assert set(lr.hyper_fields) <= set(options.leaves(ppo_config.PPOConfig))
 
 
 def test_deterministic_policy_is_the_squashed_mean(nm_trainer):
@@ -412,13 +412,13 @@ def test_sharded_chunk_equals_unsharded():
 def test_divergence_undoes_the_update_and_freezes_the_point():
     """A parameter norm above max_param_norm after an iteration: that iteration's update (parameters,
     Adam, observation statistics) is undone, ``diverged`` is set and stays, the rollouts go on."""
-    cfg = ppo_config.PPOConfig(**{**TINY, "epochs": 1}, max_param_norm=1.0)  # the initial policy's norm is > 1
+    cfg = options.build(ppo_config.PPOConfig, **{**TINY, "epochs": 1}, max_param_norm=1.0)  # the initial policy's norm is > 1
     tr = ppo.make_ppo(cfg, TinyEnv())
     st0 = tr.init(jax.random.PRNGKey(0))
     chunk = jax.jit(tr.chunk)
     st1, m1 = chunk(st0)
     st2, m2 = chunk(st1)
-    assert bool(m1["diverged"]) and bool(m2["diverged"]) and int(m2["step"]) == 2 * cfg.resolved().chunk_steps
+    assert bool(m1["diverged"]) and bool(m2["diverged"]) and int(m2["step"]) == 2 * cfg.resolved().budget.chunk_steps
     for a, b in zip(jax.tree.leaves((st0.policy, st0.value, st0.opt, st0.obs_stats)),
                     jax.tree.leaves((st2.policy, st2.value, st2.opt, st2.obs_stats))):
         np.testing.assert_array_equal(np.asarray(b), np.asarray(a))
@@ -431,12 +431,12 @@ def test_max_grad_norm_clips_the_gradient_before_adam(max_grad_norm):
     -lr g / (|g| + 1e-8) per element, so an unclipped gradient (no clip, or a bound far above its
     norm) moves every parameter with |g| >> 1e-8 by lr, while one clipped to global norm c moves
     each by at most lr c / 1e-8 (optax.clip_by_global_norm before scale_by_adam, as Brax's PPO)."""
-    cfg = ppo_config.PPOConfig(**{**TINY, "epochs": 1, "num_minibatches": 1, "unroll_s": 0.2},
+    cfg = options.build(ppo_config.PPOConfig, **{**TINY, "epochs": 1, "num_minibatches": 1, "unroll_s": 0.2},
                                max_grad_norm=max_grad_norm)  # one unroll per environment: one Adam step
     tr = ppo.make_ppo(cfg, TinyEnv())
     st0 = tr.init(jax.random.PRNGKey(0))
     st1, _ = jax.jit(tr.chunk)(st0)
-    assert cfg.resolved().unrolls_per_env == 2 and cfg.resolved().chunk_steps == cfg.resolved().unroll_length * 2
+    assert cfg.resolved().unrolls_per_env == 2 and cfg.resolved().budget.chunk_steps == cfg.resolved().unroll_length * 2
     moved = np.concatenate([np.abs(np.asarray(b) - np.asarray(a)).ravel()
                             for a, b in zip(jax.tree.leaves(st0.policy), jax.tree.leaves(st1.policy))])
     lr = cfg.learning_rate
@@ -457,7 +457,7 @@ def test_a_minibatch_gradient_taken_in_parts_is_the_whole_minibatchs(period_wise
     if period_wise:
         kw.update(exploration="nm-periods", sigma=0.7, period_s=0.06, corr_time_s=0.05, period_wise=True)
     env = TinyEnv(stop_prob=0.1)
-    whole = ppo.make_ppo(ppo_config.PPOConfig(**kw), env)
+    whole = ppo.make_ppo(options.build(ppo_config.PPOConfig, **kw), env)
     st = whole.init(jax.random.PRNGKey(3))
     _, data = whole.rollout(st, jax.random.PRNGKey(4))
     assert float(jnp.std(data.reward)) > 0
@@ -466,7 +466,7 @@ def test_a_minibatch_gradient_taken_in_parts_is_the_whole_minibatchs(period_wise
                 zip(jax.tree.leaves(ref), jax.tree.leaves({"policy": st.policy, "value": st.value})))
     assert moved > 1e-4  # 4 Adam steps of lr 3e-4 moved the parameters
     for chunks in (2, 4):
-        tr = ppo.make_ppo(ppo_config.PPOConfig(**kw, grad_chunks=chunks), env)
+        tr = ppo.make_ppo(options.build(ppo_config.PPOConfig, **kw, grad_chunks=chunks), env)
         got = tr.learn(st, data, jax.random.PRNGKey(5))[0]
         for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(ref)):
             np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=0, atol=1e-6)
@@ -484,7 +484,7 @@ def test_a_minibatch_gradient_taken_in_parts_is_the_whole_minibatchs(period_wise
 
 def test_grad_chunks_must_divide_each_environments_unrolls_of_a_minibatch():
     with pytest.raises(ValueError, match=r"grad_chunks=3 is invalid: must divide the 4 unrolls"):
-        ppo_config.PPOConfig(**dict(TINY, batch_size=8), grad_chunks=3).validate()
+        options.build(ppo_config.PPOConfig, **dict(TINY, batch_size=8), grad_chunks=3).validate()
 
 
 def test_a_ppo_chunk_beats_each_unroll_and_epoch_without_changing_its_numbers(tmp_path, capsys, monkeypatch):
@@ -495,8 +495,8 @@ def test_a_ppo_chunk_beats_each_unroll_and_epoch_without_changing_its_numbers(tm
     from nmrl.learners import heartbeat
     from nmrl.runs import driver, loop
 
-    cfg = ppo_config.PPOConfig(**TINY, env="paper-cheetah", physics="c", seed=3)
-    cfg = dataclasses.replace(cfg, steps=cfg.resolved().iteration_steps, chunk_steps=cfg.resolved().iteration_steps)
+    cfg = options.build(ppo_config.PPOConfig, **TINY, env="paper-cheetah", physics="c", seed=3)
+    cfg = options.replace(cfg, steps=cfg.resolved().iteration_steps, chunk_steps=cfg.resolved().iteration_steps)
     beats = []
     with heartbeat.listening(lambda *b: beats.append(b)):
         rows = driver.train(cfg, tmp_path / "a", progress=False)
@@ -508,5 +508,5 @@ def test_a_ppo_chunk_beats_each_unroll_and_epoch_without_changing_its_numbers(tm
     assert lines[0].endswith(f"rollout 1/{U} (unrolls)") and lines[-1].endswith(f"update {E}/{E} (epochs)")
     assert [r["avg_reward"] for r in rows] == [r["avg_reward"] for r in quiet]
     assert [r["policy_norm"] for r in rows] == [r["policy_norm"] for r in quiet]
-    mjx = driver.train(dataclasses.replace(cfg, physics="mjx"), tmp_path / "c", progress=True)
+    mjx = driver.train(options.replace(cfg, physics="mjx"), tmp_path / "c", progress=True)
     assert mjx and "in the chunk:" not in capsys.readouterr().err  # MJX's program stays cacheable: no beats

@@ -13,6 +13,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from nmrl import options
+
 REPO = pathlib.Path(__file__).resolve().parents[1]
 
 
@@ -26,7 +28,7 @@ def test_gradient_estimate_per_environment_matches_an_independent_computation():
     from nmrl.learners import ppo, ppo_config
     from nmrl.learners import ppo_networks as nn_
 
-    cfg = ppo_config.PPOConfig(**dict(TINY, num_envs=3, batch_size=6), exploration="white", reward_scale=0.5).resolved()
+    cfg = options.build(ppo_config.PPOConfig, **dict(TINY, num_envs=3, batch_size=6), exploration="white", reward_scale=0.5).resolved()
     env = TinyEnv(stop_prob=0.1)
     tr = ppo.make_ppo(cfg, env)
     st = tr.init(jax.random.PRNGKey(1))
@@ -63,12 +65,13 @@ def test_gradient_estimate_per_environment_matches_an_independent_computation():
 
 _SIDE_BY_SIDE = """
 import json, jax, numpy as np
+from nmrl import options
 from nmrl.experiments import gradvar, ppo_gradsnr
 from nmrl.learners import ppo, ppo_config
 from tests.test_ppo import TINY
 from tests.tiny_env import TinyEnv
 assert jax.local_device_count() == 2, jax.devices()
-cfg = ppo_config.PPOConfig(**dict(TINY, num_envs=3, batch_size=6), exploration="ou", reward_scale=0.5).resolved()
+cfg = options.build(ppo_config.PPOConfig, **dict(TINY, num_envs=3, batch_size=6), exploration="ou", reward_scale=0.5).resolved()
 env = TinyEnv(stop_prob=0.1)
 tr = ppo.make_ppo(cfg, env)
 states = [tr.init(jax.random.PRNGKey(s)) for s in (1, 2, 3)]

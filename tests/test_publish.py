@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from scipy import stats as sps
 
+from nmrl import options
 from nmrl.experiments import sweep
 from nmrl.learners.ac_config import TrainConfig
 from nmrl.runs import store
@@ -32,7 +33,7 @@ def _entry(seeds):
 
 def test_answers_compare_l10_with_l1_and_name_the_best_l():
     pub = _publisher()
-    spec = sweep.SweepSpec(ls=(1, 10, 30), seeds=3, base=TrainConfig(trials=100_000))
+    spec = sweep.SweepSpec(ls=(1, 10, 30), seeds=3, base=options.build(TrainConfig, trials=100_000))
     none = [None, None, None]
     table = {  # l -> milestone -> seeds
         "1": {"10000": [-0.1, -1.4, 0.0], "20000": [1.3, 2.2, 2.3], "30000": [2.9, 3.0, 3.3], "50000": [3.0, 3.1, 3.3],
@@ -122,7 +123,7 @@ def test_progress_counts_the_steps_left_and_the_hours_at_the_measured_rate(tmp_p
     the running point's missing trials at its own trial length so far, plus the unstarted point's
     whole budget at the stop rule's mean length (1/stop_prob); hours at the running point's rate."""
     pub = _publisher()
-    spec = sweep.SweepSpec(ls=(1, 10), seeds=2, base=TrainConfig(trials=1000, num_envs=8, stop_prob=1 / 250))
+    spec = sweep.SweepSpec(ls=(1, 10), seeds=2, base=options.build(TrainConfig, trials=1000, num_envs=8, stop_prob=1 / 250))
 
     def write(l, s, rows):
         d = sweep.point_dir(tmp_path, l, s)
@@ -148,7 +149,7 @@ def test_progress_reports_each_points_largest_fall_and_the_worst_per_l(tmp_path)
     5): the row of its l names the fall of the running mean from its peak and where; a steady
     seed's fall is 0; the worst per l is the first column."""
     pub = _publisher()
-    spec = sweep.SweepSpec(ls=(20,), seeds=2, base=TrainConfig(trials=200_000, num_envs=8))
+    spec = sweep.SweepSpec(ls=(20,), seeds=2, base=options.build(TrainConfig, trials=200_000, num_envs=8))
     curves = {0: [4.0] * 10 + [1.0] * 5 + [3.0] * 5, 1: [2.0] * 20}
     for s, ys in curves.items():
         d = sweep.point_dir(tmp_path, 20, s)

@@ -9,7 +9,6 @@ float32 limits, ``json`` line by line, the bytes of arrays actually allocated).
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import errno
 import json
 import logging
@@ -28,7 +27,7 @@ import jax
 import numpy as np
 import pytest
 
-from nmrl import learners
+from nmrl import learners, options
 from nmrl.runs import bounds, io_errors, jsonl, lock, memory, parser, signals
 
 PY = sys.executable
@@ -428,7 +427,7 @@ def test_every_learners_defaults_are_within_bounds():
     ("steps", 2**31, "steps=2147483648 is invalid: must fit in 32 bits"),
 ])
 def test_out_of_bounds_values_are_named_in_one_line(field, value, needle):
-    cfg = dataclasses.replace(learners.get("ac").config(), **{field: value})
+    cfg = options.replace(learners.get("ac").config(), **{field: value})
     with pytest.raises(ValueError) as e:
         bounds.check(cfg)
     assert str(e.value).startswith(needle) and "\n" not in str(e.value)
@@ -547,7 +546,7 @@ def test_the_guard_puts_back_the_handlers_it_found():
 
 def test_the_state_estimate_equals_the_bytes_allocated():
     L = learners.get("ac")
-    cfg = L.config(preset="fast", num_envs=4, hidden_actor=16, hidden_critic=24, chunk_steps=10, steps=10).resolved()
+    cfg = options.build(L.config, preset="fast", num_envs=4, hidden_actor=16, hidden_critic=24, chunk_steps=10, steps=10).resolved()
     tr = L.make(cfg)
     key = jax.random.PRNGKey(0)
     ts = jax.jit(tr.init)(key)
@@ -558,7 +557,7 @@ def test_the_state_estimate_equals_the_bytes_allocated():
 
 def test_absurd_sizes_are_refused_naming_the_estimate_and_the_machine():
     L = learners.get("ac")
-    cfg = L.config(preset="fast", num_envs=8, hidden_actor=1_000_000_000, hidden_critic=8).resolved()
+    cfg = options.build(L.config, preset="fast", num_envs=8, hidden_actor=1_000_000_000, hidden_critic=8).resolved()
     tr = L.make(cfg)
     est = memory.estimate(tr.init, jax.random.PRNGKey(0))  # shapes only: nothing of this size is allocated
     total, avail = memory.machine_bytes()

@@ -16,6 +16,7 @@ import time
 import pytest
 
 from tests.cli_in_process import run_main as _main
+from nmrl import options
 from nmrl.runs import exits
 
 T = ["--preset", "fast", "--num-envs", "4", "--chunk-steps", "100", "--hidden-actor", "8", "--hidden-critic", "8"]
@@ -146,7 +147,8 @@ def test_a_resume_with_another_learners_options_is_one_line(tmp_path, run, opts)
     from nmrl.learners.ppo_config import PPOConfig
     from nmrl.learners.ac_config import TrainConfig
 
-    d = _started(tmp_path / run, PPOConfig(num_envs=4) if run == "ppo" else TrainConfig(preset="fast", num_envs=4))
+    d = _started(tmp_path / run, options.build(PPOConfig, num_envs=4) if run == "ppo"
+                 else options.build(TrainConfig, preset="fast", num_envs=4))
     before = _snapshot(d)
     rc, _, err = _main(["train", "--resume", *opts, "--quiet", "--out", str(d)])
     line = one_line(err)
@@ -168,7 +170,7 @@ def test_a_sweep_resume_with_a_point_of_another_learner_is_one_line(tmp_path):
             import shutil
 
             shutil.rmtree(f)
-    _started(point, PPOConfig(num_envs=4))
+    _started(point, options.build(PPOConfig, num_envs=4))
     before = _snapshot(s)
     rc, _, err = _main(["sweep", "--resume", "--steps", "200", "--quiet", "--out", str(s)])
     line = one_line(err)

@@ -21,6 +21,7 @@ import time
 import pytest
 
 from tests.cli_in_process import run_main as _main
+from nmrl import options
 from nmrl.runs import checkpoint, exits, lock, signals, store
 
 #: a chunk of 10-20 s on a 2-core machine (8 environments, 10,000 control steps): longer than the grace
@@ -160,7 +161,7 @@ def test_the_progress_line_says_when_the_next_save_is_due(capsys):
     from nmrl.learners.ac_config import TrainConfig
     from nmrl.runs import loop
 
-    bar = loop.Progress(TrainConfig(num_envs=8, chunk_steps=25, steps=100), True, every=2)
+    bar = loop.Progress(options.build(TrainConfig, num_envs=8, chunk_steps=25, steps=100), True, every=2)
     bar.update({"step": 25, "trials": 3, "total_steps": 200, "steps_per_s": 60.0, "avg_reward": -0.5,
                 "forward_speed": 0.0, "wall_s": 7.0})
     bar.close()

@@ -10,6 +10,7 @@ import pathlib
 import numpy as np
 import pytest
 
+from nmrl import options
 from nmrl.runs import driver as run
 from nmrl.experiments import gradvar, study
 from nmrl.learners.ac_config import TrainConfig
@@ -71,13 +72,13 @@ def test_arm_configs_follow_the_per_second_rules():
         k = dt / DELTA_0
         for p in spec.periods:
             c = spec.arm_config(dt, p)
-            assert c.control_dt == dt and c.reward_scale == pytest.approx(k)
+            assert c.environment.control_dt == dt and c.reward_scale == pytest.approx(k)
             assert c.l == (1 if p is None else round(p / dt))
-            assert c.chunk_steps * dt == pytest.approx(spec.chunk_seconds)
+            assert c.budget.chunk_steps * dt == pytest.approx(spec.chunk_seconds)
             assert c.gamma ** (1 / dt) == pytest.approx(0.995 ** 50)
         names, cfgs = spec.grid_points(dt)
         assert len(names) == len(set(names)) == len(spec.periods) * 9
-        assert all(c.steps * dt == pytest.approx(spec.grid_seconds) for c in cfgs)
+        assert all(c.budget.steps * dt == pytest.approx(spec.grid_seconds) for c in cfgs)
 
 
 @pytest.mark.parametrize("spec", [TimescaleSpec(), TimescaleSpec(physics="c", num_envs=8)], ids=["default", "c"])
@@ -95,7 +96,7 @@ def test_each_cell_is_one_points_sweep_of_the_specs_configs(spec):
         assert (cell.name, final.name) == (f"grid/dt{dt:g}", f"final/dt{dt:g}")
         for c, want_names, want in ((cell, names, cfgs), (final, fnames, fcfgs)):
             steps = c.steps
-            sw = sweep.SweepSpec(ls=(None,), seeds=1, base=TrainConfig(steps=steps), field=None, overrides=c.points)
+            sw = sweep.SweepSpec(ls=(None,), seeds=1, base=options.build(TrainConfig, steps=steps), field=None, overrides=c.points)
             sw.validate()
             assert sw.names() == want_names and sw.point_configs() == want
 
@@ -372,4 +373,4 @@ def test_a_published_study_json_loads_as_the_spec_and_keeps_every_stored_value(n
     again = spec.to_json()
     assert {k: again[k] for k in d if k != "base"} == {k: v for k, v in d.items() if k != "base"}
     assert {k: again["base"][k] for k in d["base"]} == d["base"]
-    assert TimescaleSpec.from_json(again) == spec and spec.base == TrainConfig(**d["base"])
+    assert TimescaleSpec.from_json(again) == spec and spec.base == options.build(TrainConfig, **d["base"])

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import csv
-import dataclasses
 import json
 import math
 import warnings
@@ -11,14 +10,14 @@ import warnings
 import numpy as np
 import pytest
 
-from nmrl import cli
+from nmrl import cli, options
 from nmrl.runs import checkpoint, driver as run, store
 from nmrl.experiments import sweep
 from nmrl.learners.ac_config import TrainConfig
 from nmrl.learners.ac_train import make_train
 
 # Tiny networks, 8 environments, 2 chunks of 25 steps: 400 periods per point at l = 1.
-BASE = TrainConfig(num_envs=8, chunk_steps=25, steps=50, hidden_actor=8, hidden_critic=8,
+BASE = options.build(TrainConfig, num_envs=8, chunk_steps=25, steps=50, hidden_actor=8, hidden_critic=8,
                    beta_theta=1e-3, beta_v=1e-3)
 LS = (1, 3)
 SKIP = {"wall_s", "steps_per_s"}
@@ -169,7 +168,7 @@ def test_every_point_equals_a_separate_train_run(swept, tmp_path):
     for l in LS:
         for seed in (0, 1):
             d = tmp_path / f"l{l}_s{seed}"
-            run.train(dataclasses.replace(BASE, l=l, seed=seed), d, progress=False)
+            run.train(options.replace(BASE, l=l, seed=seed), d, progress=False)
             p = sweep.point_dir(out, l, seed)
             _assert_rows_close(_rows(d), _rows(p), (l, seed))
             for a, b in zip(jax_leaves(_theta(d)), jax_leaves(_theta(p))):
@@ -216,7 +215,7 @@ def test_resume_keeps_a_diverged_point_frozen(swept, tmp_path):
     store.truncate_metrics(bad, 25)
     store.append_metrics(bad, {**rows[-1], "diverged": True})
     before = run.read_metrics(bad)
-    sweep.run_sweep(sweep.SweepSpec(ls=(99,), seeds=1, base=dataclasses.replace(BASE, steps=75)), part,
+    sweep.run_sweep(sweep.SweepSpec(ls=(99,), seeds=1, base=options.replace(BASE, steps=75)), part,
                     resume=True, progress=False, plot=False)
     for r in sweep.load_results(part):
         l, seed = int(r["l"]), int(r["seed"])

@@ -3,19 +3,18 @@ by one, differing in several traced fields and the seed, as one program that equ
 
 from __future__ import annotations
 
-import dataclasses
 import json
 
 import numpy as np
 import pytest
 
-from nmrl import cli
+from nmrl import cli, options
 from nmrl.experiments import sweep
 from nmrl.learners.ac_config import TrainConfig
 from nmrl.runs import checkpoint, driver as run
 from nmrl.learners.ac_train import make_train
 
-BASE = TrainConfig(num_envs=8, chunk_steps=25, steps=50, hidden_actor=8, hidden_critic=8, beta_v=1e-3)
+BASE = options.build(TrainConfig, num_envs=8, chunk_steps=25, steps=50, hidden_actor=8, hidden_critic=8, beta_v=1e-3)
 OPTIONS = ["--num-envs", "8", "--chunk-steps", "25", "--hidden-actor", "8", "--hidden-critic", "8",
            "--beta-v", "0.001", "--quiet", "--devices", "1"]
 POINTS = [{"name": "a", "l": 1, "beta_theta": 1e-3, "seed": 0},
@@ -46,7 +45,7 @@ def test_a_points_sweep_records_its_points_and_equals_separate_train_runs(listed
     rows = sweep.load_results(out)
     assert [(r["point"], r["seed"], r["steps"]) for r in rows] == [("a", 0, 50), ("b", 5, 50)]
     for p in POINTS:
-        cfg = dataclasses.replace(BASE, **{k: v for k, v in p.items() if k != "name"})
+        cfg = options.replace(BASE, **{k: v for k, v in p.items() if k != "name"})
         d = tmp_path / p["name"]
         run.train(cfg, d, progress=False)
         got = out / "points" / p["name"]

@@ -5,7 +5,6 @@ exploration process on every task with each learner that takes it."""
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import pathlib
 
@@ -16,6 +15,7 @@ import pytest
 
 gym = pytest.importorskip("gymnasium")
 
+from nmrl import options
 from nmrl import cli  # noqa: E402
 from nmrl.learners import ac  # noqa: E402
 from nmrl.learners.ac_config import TrainConfig  # noqa: E402
@@ -44,7 +44,7 @@ def test_ac_maps_its_action_onto_the_tasks_action_space(name):
     space = _gym(name).action_space
     lo, hi = space.low.astype(np.float64), space.high.astype(np.float64)
     for env_name in (name, "paper-cheetah"):
-        cfg = TrainConfig(env=env_name, physics="c", num_envs=1, hidden_actor=4, hidden_critic=4)
+        cfg = options.build(TrainConfig, env=env_name, physics="c", num_envs=1, hidden_actor=4, hidden_critic=4)
         tr = ac.make(cfg)
         theta = tr.init(jax.random.PRNGKey(0)).theta  # output layer 0: a~ = 0 (Sec. V-C)
         pol = ac.policy(cfg, tr.env)
@@ -78,7 +78,7 @@ def test_ac_learns_from_a_fall_with_the_value_after_it_0():
     everywhere, every step is a learned period with d = r + gamma c - c, or r - c where it fell: the
     chunk's summed TD error is sum r + c (gamma (n - falls) - n)."""
     c, gamma, N, T = 5.0, 0.9, 4, 100
-    cfg = TrainConfig(env="hopper-v5", control_dt=0.008, physics="c", l=1, sigma=10.0, gamma=gamma, num_envs=N,
+    cfg = options.build(TrainConfig, env="hopper-v5", control_dt=0.008, physics="c", l=1, sigma=10.0, gamma=gamma, num_envs=N,
                       chunk_steps=T, hidden_actor=8, hidden_critic=8, beta_theta=0.0, beta_v=0.0)
     tr = ac.make(cfg)
     ts = tr.init(jax.random.PRNGKey(0))
@@ -122,15 +122,15 @@ def test_runs_without_env_keep_their_identity():
         run = m.parents[3]
         meta = json.loads(m.read_text())
         cfg = checkpoint.load_run_config(run)
-        assert cfg.env == "paper-cheetah"
+        assert cfg.environment.env == "paper-cheetah"
         assert meta["identity"] == identity.identity_digest(cfg, meta["model_sha256"]), run
-    fields = {f.name for f in dataclasses.fields(TrainConfig)} | {"learner"}
+    fields = set(options.leaves(TrainConfig)) | {"learner"}
     configs = [p for p in (REPO / "results").glob("**/config.json")  # the actor-critic's (not Brax's, PPO's)
                if json.loads(p.read_text()).get("learner", "ac") == "ac" and set(json.loads(p.read_text())) <= fields]
     assert configs
     for p in configs:
         cfg = checkpoint.load_run_config(p.parent)
-        assert cfg.env == "paper-cheetah" and "env" not in identity.identity_config(cfg), p
+        assert cfg.environment.env == "paper-cheetah" and "env" not in identity.identity_config(cfg), p
 
 
 # ----------------------------------------------------------------------------- refusals
@@ -162,14 +162,14 @@ def test_the_finer_step_study_takes_env_into_every_point():
     paper's 0.02 s)."""
     from nmrl.experiments.timescale import TimescaleSpec
 
-    spec = TimescaleSpec(dts=(0.016, 0.008), periods=(None, 0.08), base=TrainConfig(env="hopper-v5"),
+    spec = TimescaleSpec(dts=(0.016, 0.008), periods=(None, 0.08), base=options.build(TrainConfig, env="hopper-v5"),
                          chunk_seconds=0.08, grid_seconds=0.16, final_seconds=0.16)
     spec.validate()
     cfgs = [c for dt in spec.dts for c in spec.grid_points(dt)[1]]
     cfgs += [c for dt in spec.dts for c in spec.final_points(dt, {"stationary": (1e-5, 1e-4), "p0.08s": (1e-5, 1e-4)})[1]]
     assert len(cfgs) == 2 * 2 * 9 + 2 * 2 * 3
     for c in cfgs:
-        assert (c.env, c.stop_prob, c.reward_scale) == ("hopper-v5", TrainConfig().stop_prob, 1.0)
+        assert (c.environment.env, c.environment.stop_prob, c.reward_scale) == ("hopper-v5", TrainConfig().environment.stop_prob, 1.0)
     assert {c.l for c in cfgs} == {1, 5, 10}  # 0.08 s periods at 16 and 8 ms
     assert TimescaleSpec.from_json(spec.to_json()) == spec
 
@@ -180,8 +180,8 @@ def test_the_endpoint_on_a_task_is_a_gymnasium_episodes_return_per_second():
     end); that sum over the seconds is the endpoint's reward per second of each rollout."""
     from nmrl.analysis import endpoint, eval_env
 
-    cfg = TrainConfig(env="hopper-v5", control_dt=0.008, physics="c", hidden_actor=8, hidden_critic=8).resolved()
-    tr = ac.make(dataclasses.replace(cfg, num_envs=1))
+    cfg = options.build(TrainConfig, env="hopper-v5", control_dt=0.008, physics="c", hidden_actor=8, hidden_critic=8).resolved()
+    tr = ac.make(options.replace(cfg, num_envs=1))
     theta = tr.init(jax.random.PRNGKey(0)).theta
     theta = jax.tree.map(lambda x: x + 3.0 * jax.random.normal(jax.random.PRNGKey(7), x.shape), theta)  # acts
     out = endpoint.deterministic_endpoint(cfg, {"theta": theta}, seconds=1.2, rollouts=3, seed=2)
@@ -234,7 +234,7 @@ def test_every_exploration_process_trains_on_every_task(tmp_path, learner, kind,
     if learner == "ppo":
         from nmrl.learners import ppo, ppo_config
 
-        it = ppo_config.PPOConfig(env=name, control_dt=dt, num_envs=4, batch_size=4,
+        it = options.build(ppo_config.PPOConfig, env=name, control_dt=dt, num_envs=4, batch_size=4,
                                   num_minibatches=2).resolved().iteration_steps
         # colored's default band ends at 25 Hz, above the Nyquist frequency 10 Hz of HalfCheetah's 0.05 s
         band = ["--f-max-hz", str(0.5 / dt)] if kind == "colored" and 0.5 / dt < 25 else []
@@ -246,7 +246,7 @@ def test_every_exploration_process_trains_on_every_task(tmp_path, learner, kind,
     rows = [json.loads(x) for x in (out / "metrics.jsonl").read_text().splitlines()]
     assert len(rows) == 2 and all(np.isfinite(r["avg_reward"]) and not r["diverged"] for r in rows)
     cfg = checkpoint.load_run_config(out)
-    assert (cfg.env, cfg.control_dt) == (name, dt)
+    assert (cfg.environment.env, cfg.environment.control_dt) == (name, dt)
     if learner == "ppo":
         from nmrl.learners import ppo
 
@@ -256,7 +256,7 @@ def test_every_exploration_process_trains_on_every_task(tmp_path, learner, kind,
         lp = tr.seq_logp(st.policy, st.obs_stats, data, st.hyper.process)
         np.testing.assert_allclose(np.asarray(lp), np.asarray(data.logp), atol=5e-4, rtol=1e-4)
         return
-    tr = ac.make(dataclasses.replace(cfg, chunk_steps=1, num_envs=16))
+    tr = ac.make(options.replace(cfg, chunk_steps=1, num_envs=16))
     ts, chunk = tr.init(jax.random.PRNGKey(1)), jax.jit(tr.chunk)
     xs, nxt = [], []
     for _ in range(120):

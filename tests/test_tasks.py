@@ -35,6 +35,7 @@ import pytest
 
 gym = pytest.importorskip("gymnasium")
 
+from nmrl import options
 from nmrl.physics import mujoco_c  # noqa: E402
 from nmrl.tasks import doubles  # noqa: E402
 from nmrl.tasks.env import Task, TaskConfig  # noqa: E402
@@ -220,7 +221,7 @@ def test_ppo_takes_env_into_its_config_and_identity(tmp_path, capsys):
     from nmrl.runs import identity
 
     assert "env" not in identity.identity_config(PPOConfig())  # runs made before the option keep their digest
-    assert identity.identity_config(PPOConfig(env="hopper-v5"))["env"] == "hopper-v5"
+    assert identity.identity_config(options.build(PPOConfig, env="hopper-v5"))["env"] == "hopper-v5"
     out = tmp_path / "r"
     assert cli.main(["train", "--learner", "ppo", "--env", "ant-v5", "--steps", "10", "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -313,7 +314,7 @@ def test_ppo_acts_within_the_tasks_action_space(name):
 
     space = _gym(name).action_space
     for env_name, lo, hi in ((name, space.low, space.high), ("paper-cheetah", -20.0, 20.0)):
-        cfg = ppo_config.PPOConfig(env=env_name, physics="c", num_envs=2, policy_layers=1, value_layers=1)
+        cfg = options.build(ppo_config.PPOConfig, env=env_name, physics="c", num_envs=2, policy_layers=1, value_layers=1)
         tr = ppo.make_ppo(cfg)
         st = tr.init(jax.random.PRNGKey(0))
         pol = ppo.policy(cfg, tr.env)
@@ -331,7 +332,7 @@ def test_ppo_learns_from_a_fall_as_a_termination_and_from_nothing_else_as_one():
     batch marks those steps as terminations, not as truncations (which carry no learning signal)."""
     from nmrl.learners import ppo, ppo_config
 
-    cfg = ppo_config.PPOConfig(env="hopper-v5", physics="c", num_envs=4, batch_size=4, num_minibatches=2,
+    cfg = options.build(ppo_config.PPOConfig, env="hopper-v5", physics="c", num_envs=4, batch_size=4, num_minibatches=2,
                                policy_layers=1, value_layers=1, sigma=3.0)
     tr = ppo.make_ppo(cfg)
     st = tr.init(jax.random.PRNGKey(0))
@@ -364,12 +365,12 @@ def test_a_task_runs_eval_scores_episodes_as_a_gymnasium_loop_does(tmp_path):
     assert not (out / "eval" / "strobe.png").exists()
 
     _, cfg, params = checkpoint.restore_params(out)
-    env = eval_env.eval_env("hopper-v5", float(cfg.control_dt), "c")
+    env = eval_env.eval_env("hopper-v5", float(cfg.environment.control_dt), "c")
     pol = ppo.policy(cfg, env)
     k_reset, _ = jax.random.split(jax.random.PRNGKey(5))
     s0 = jax.vmap(env.reset)(jax.random.split(k_reset, task_eval.EPISODES))
     g = _gym("hopper-v5")
-    assert cfg.control_dt == g.unwrapped.dt  # without --control-dt a task runs at its own step
+    assert cfg.environment.control_dt == g.unwrapped.dt  # without --control-dt a task runs at its own step
     for i in range(task_eval.EPISODES):
         q, v = env.c.split(mujoco_c.from_bits(np.asarray(s0.data.state[i])))
         g.reset(seed=0)

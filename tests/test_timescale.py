@@ -18,7 +18,7 @@ def test_per_second_quantities_are_unchanged(dt):
     steps_per_s = 1 / dt
     assert math.isclose(c.gamma ** steps_per_s, BASE.gamma ** 50, rel_tol=1e-9)
     assert math.isclose(c.alpha ** steps_per_s, BASE.alpha ** 50, rel_tol=1e-9)
-    assert math.isclose(dt / c.stop_prob, 5.0, rel_tol=1e-9)  # mean trial length [s]
+    assert math.isclose(dt / c.environment.stop_prob, 5.0, rel_tol=1e-9)  # mean trial length [s]
     # a constant reward rate r gives the same discounted return (an integral over time) at every dt
     r = 1.7
     ret = sum(c.gamma ** t * c.reward_scale * r for t in range(int(round(30 / dt))))

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from nmrl import cli
+from nmrl import cli, options
 from nmrl.learners.ppo_config import PPOConfig
 from nmrl.paper.env import EnvConfig, HalfCheetah
 from nmrl.learners.ac_config import TrainConfig
@@ -40,5 +40,5 @@ def test_trial_s_is_checked_and_recorded(tmp_path, capsys):
     assert cli.main(["train", "--trial-s", "5", "--stop-prob", "0.01", "--out", str(tmp_path / "x")]) == 2
     assert "one of them" in capsys.readouterr().err
     assert "trial_s" not in identity.identity_config(TrainConfig())
-    assert identity.identity_config(PPOConfig(trial_s=5.0))["trial_s"] == 5.0
-    assert PPOConfig(trial_s=5.0, control_dt=0.005).env_config().step_stop_prob == pytest.approx(0.001)
+    assert identity.identity_config(options.build(PPOConfig, trial_s=5.0))["trial_s"] == 5.0
+    assert options.build(PPOConfig, trial_s=5.0, control_dt=0.005).environment.env_config().step_stop_prob == pytest.approx(0.001)

@@ -41,12 +41,12 @@ START_NOISE = 0.05  #: rad (angles, uniform half-width) and rad/s (velocities, s
 
 
 def _is_task(cfg: Any) -> bool:
-    return getattr(cfg, "env", tasks.PAPER) != tasks.PAPER
+    return cfg.environment.env != tasks.PAPER
 
 
 def _steps(cfg: Any, seconds: float) -> int:
     """Control steps of a rollout of ``seconds`` (a task's: at most its time limit)."""
-    n = max(1, int(round(seconds / cfg.control_dt)))
+    n = max(1, int(round(seconds / cfg.environment.control_dt)))
     return min(n, eval_env.of_config(cfg).max_steps) if _is_task(cfg) else n
 
 
@@ -121,7 +121,7 @@ def _endpoint(config: Any, params: dict, noise_scale: float | None, *, seconds: 
     keys = jax.random.split(jax.random.PRNGKey(seed), rollouts)
     out = fn(params, keys, jnp.float32(noise_scale if noisy else 0.0), noise_args)
     r, v, bad = (np.asarray(x, np.float64) for x in out)
-    per_s = r / config.control_dt if task else r / DELTA_0
+    per_s = r / config.environment.control_dt if task else r / DELTA_0
     return {"reward_per_s": float(per_s.mean()), "rollouts": per_s.tolist(), "forward_speed": v.tolist(),
-            "nonfinite_steps": int(bad.sum()), "seconds": n_steps * config.control_dt,
+            "nonfinite_steps": int(bad.sum()), "seconds": n_steps * config.environment.control_dt,
             "start_noise": None if task else start_noise, "seed": seed}

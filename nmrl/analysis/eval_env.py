@@ -32,5 +32,5 @@ def eval_env(name: str, control_dt: float, physics: str = "mjx", timestep: float
 def of_config(config: Any):
     """:func:`eval_env` of a run's config (fields a config predates at the values runs had then: the
     paper's robot, MJX, the model's timestep)."""
-    return eval_env(getattr(config, "env", tasks.PAPER), float(config.control_dt), getattr(config, "physics", "mjx"),
-                    getattr(config, "physics_timestep", None))
+    e = config.environment
+    return eval_env(e.env, float(e.control_dt), e.physics, e.physics_timestep)

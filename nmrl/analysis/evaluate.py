@@ -71,7 +71,7 @@ STAGING = ".staging."
 
 def _physics(config: Any) -> str:
     """The physics a run trained on (configs that predate the field: MJX)."""
-    return getattr(config, "physics", "mjx")
+    return config.environment.physics
 
 
 @functools.lru_cache(maxsize=8)
@@ -109,11 +109,11 @@ def rollout_params(config, params: dict, *, seconds: float, seed: int, exploring
     """One trial of ``seconds`` of a run's policy: ``params`` {field: tree} over its learner's
     ``policy_fields`` (what :func:`nmrl.runs.checkpoint.restore_params` gives), the deterministic
     policy or (``exploring``) the exploring one; numpy arrays per step (``pos``: (T+1, 10, 2))."""
-    n_steps = _num_steps(seconds, config.control_dt)
+    n_steps = _num_steps(seconds, config.environment.control_dt)
     fn = _rollout_fn(learners.program_key(config), n_steps)
     noise_args = learners.of(config).policy(config, eval_env.of_config(config)).noise_args
     traj, pos0, x0 = fn(params, jax.random.PRNGKey(seed), jnp.float32(1.0 if exploring else 0.0), noise_args)
-    return _host_traj(traj, pos0, x0, config.control_dt)
+    return _host_traj(traj, pos0, x0, config.environment.control_dt)
 
 
 def rollout(config, theta, *, seconds: float, seed: int, exploring: bool) -> dict[str, np.ndarray]:
@@ -263,11 +263,11 @@ def evaluate(
     warn = warn or (lambda m: print(f"warning: {m}", file=sys.stderr, flush=True))
     for e in skipped:
         warn(f"{e}; evaluating the newest good checkpoint, step {step}, instead")
-    n_steps = _num_steps(seconds, config.control_dt)
+    n_steps = _num_steps(seconds, config.environment.control_dt)
     learner = learners.of(config)
     out_dir = pathlib.Path(out_dir) if out_dir is not None else run / EVAL_DIR
     io_errors.check_writable(out_dir)  # before the rollouts: IOFailure naming the directory and the cause
-    env_name = getattr(config, "env", tasks.PAPER)
+    env_name = config.environment.env
     if env_name != tasks.PAPER:  # a Gymnasium task: returns per episode, no pictures of the paper's robot
         render = False
         length = {"env": env_name, "episodes": task_eval.EPISODES}
@@ -284,10 +284,10 @@ def evaluate(
         "trials": meta.get("trials"),
         **length,
         "seed": int(seed),
-        "control_dt": float(config.control_dt),
+        "control_dt": float(config.environment.control_dt),
         "physics": _physics(config),
-        **({} if getattr(config, "physics_timestep", None) is None
-           else {"physics_timestep": float(config.physics_timestep)}),
+        **({} if config.environment.physics_timestep is None
+           else {"physics_timestep": float(config.environment.physics_timestep)}),
         **({} if learner.name == learners.DEFAULT else {learners.KEY: learner.name}),
         **(learner.describe(config) if learner.describe is not None else {}),
         **ends,
@@ -298,13 +298,14 @@ def evaluate(
     stage.mkdir()
     try:
         if render:
-            span = (len(det["pos"]) - 1) * config.control_dt  # the whole rollout (--seconds)
+            span = (len(det["pos"]) - 1) * config.environment.control_dt  # the whole rollout (--seconds)
             every = strobe_every(span)
             title = f"{run.name}, step {step}, deterministic policy"  # the strobe adds its spacing and span
-            plot_strobe(det["pos"], config.control_dt, stage / STROBE, every_s=every, span_s=span, title=title)
-            write_gif(det["pos"], config.control_dt, stage / GIF)
+            dt = config.environment.control_dt
+            plot_strobe(det["pos"], dt, stage / STROBE, every_s=every, span_s=span, title=title)
+            write_gif(det["pos"], dt, stage / GIF)
             with atomic_path(stage / TRAJECTORY) as tmp:
-                np.savez(tmp, pos=np.asarray(det["pos"], np.float32), control_dt=np.float64(config.control_dt))
+                np.savez(tmp, pos=np.asarray(det["pos"], np.float32), control_dt=np.float64(config.environment.control_dt))
             result["files"] = {"strobe": str(out_dir / STROBE), "gif": str(out_dir / GIF),
                                "trajectory": str(out_dir / TRAJECTORY)}
         atomic_write_text(stage / EVAL_JSON, json.dumps(result, indent=2, allow_nan=False) + "\n")

@@ -32,7 +32,6 @@ writes its measurements into results/benchmarks/), not in the installed package.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 
 from nmrl.cli.cluster_options import add_distributed_options
 from nmrl.cli.commands import cmd_eval, cmd_sweep, cmd_train, sweep_skip
@@ -98,7 +97,7 @@ def build_parser(learner=None) -> argparse.ArgumentParser:
     if learner.explorations:
         add_exploration_options(p, learner)
     if field is not None:
-        t = field_type(learner.config, next(f for f in dataclasses.fields(learner.config) if f.name == field))
+        t = field_type(learner.config, field)
         p.add_argument("--" + field.replace("_", "-"), dest=field, type=t, nargs="+", default=None,
                        help=f"the values of {field} (one point per value and seed), e.g. 1 2 3 5 10 15 20 30 "
                             f"(with --resume: the saved ones)")
@@ -113,8 +112,7 @@ def build_parser(learner=None) -> argparse.ArgumentParser:
     p.add_argument("--seeds", type=int, default=3, help="seeds per value (seed0..seed0+seeds-1)")
     p.add_argument("--seed0", type=int, default=0, help="the first seed (default 0)")
     p.add_argument("--checkpoint-every", type=int, default=1, help="checkpoint the points every K chunks")
-    p.add_argument("--first", type=field_type(learner.config, next(f for f in dataclasses.fields(learner.config)
-                                                                    if f.name == field)) if field else int,
+    p.add_argument("--first", type=field_type(learner.config, field) if field else int,
                    nargs="+", default=None,
                    help=f"{field or 'the'} values whose points (all seeds) run to the budget before the others start")
     p.add_argument("--group", type=int, default=1,

@@ -10,7 +10,6 @@ only here, after nmrl.runs.devices.configure has set the host device count (nmrl
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import math
 import os
@@ -121,10 +120,10 @@ def check_iteration_budget(cfg) -> None:
     environment) refuses a budget below one: ValueError naming the iteration's size and the options
     that make it smaller."""
     it = getattr(cfg, "iteration_steps", None)
-    if it is None or cfg.steps is None or cfg.steps >= it:
+    if it is None or cfg.budget.steps is None or cfg.budget.steps >= it:
         return
-    raise ValueError(f"--steps {cfg.steps} is below one iteration of {it} control steps per environment (batch "
-                     f"{cfg.batch_size} x {cfg.num_minibatches} minibatches / {cfg.num_envs} environments = "
+    raise ValueError(f"--steps {cfg.budget.steps} is below one iteration of {it} control steps per environment (batch "
+                     f"{cfg.batch_size} x {cfg.num_minibatches} minibatches / {cfg.budget.num_envs} environments = "
                      f"{cfg.unrolls_per_env} unrolls of {cfg.unroll_length} steps): give --steps {it} or more, or a "
                      f"smaller iteration with --batch-size, --num-minibatches or --unroll-s")
 
@@ -178,6 +177,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     from nmrl.experiments import sweep
+    from nmrl import options
     from nmrl.runs import checkpoint, errors, store
 
     learner = get_learner(args.learner)
@@ -203,10 +203,10 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         if args.vary is not None:
             return varied_spec(args, learner, base)
         values = getattr(args, field, None) if field is not None else None
-        plain = learner.config(**given_options(args, skip=sweep_skip(learner)))
-        if field is not None and values is not None and getattr(plain, field) != getattr(base, field):
-            raise ValueError(f"--exploration {args.exploration or ''} sets {field}={getattr(base, field)!r}, which "
-                             f"the sweep varies (--{field} {' '.join(map(str, values))}): give one of the two")
+        plain = options.build(learner.config, **given_options(args, skip=sweep_skip(learner)))
+        if field is not None and values is not None and options.value(plain, field) != options.value(base, field):
+            raise ValueError(f"--exploration {args.exploration or ''} sets {field}={options.value(base, field)!r}, "
+                             f"which the sweep varies (--{field} {' '.join(map(str, values))}): give one of the two")
         if field is not None and values is None and not args.resume:
             raise ValueError(f"--{field} is required (the values of the sweep, e.g. --l 1 2 3 5 10 15 20 30)")
         spec = sweep.SweepSpec(ls=tuple(values or (1,)) if field is not None else (None,), seeds=args.seeds,
@@ -245,6 +245,7 @@ def sweep_skip(learner) -> set[str]:
 def listed_spec(args: argparse.Namespace, learner, base):
     """The spec of ``nmrl sweep --points FILE``: the points the file lists (nmrl/cli/points_file.py),
     each its own seed; the options that make points otherwise are refused beside it."""
+    from nmrl import options
     from nmrl.cli.points_file import read_points
     from nmrl.experiments import sweep
 
@@ -256,8 +257,7 @@ def listed_spec(args: argparse.Namespace, learner, base):
         raise ValueError(f"--points lists every point (its seed among its fields): give it without {', '.join(other)}"
                          + (" (a resume continues the saved points)" if "--resume" in other else ""))
     overrides = read_points(args.points, learner.config)
-    fields = {f.name for f in dataclasses.fields(learner.config)}
-    given = {n: getattr(args, n) for n in fields if getattr(args, n, None) is not None}
+    given = {n: getattr(args, n) for n in options.leaves(learner.config) if getattr(args, n, None) is not None}
     both = [(p["name"], k, p[k]) for p in overrides for k in p
             if k in given and k not in ("name", "seed", *sweep.BUDGET_FIELDS)]  # the budget: its own message
     if both:
@@ -272,6 +272,7 @@ def listed_spec(args: argparse.Namespace, learner, base):
 
 def varied_spec(args: argparse.Namespace, learner, base):
     """The spec of ``nmrl sweep --vary FIELD V1 V2 ...``: one point per value of the traced field and seed."""
+    from nmrl import options
     from nmrl.experiments import sweep
 
     name, *raw = args.vary
@@ -280,8 +281,7 @@ def varied_spec(args: argparse.Namespace, learner, base):
                          f"hyperparameters: {', '.join(learner.hyper_fields)}")
     if not raw:
         raise ValueError(f"--vary {name} needs values, e.g. --vary {name} V1 V2")
-    f = next(f for f in dataclasses.fields(learner.config) if f.name == name)
-    t = field_type(learner.config, f)
+    t = field_type(learner.config, name)
     try:
         values = tuple(t(x) for x in raw)
     except ValueError:
@@ -293,7 +293,7 @@ def varied_spec(args: argparse.Namespace, learner, base):
         one = getattr(args, sf)
         if len(one) != 1:
             raise ValueError(f"--{sf} takes one value when --vary {name} is the swept field, got {one}")
-        base = dataclasses.replace(base, **{sf: one[0]})
+        base = options.replace(base, **{sf: one[0]})
     first = tuple(t(x) for x in (args.first or ()))
     spec = sweep.SweepSpec(ls=values, seeds=args.seeds, base=base, first=first, field=name, seed0=args.seed0)
     spec.validate()

@@ -13,7 +13,6 @@ nmrl.learners.ac_config.DEFAULT_STEPS).
 from __future__ import annotations
 
 import argparse
-import dataclasses
 
 from nmrl.cli.exploration_options import with_exploration
 from nmrl.runs.parser import add_declared, field_type
@@ -35,13 +34,13 @@ def learner_names() -> list[str]:
     return learners.names()
 
 
-def _options(learner, skip: set[str] = frozenset(), group: str | None = None) -> list[dataclasses.Field]:
-    """The config fields that are options of the group ``group`` (None: the learner's own)."""
+def _options(learner, skip: set[str] = frozenset(), group: str | None = None) -> list[str]:
+    """The config's leaves (by flat name, walking its groups) that are options of the option group
+    ``group`` (None: the learner's own)."""
     from nmrl import options
 
-    return [f for f in dataclasses.fields(learner.config) if f.name not in skip
-            and options.declaration(learner.config, f.name).cli
-            and options.declaration(learner.config, f.name).group == group]
+    return [name for name, decl in options.declarations(learner.config).items()
+            if name not in skip and decl.cli and decl.group == group]
 
 
 def add_config_options(p: argparse.ArgumentParser, skip: set[str] = frozenset(), learner=None) -> None:
@@ -55,15 +54,17 @@ def add_config_options(p: argparse.ArgumentParser, skip: set[str] = frozenset(),
                                else f"options of the learner {learner.name!r}")
     env = p.add_argument_group("the environment (nmrl/tasks/, docs/tasks.md)")
     for group, g in ((None, own), (tasks.GROUP, env)):
-        for f in _options(learner, skip, group):
-            add_declared(g, learner.config, f.name, help=learner.help.get(f.name, ""))
+        for name in _options(learner, skip, group):
+            add_declared(g, learner.config, name, help=learner.help.get(name, ""))
 
 
 def given_options(args: argparse.Namespace, skip: set[str] = frozenset()) -> dict:
-    """The config fields of the command's learner given on the command line (name -> value)."""
+    """The config fields of the command's learner given on the command line (flat name -> value)."""
+    from nmrl import options
+
     learner = get_learner(getattr(args, "learner", None))
-    given = {f.name: getattr(args, f.name) for f in dataclasses.fields(learner.config)
-             if f.name not in skip and getattr(args, f.name, None) is not None}
+    given = {name: getattr(args, name) for name in options.leaves(learner.config)
+             if name not in skip and getattr(args, name, None) is not None}
     if getattr(args, "resume", False):  # a resumed run keeps its own control step
         return given
     return {**_task_control_dt(given), **given}
@@ -85,4 +86,6 @@ def config_from_args(args: argparse.Namespace, skip: set[str] = frozenset()):
     and its parameters in seconds/Hz) applied by the learner (nmrl/cli/exploration_options.py)."""
     learner = get_learner(getattr(args, "learner", None))
     given = given_options(args, skip)
-    return with_exploration(args, learner, learner.config(**given), set(given))
+    from nmrl import options
+
+    return with_exploration(args, learner, options.build(learner.config, **given), set(given))

@@ -7,13 +7,12 @@ learner's exploration noise. Each option is made from its field's declaration in
 value is checked by that declaration. The actor-critic maps them onto its own fields: ``white`` is
 l = 1, ``nm-periods`` l = round(period_s / control_dt) and alpha = exp(-control_dt / corr_time_s);
 its default stays the paper's nm-periods with ``--l``/``--alpha``. A learner whose config holds the
-fields (PPO's inherits ExplorationFields) takes them as its own options.
+fields (PPO's group ``noise`` derives from ExplorationFields) takes them as its own options.
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 
 from nmrl.runs.parser import add_declared
 
@@ -24,8 +23,8 @@ def add_exploration_options(p: argparse.ArgumentParser, learner) -> None:
     from nmrl import options
     from nmrl.explore import fields
 
-    own = {f.name: f.default for f in dataclasses.fields(learner.config)}
-    default = (f" (default: {own['exploration']})" if "exploration" in own
+    own = options.leaves(learner.config)
+    default = (f" (default: {options.field(learner.config, 'exploration').default})" if "exploration" in own
                else " (default: the paper's nm-periods with --l and --alpha)" if learner.name == "ac" else "")
     g = p.add_argument_group("exploration process (nmrl.explore; times in seconds, frequencies in Hz)")
     kind = options.declaration(fields.ExplorationFields, "exploration").help
@@ -41,9 +40,10 @@ def with_exploration(args: argparse.Namespace, learner, cfg, given: set[str]):
     fields (``Learner.exploration``, e.g. the actor-critic's l and alpha). The config as it is when
     none is given. ValueError naming a bad process, one the learner cannot use, or a parameter that
     contradicts another option."""
+    from nmrl import options
     from nmrl.explore import fields
 
-    names = {f.name for f in dataclasses.fields(learner.config)}
+    names = options.leaves(learner.config)
     kind = None if "exploration" in names else getattr(args, "exploration", None)
     params = {k: getattr(args, k) for k in fields.PARAMS if k not in names and getattr(args, k, None) is not None}
     if kind is None and not params:

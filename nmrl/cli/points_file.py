@@ -12,10 +12,10 @@ that is not such a list is refused with one line naming what is wrong, before an
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 
+from nmrl import options
 from nmrl.cli.config_options import field_type
 from nmrl.runs.signals import setting_up
 
@@ -60,8 +60,8 @@ def read_points(path: str, config: type) -> tuple[dict, ...]:
     if not isinstance(data, list) or not data or not all(isinstance(p, dict) for p in data):
         raise ValueError(f"--points={path!r} is invalid: give a non-empty JSON list of objects, one per point, "
                          f"e.g. [{{\"name\": \"a\", \"beta_theta\": 1e-05}}]")
-    fields = {f.name: f for f in dataclasses.fields(config)}
-    types = {n: field_type(config, f) for n, f in fields.items()}  # once: typing's hints are slow per point
+    fields = options.leaves(config)
+    types = {n: field_type(config, n) for n in fields}  # once: typing's hints are slow per point
     out = []
     for i, p in enumerate(setting_up(data, len(data), step="reading the points file")):
         name = p.get("name")

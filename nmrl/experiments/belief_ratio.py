@@ -36,8 +36,8 @@ def parts(cfg: PPOConfig, st: PPOState, key: jax.Array, env: Any = None) -> dict
     iteration; the first unroll excluded), and the iteration's ``data`` with the update's ``policy``
     and observation ``stats``."""
     cfg = cfg.resolved()
-    if cfg.exploration not in ("ou", "colored"):
-        raise ValueError(f"exploration={cfg.exploration!r} is invalid: the comparison needs a process whose noise "
+    if cfg.noise.exploration not in ("ou", "colored"):
+        raise ValueError(f"exploration={cfg.noise.exploration!r} is invalid: the comparison needs a process whose noise "
                          f"restarts only with a trial (ou, colored)")
     tr = make_ppo(cfg, env)
     k_roll, k_sgd = jax.random.split(key)
@@ -88,8 +88,8 @@ def main(argv: list[str] | None = None) -> int:
     if not isinstance(cfg, PPOConfig):
         ap.error(f"{a.point} is not a PPO run")
     st = compact.restore_compact(a.point, make_ppo(cfg))
-    out = {"point": str(a.point), "step": int(meta.get("step", -1)), "exploration": cfg.exploration,
-           "control_dt": cfg.control_dt, **compare(cfg, st, jax.random.PRNGKey(a.key))}
+    out = {"point": str(a.point), "step": int(meta.get("step", -1)), "exploration": cfg.noise.exploration,
+           "control_dt": cfg.environment.control_dt, **compare(cfg, st, jax.random.PRNGKey(a.key))}
     print(json.dumps(out))
     return 0
 

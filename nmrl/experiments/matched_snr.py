@@ -20,13 +20,13 @@ Rows (``snr.csv``): seed, iteration, control step, arm, and ppo_gradsnr's statis
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import pathlib
 from typing import Any, Sequence
 
 import jax
 
+from nmrl import options
 from nmrl.experiments import ppo_gradsnr
 from nmrl.learners.ppo import PPOState, make_ppo
 from nmrl.learners.ppo_config import PPOConfig
@@ -46,7 +46,7 @@ POLICY_FIELDS = ("policy", "value", "obs_stats")
 def config_at(cfg: PPOConfig, dt: float, exploration: dict) -> PPOConfig:
     """``cfg``'s learner at control step ``dt`` with ``exploration`` (the config fields of an arm):
     the reward scale dt / 20 ms as in every cell, the trial rate in seconds kept, no budget."""
-    return dataclasses.replace(cfg, control_dt=dt, reward_scale=dt / DELTA_0, steps=None, trials=None,
+    return options.replace(cfg, control_dt=dt, reward_scale=dt / DELTA_0, steps=None, trials=None,
                                chunk_steps=None, **exploration).resolved()
 
 
@@ -77,8 +77,9 @@ def measure(points: dict[int, dict[int, pathlib.Path]], arms: dict[str, dict[flo
     done = store.read_csv(path) if path.is_file() else []
     have = {(int(r["iteration"]), float(r["control_dt"]), r["arm"]) for r in done}
     for it, by_seed in sorted(points.items()):
-        base = PPOConfig(**{k: v for k, v in json.loads((next(iter(by_seed.values())) / "config.json").read_text()).items()
-                            if k in {f.name for f in dataclasses.fields(PPOConfig)}})
+        base = options.build(PPOConfig, **{k: v for k, v in json.loads((next(iter(by_seed.values())) / "config.json")
+                                                                        .read_text()).items()
+                                           if k in options.leaves(PPOConfig)})
         for dt in dts:
             for arm, by_dt in arms.items():
                 if (it, dt, arm) in have:

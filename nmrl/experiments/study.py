@@ -47,6 +47,7 @@ import pathlib
 import sys
 from typing import Sequence
 
+from nmrl import options
 from nmrl.experiments import kit
 from nmrl.experiments.kit import StudyError
 from nmrl.experiments.timescale import TimescaleSpec
@@ -129,11 +130,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     d = TimescaleSpec()
     ap.add_argument("--out", required=True, help="study directory (continued if it exists)")
     parser.add_fields(ap, TimescaleSpec)  # every field of the spec declared an option (nmrl/options.py)
-    parser.add_declared(ap, EnvFields, "env", default=d.base.env)
+    parser.add_declared(ap, EnvFields, "env", default=d.base.environment.env)
     ap.add_argument("--phases", nargs="+", default=list(PHASES), help=f"any of {list(PHASES)}")
     ap.add_argument("--quiet", action="store_true")
     a = ap.parse_args(argv)
-    spec = TimescaleSpec(**parser.given_fields(a, TimescaleSpec), base=dataclasses.replace(d.base, env=a.env))
+    spec = TimescaleSpec(**parser.given_fields(a, TimescaleSpec), base=options.replace(d.base, env=a.env))
     try:
         return command.run("nmrl study", lambda: run_study(spec, a.out, phases=a.phases, progress=not a.quiet),
                            (StudyError,))

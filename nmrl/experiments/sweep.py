@@ -49,7 +49,7 @@ import pathlib
 import time
 from typing import Sequence
 
-from nmrl import learners
+from nmrl import learners, options
 from nmrl.analysis import plots, stats
 from nmrl.options import check_seed
 from nmrl.runs import distributed as dist, driver, errors, lock, preflight, store
@@ -124,8 +124,8 @@ class SweepSpec:
             raise ValueError(f"first={list(self.first)} is invalid: the {f} values that run first must be "
                              f"distinct values of the sweep's {f} list {list(self.ls)}")
         for v in self.ls:  # the points differ in the value and the seed, whose bounds are checked above
-            cfg = self.base if f is None else dataclasses.replace(self.base, **{f: v})
-            preflight.check_config(dataclasses.replace(cfg, seed=0))  # the bounds of ``nmrl train``
+            cfg = self.base if f is None else options.replace(self.base, **{f: v})
+            preflight.check_config(options.replace(cfg, seed=0))  # the bounds of ``nmrl train``
 
     def _validate_seeds(self) -> None:
         """``seeds`` an integer >= 1, and every seed ``seed0 .. seed0 + seeds - 1`` one the run field
@@ -148,7 +148,7 @@ class SweepSpec:
 
         if self.field is not None or tuple(self.ls) != (None,) or self.first or self.seed0:
             raise ValueError("a sweep of listed points has no swept field, values, first values or seed0")
-        fields = {f.name for f in dataclasses.fields(self.base)}
+        fields = options.leaves(type(self.base))
         names = []
         for i, o in enumerate(setting_up(self.overrides, len(self.overrides), step="checking the names")):
             n = o.get("name") if isinstance(o, dict) else None
@@ -169,14 +169,14 @@ class SweepSpec:
         checked: dict = {}
         for n, c in setting_up(zip(names, configs), len(names), step="checking the configs"):
             try:
-                check_seed(c.seed)
-                seedless = dataclasses.replace(c, seed=0)
+                check_seed(c.budget.seed)
+                seedless = options.replace(c, seed=0)
                 if seedless not in checked:
                     preflight.check_config(seedless)  # the bounds of ``nmrl train``
                     checked[seedless] = seedless.resolved()
             except ValueError as e:
                 raise ValueError(f"point {n!r}: {e}") from None
-        pts.check_one_program(names, [checked[dataclasses.replace(c, seed=0)]
+        pts.check_one_program(names, [checked[options.replace(c, seed=0)]
                                       for c in setting_up(configs, len(configs), step="resolving the configs")])
 
     def stages(self) -> list[list[int]] | None:
@@ -201,11 +201,11 @@ class SweepSpec:
 
     def point_configs(self) -> list:
         if self.overrides:
-            return [dataclasses.replace(self.base, **{k: v for k, v in o.items() if k != "name"})
+            return [options.replace(self.base, **{k: v for k, v in o.items() if k != "name"})
                     for o in setting_up(self.overrides, len(self.overrides), step="making the configs")]
         if self.field is None:
             return [dataclasses.replace(self.base, seed=s) for _, s in self.points()]
-        return [dataclasses.replace(self.base, **{self.field: v}, seed=s) for v, s in self.points()]
+        return [options.replace(self.base, **{self.field: v}, seed=s) for v, s in self.points()]
 
     def columns(self) -> tuple[str, ...]:
         """The columns of results.csv: the swept field's (none over seeds only; listed points: ``point``),
@@ -234,7 +234,7 @@ def write_results(out: pathlib.Path, spec: SweepSpec) -> list[dict]:
         m = store.read_metrics(d)
         last = m[-1] if m else {}
         rows.append({
-            **key, "seed": cfg.seed, "trials": last.get("trials", 0), "steps": last.get("step", 0),
+            **key, "seed": cfg.budget.seed, "trials": last.get("trials", 0), "steps": last.get("step", 0),
             "avg_reward": stats.final_avg(m, "avg_reward"), "forward_speed": stats.final_avg(m, "forward_speed"),
             "diverged": bool(any(r["diverged"] for r in m)),
             "checkpoint": os.path.relpath(d, out) if existing_step(d) is not None else "",
@@ -262,7 +262,7 @@ def _write_spec(out: pathlib.Path, spec: SweepSpec) -> None:
     out.mkdir(parents=True, exist_ok=True)
     store.atomic_write_json(out / SPEC_FILE, {"ls": list(spec.ls), "seeds": spec.seeds,
                                               **({"seed0": spec.seed0} if spec.seed0 else {}), "first": list(spec.first),
-                                              "base": dataclasses.asdict(spec.base),
+                                              "base": options.flat(spec.base),
                                               learners.KEY: learners.of(spec.base).name, "field": spec.field,
                                               **({"points": list(spec.overrides)} if spec.overrides else {})})
 
@@ -318,8 +318,8 @@ def _run_sweep(spec, out, resume, progress, keep, max_chunks, plot, checkpoint_e
                 given_changes(base, given, out)
             except errors.RunError as e:
                 raise SweepError(str(e).replace("the run in", "the sweep in")) from e
-        if spec.base.steps is not None or spec.base.trials is not None:  # the budget may be extended
-            base = dataclasses.replace(base, steps=spec.base.steps, trials=spec.base.trials)
+        if spec.base.budget.steps is not None or spec.base.budget.trials is not None:  # the budget may be extended
+            base = options.replace(base, steps=spec.base.budget.steps, trials=spec.base.budget.trials)
         spec = dataclasses.replace(saved, base=base)
         spec.validate()
     elif (out / SPEC_FILE).exists():
@@ -352,7 +352,7 @@ def _run_sweep(spec, out, resume, progress, keep, max_chunks, plot, checkpoint_e
     # the memory of every point before the points are enumerated (a count of billions is refused here);
     # listed points may set the environment's own fields (control step, physics, stop rate): every
     # point shares the first one's program (nmrl/runs/points.py), so its environment is theirs
-    first = (dataclasses.replace(base, **{k: v for k, v in spec.overrides[0].items() if k != "name"})
+    first = (options.replace(base, **{k: v for k, v in spec.overrides[0].items() if k != "name"})
              if spec.overrides else base)
     stop_setup()
     env = preflight.preflight_points(first, spec.count())

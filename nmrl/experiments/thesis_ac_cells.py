@@ -13,6 +13,7 @@ points vmapped together (``--group 12``).
 
 from __future__ import annotations
 
+from nmrl import options
 from nmrl.experiments import kit
 from nmrl.experiments.timescale import arm_name, at_control_step
 from nmrl.experiments.timescale_cells import points_of
@@ -34,7 +35,7 @@ ENDPOINT = kit.Endpoint(seconds=10.0, rollouts=8, start_noise=0.05, seed=0)
 
 def base(dt: float) -> TrainConfig:
     """The 20 ms learner every point is converted from, with this study's sizes and physics at ``dt``."""
-    return TrainConfig(preset="paper", num_envs=NUM_ENVS, chunk_steps=round(CHUNK_S / dt), physics="c",
+    return options.build(TrainConfig, preset="paper", num_envs=NUM_ENVS, chunk_steps=round(CHUNK_S / dt), physics="c",
                        physics_timestep=0.0025, steps=round(SECONDS_PER_ENV / dt))
 
 
@@ -55,7 +56,7 @@ def grid_cell(dt: float, seeds: int = SEEDS, seconds_per_env: float = SECONDS_PE
         for s in range(seeds):
             c = at_control_step(b, dt, period)
             names.append(point_name(period, s))
-            configs.append(c.__class__(**{**c.__dict__, "seed": s, "steps": steps}))
+            configs.append(options.replace(c, seed=s, steps=steps))
     return kit.Cell(cell_name(dt), "ac", steps=steps, points=points_of(names, configs), run_options={"group": GROUP})
 
 
@@ -74,9 +75,9 @@ def check_cell() -> kit.Cell:
     for f in CHECK_FACTORS:
         for s in range(CHECK_SEEDS):
             names.append(f"{arm_name(None)}_x{f:.3g}_s{s}")
-            configs.append(c.__class__(**{**c.__dict__, "seed": s, "beta_theta": float(f"{theta * f:.6g}"),
-                                          "beta_v": float(f"{v * f:.6g}")}))
-    return kit.Cell(f"check/dt{CHECK_DT:g}", "ac", steps=b.steps, points=points_of(names, configs),
+            configs.append(options.replace(c, seed=s, beta_theta=float(f"{theta * f:.6g}"),
+                                           beta_v=float(f"{v * f:.6g}")))
+    return kit.Cell(f"check/dt{CHECK_DT:g}", "ac", steps=b.budget.steps, points=points_of(names, configs),
                     run_options={"group": CHECK_SEEDS})
 
 

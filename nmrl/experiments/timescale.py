@@ -67,10 +67,11 @@ def at_control_step(base: TrainConfig, control_dt: float, period_seconds: float 
     else:
         l, lam = _as_int(period_seconds / control_dt, "period_seconds / control_dt"), base.lam
     delta = _as_int(base.delta / k, "Delta_0 * delta_0 / control_dt") if k < 1 else max(1, math.floor(base.delta / k))
-    paper = base.env == tasks.PAPER  # a task keeps its own end of a trial and its rates (above)
-    cfg = dataclasses.replace(
+    paper = base.environment.env == tasks.PAPER  # a task keeps its own end of a trial and its rates (above)
+    stop_prob = base.environment.stop_prob
+    cfg = options.replace(
         base, control_dt=control_dt, l=l, lam=lam, delta=delta,
-        gamma=base.gamma ** k, alpha=base.alpha ** k, stop_prob=base.stop_prob * k if paper else base.stop_prob,
+        gamma=base.gamma ** k, alpha=base.alpha ** k, stop_prob=stop_prob * k if paper else stop_prob,
         reward_scale=base.reward_scale * k if paper else base.reward_scale,
     )
     cfg.validate()
@@ -159,7 +160,7 @@ class TimescaleSpec:
 
     def arm_config(self, dt: float, period: float | None) -> TrainConfig:
         cfg = at_control_step(self.base, dt, period)
-        return dataclasses.replace(cfg, num_envs=self.num_envs, physics=self.physics,
+        return options.replace(cfg, num_envs=self.num_envs, physics=self.physics,
                                    chunk_steps=self._steps(self.chunk_seconds, dt, "chunk_seconds"))
 
     def grid_points(self, dt: float) -> tuple[list[str], list[TrainConfig]]:
@@ -169,7 +170,7 @@ class TimescaleSpec:
             for bt in self.beta_theta_grid:
                 for bv in self.beta_v_grid:
                     names.append(f"{arm_name(p)}_bt{bt:.1e}_bv{bv:.1e}")
-                    cfgs.append(dataclasses.replace(self.arm_config(dt, p), beta_theta=bt, beta_v=bv,
+                    cfgs.append(options.replace(self.arm_config(dt, p), beta_theta=bt, beta_v=bv,
                                                     steps=steps, seed=0))
         return names, cfgs
 
@@ -180,12 +181,12 @@ class TimescaleSpec:
             bt, bv = chosen[arm_name(p)]
             for s in range(self.seeds):
                 names.append(f"{arm_name(p)}_s{s}")
-                cfgs.append(dataclasses.replace(self.arm_config(dt, p), beta_theta=bt, beta_v=bv,
+                cfgs.append(options.replace(self.arm_config(dt, p), beta_theta=bt, beta_v=bv,
                                                 steps=steps, seed=s))
         return names, cfgs
 
     def to_json(self) -> dict:
-        d = dataclasses.asdict(self)
+        d = {**dataclasses.asdict(self), "base": options.flat(self.base)}  # the learner's config flat, as config.json
         d["dts"], d["periods"] = list(self.dts), list(self.periods)
         d["beta_theta_grid"], d["beta_v_grid"] = list(self.beta_theta_grid), list(self.beta_v_grid)
         return d
@@ -195,5 +196,5 @@ class TimescaleSpec:
         d = dict(d)
         for k in ("dts", "periods", "beta_theta_grid", "beta_v_grid"):
             d[k] = tuple(d[k])
-        d["base"] = TrainConfig(**d["base"])
+        d["base"] = options.build(TrainConfig, **d["base"])
         return TimescaleSpec(**d)

@@ -17,10 +17,10 @@ nmrl/experiments/timescale.py, the study's sizes and physics) and its seed; the 
 
 from __future__ import annotations
 
-import dataclasses
 import pathlib
 from typing import Callable, Sequence
 
+from nmrl import options
 from nmrl.experiments import kit
 from nmrl.experiments.sweep import BUDGET_FIELDS
 from nmrl.experiments.timescale import TimescaleSpec
@@ -32,14 +32,14 @@ def points_of(names: Sequence[str], configs: Sequence[TrainConfig]) -> tuple[dic
     """Each config as a point of ``nmrl sweep --points``: its name, its seed and every other field
     (but the budget) that differs from the actor-critic's defaults."""
     default = TrainConfig()
-    keep = [f.name for f in dataclasses.fields(TrainConfig) if f.name not in (*BUDGET_FIELDS, "seed")]
-    return tuple({"name": n, **{k: getattr(c, k) for k in keep if getattr(c, k) != getattr(default, k)},
-                  "seed": c.seed} for n, c in zip(names, configs))
+    keep = [k for k in options.leaves(TrainConfig) if k not in (*BUDGET_FIELDS, "seed")]
+    changed = [{k: v for k, v in options.flat(c).items() if k in keep and v != options.value(default, k)} for c in configs]
+    return tuple({"name": n, **d, "seed": c.budget.seed} for n, c, d in zip(names, configs, changed))
 
 
 def points_cell(phase: str, dt: float, names: list[str], configs: list[TrainConfig]) -> kit.Cell:
     """The cell of ``phase`` at ``dt`` that runs ``configs`` (one budget) as points named ``names``."""
-    return kit.Cell(cell_name(phase, dt), "ac", steps=configs[0].steps, points=points_of(names, configs))
+    return kit.Cell(cell_name(phase, dt), "ac", steps=configs[0].budget.steps, points=points_of(names, configs))
 
 
 def grid_cells(spec: TimescaleSpec) -> tuple[kit.Cell, ...]:

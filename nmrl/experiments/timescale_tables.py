@@ -70,7 +70,7 @@ def grid_rows(out: pathlib.Path, spec: TimescaleSpec) -> list[dict]:
         for i, (n, c) in enumerate(zip(names, cfgs)):
             period = spec.periods[i // (len(spec.beta_theta_grid) * len(spec.beta_v_grid))]
             m = read_metrics(_point(out, GRID, dt, n))
-            if not m or m[-1]["step"] < c.steps and not any(store.is_diverged(r) for r in m):
+            if not m or m[-1]["step"] < c.budget.steps and not any(store.is_diverged(r) for r in m):
                 return []  # the grid of this delta is not finished
             diverged = any(store.is_diverged(r) for r in m)
             half = m[len(m) // 2:]
@@ -107,10 +107,10 @@ def final_rows(out: pathlib.Path, spec: TimescaleSpec, grid_rows: list[dict]) ->
                 continue
             avg = stats.final_avg(m, "avg_reward")
             rows.append({"dt": dt, "arm": arm_name(period), "period_s": "" if period is None else period,
-                         "l": c.l, "delta": c.delta, "seed": c.seed, "beta_theta": c.beta_theta,
+                         "l": c.l, "delta": c.delta, "seed": c.budget.seed, "beta_theta": c.beta_theta,
                          "beta_v": c.beta_v, "steps": m[-1]["step"], "seconds": m[-1]["step"] * dt,
                          "trials": m[-1]["trials"], "avg_reward": avg,
-                         "reward_per_s": avg / (DELTA_0 if c.env == tasks.PAPER else dt),
+                         "reward_per_s": avg / (DELTA_0 if c.environment.env == tasks.PAPER else dt),
                          "forward_speed": stats.final_avg(m, "forward_speed"),
                          "diverged": any(store.is_diverged(r) for r in m),
                          "theta_norm_first": m[0]["theta_norm"], "theta_norm": m[-1]["theta_norm"],

@@ -7,7 +7,7 @@ kinds), whether it is traced into a learner's noise process, and its option grou
 From the declarations come the command-line options ``--exploration``, ``--period-s``,
 ``--corr-time-s``, ``--beta``, ``--f-min-hz``, ``--f-max-hz`` and ``--order`` of every learner that
 explores (nmrl/cli/exploration_options.py makes them with ``nmrl.runs.parser.add_declared``), the
-fields of a config that holds the exploration flat (PPO's inherits this class), and the check of
+fields of a config's exploration group (PPO's ``noise``, a subclass of this class), and the check of
 each value (``options.check_value`` with the field's declaration: what
 :class:`~nmrl.explore.spec.ExplorationSpec` runs on construction, and ``options.check`` on a config).
 

@@ -36,7 +36,7 @@ import math
 
 import jax.numpy as jnp
 
-from nmrl import explore, tasks
+from nmrl import explore, options, tasks
 from nmrl.learners import ppo_networks
 from nmrl.learners.ac_config import EXPLORATIONS, TrainConfig
 from nmrl.learners.ac_train import make_train
@@ -49,7 +49,7 @@ FINITE = ("alpha", "sigma", "gamma", "lam", "control_dt", "stop_prob", "reward_s
 
 def check(cfg: TrainConfig) -> None:
     for name in FINITE:
-        v = getattr(cfg, name)
+        v = options.value(cfg, name)
         if isinstance(v, float) and not math.isfinite(v):
             raise ValueError(f"{name}={v!r} is invalid: must be a finite number")
 
@@ -65,10 +65,10 @@ def action_map(env):
 
 
 def make(config: TrainConfig, env=None, **kw):
-    """``make_train`` with the run's environment (``tasks.make_env(config.env, ...)`` unless given)
+    """``make_train`` with the run's environment (``tasks.make_env(config.environment.env, ...)`` unless given)
     and its :func:`action_map`."""
     cfg = config.resolved()
-    env = env or tasks.make_env(cfg.env, cfg.env_config())
+    env = env or tasks.make_env(cfg.environment.env, cfg.environment.env_config())
     return make_train(config, env, action_map=action_map(env), **kw)
 
 
@@ -101,7 +101,7 @@ def exploration(cfg: TrainConfig, kind: str | None, params: dict, given: frozens
     ``--corr-time-s``; ``--exploration white`` and an ``--l`` other than 1)."""
     kind = kind or "nm-periods"
     if kind not in EXPLORATIONS:
-        exploration_fields(kind, cfg.control_dt)  # raises: a process the learner cannot use
+        exploration_fields(kind, cfg.environment.control_dt)  # raises: a process the learner cannot use
     extra = sorted(k for k in params if k not in ("period_s", "corr_time_s"))
     if extra:
         raise ValueError(f"--{extra[0].replace('_', '-')}={params[extra[0]]!r} is not a parameter of "
@@ -112,7 +112,7 @@ def exploration(cfg: TrainConfig, kind: str | None, params: dict, given: frozens
                              f"{getattr(cfg, field)!r}, --{param.replace('_', '-')} {params[param]!r})")
     if kind == "white" and "l" in given and cfg.l != 1:
         raise ValueError(f"--exploration white is l = 1, but --l {cfg.l!r} is given")
-    return dataclasses.replace(cfg, **exploration_fields(kind, cfg.control_dt, **params))
+    return dataclasses.replace(cfg, **exploration_fields(kind, cfg.environment.control_dt, **params))
 
 
 def policy(cfg: TrainConfig, env) -> Policy:

@@ -58,11 +58,27 @@ PRESETS: dict[str, dict[str, Any]] = {
 
 
 @dataclasses.dataclass(frozen=True)
-class TrainConfig(EnvFields):
+class ACBudget:
+    """The actor-critic's budget and layout (``config.budget``): environments in lock-step, the chunk,
+    the budget in steps or trials, the seed and the divergence bound, each declared here once."""
+
+    num_envs: int = option(256, "N environments in lock-step", range=AT_LEAST_ONE)
+    chunk_steps: int = option(250, "control steps per environment in one jitted chunk", range=AT_LEAST_ONE)
+    steps: int | None = run_option("steps", None, f"budget in control steps per environment (default: {DEFAULT_STEPS})")
+    trials: int | None = run_option("trials", None, "budget in trials, summed over environments (the paper's measure)")
+    seed: int = run_option("seed", 0)
+    max_param_norm: float = run_option("max_param_norm", 1e5)
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
     """Everything that defines a training run. Defaults are the paper's (Sec. V-C, Table II). Every
     field is declared once (nmrl/options.py); ``traced`` ones are :class:`Hyper`'s leaves. The
-    environment's fields (``env``, ``control_dt``, ``physics``, ...) are :class:`nmrl.tasks.EnvFields`'s."""
+    environment (``config.environment``: ``env``, ``control_dt``, ``physics``, ...) is a
+    :class:`nmrl.tasks.EnvFields`, the budget and layout (``config.budget``) an :class:`ACBudget`; the
+    noise's l, alpha, sigma and Delta are the learner's own fields (Table II's exploration)."""
 
+    environment: EnvFields = options.group(EnvFields)
     # Table II / Sec. V-C
     l: int = option(10, "nm-period length l [control steps]", traced=True, range=AT_LEAST_ONE)
     delta: int = option(4, "sampling interval Delta of the likelihood ratio (7) [control steps]", traced=True,
@@ -84,12 +100,7 @@ class TrainConfig(EnvFields):
                                  "(XLA's atan2, ~15x slower on a CPU; the runs made before this option)",
                          choices=ARCTANS)
     # batching and budget
-    num_envs: int = option(256, "N environments in lock-step", range=AT_LEAST_ONE)
-    chunk_steps: int = option(250, "control steps per environment in one jitted chunk", range=AT_LEAST_ONE)
-    steps: int | None = run_option("steps", None, f"budget in control steps per environment (default: {DEFAULT_STEPS})")
-    trials: int | None = run_option("trials", None, "budget in trials, summed over environments (the paper's measure)")
-    seed: int = run_option("seed", 0)
-    max_param_norm: float = run_option("max_param_norm", 1e5)
+    budget: ACBudget = options.group(ACBudget)
     #: the finer-delta study gives delta / 0.02 s, so that the discounted return, an integral over time,
     #: keeps its scale (nmrl/experiments/timescale.py)
     reward_scale: float = option(1.0, "the learner receives reward_scale * r_t; metrics report r_t", range=POSITIVE)
@@ -108,8 +119,8 @@ class TrainConfig(EnvFields):
             actor_opt=canonical_opt(p["actor_opt"] if self.actor_opt is None else self.actor_opt, "actor_opt"),
             critic_opt=canonical_opt(p["critic_opt"] if self.critic_opt is None else self.critic_opt, "critic_opt"),
         )
-        if out.steps is None and out.trials is None:
-            out = dataclasses.replace(out, steps=DEFAULT_STEPS)
+        if out.budget.steps is None and out.budget.trials is None:
+            out = options.replace(out, steps=DEFAULT_STEPS)
         return out
 
     def validate(self) -> None:
@@ -123,9 +134,9 @@ class TrainConfig(EnvFields):
         for name in ("actor_opt", "critic_opt"):
             if getattr(self, name) is not None:
                 parse_opt(getattr(self, name), name)
-        if self.steps is not None and self.trials is not None:
+        if self.budget.steps is not None and self.budget.trials is not None:
             raise ValueError("give the budget as steps or as trials, not both")
-        self.check_env()
+        self.environment.check_env()
 
 
 class Hyper(NamedTuple):

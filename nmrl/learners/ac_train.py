@@ -131,7 +131,7 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
                num_shards: int = 1, action_map: Callable[[jax.Array], jax.Array] | None = None) -> ACTrainer:
     """Build the pure functions of a training run (see the module docstring).
 
-    ``env`` defaults to ``HalfCheetah(config.env_config())`` (a config naming another ``env`` must
+    ``env`` defaults to ``HalfCheetah(config.environment.env_config())`` (a config naming another ``env`` must
     bring it); any environment with the same interface (``obs_dim``, ``act_dim``, ``reward_terms``,
     ``reset(key)``, ``step(state, action)`` with auto-reset, ``State`` with ``obs``, ``reward``,
     ``done``, ``metrics`` incl. ``forward_speed`` and ``nonfinite``) works. ``action_map`` turns the
@@ -144,18 +144,18 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
     over ``axis_name``. The noise of all N environments is drawn from the shared key and each shard
     takes its slice, so the draws equal the unsharded program's.
     """
-    check_shards(config.num_envs, num_shards, axis_name)
+    check_shards(config.budget.num_envs, num_shards, axis_name)
     cfg = config.resolved()
-    if env is None and cfg.env != tasks.PAPER:
-        raise ValueError(f"env={cfg.env!r}: make_train builds the paper's robot only; pass the environment")
-    env = env or HalfCheetah(cfg.env_config())
+    if env is None and cfg.environment.env != tasks.PAPER:
+        raise ValueError(f"env={cfg.environment.env!r}: make_train builds the paper's robot only; pass the environment")
+    env = env or HalfCheetah(cfg.environment.env_config())
     OBS_DIM, ACT_DIM = env.obs_dim, env.act_dim
     REWARD_TERMS = tuple(env.reward_terms)
     #: whether the environment ends trials by a rule of its own (a Gymnasium task's ``terminated``)
     TERMINATES = "terminated" in jax.eval_shape(env.reset, jax.random.PRNGKey(0)).info
     actor = networks.make_actor(cfg.hidden_actor, ACT_DIM, cfg.arctan)
     critic = networks.make_critic(cfg.hidden_critic, cfg.arctan)
-    N = cfg.num_envs
+    N = cfg.budget.num_envs
     N_local = N // num_shards
     # The update rules of actor and critic (the paper's: sgd; cfg.actor_opt / cfg.critic_opt). Only
     # the structure of these transformations is used; the step size comes from the state (Hyper).
@@ -253,7 +253,7 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
         theta = optax.apply_updates(ts.theta, u_theta)
         v = optax.apply_updates(ts.v, u_v)
         learn = n_learn > 0  # an update instant: some environment's period ended at this step
-        ok = (global_norm(theta) < cfg.max_param_norm) & (global_norm(v) < cfg.max_param_norm)
+        ok = (global_norm(theta) < cfg.budget.max_param_norm) & (global_norm(v) < cfg.budget.max_param_norm)
         ok = (ok | ~learn) & ~ts.diverged  # a diverged point stays frozen at its last good parameters
         take = ok & learn
         theta = tree_where(take, theta, ts.theta)
@@ -295,7 +295,7 @@ def make_train(config: TrainConfig, env: Any = None, *, axis_name: str | None = 
         return new, stats
 
     def chunk(ts: TrainState) -> tuple[TrainState, dict]:
-        ts, stats = jax.lax.scan(step, ts, None, length=cfg.chunk_steps)
+        ts, stats = jax.lax.scan(step, ts, None, length=cfg.budget.chunk_steps)
         n = jnp.maximum(jnp.sum(stats["periods"]), 1)
         td_mean = jnp.sum(stats["td_sum"]) / n
         out = {

@@ -5,35 +5,36 @@ actor-critic, nmrl/learners/ac.py; ``"ppo"``: nmrl/learners/ppo.py). The driver,
 the sweep, evaluation and the command line take any registered learner through this record and
 nothing else; the shape is Stoix's ``LearnerFn: state -> (state, metrics)`` and rejax's one loop:
 
-* ``config`` -- a frozen dataclass (the run's identity: ``config.json`` is ``{"learner": name,
-  **dataclasses.asdict(config)}``, and the class called with the other keys must give it back; no
-  field may be named ``learner``). Every learner's config has
-  the fields ``seed: int``, ``num_envs: int``, ``chunk_steps: int`` (control steps per environment
-  in one chunk), ``steps: int | None`` (budget in control steps per environment), ``trials: int |
-  None`` (budget in trials summed over the environments; at most one of the two), ``control_dt:
-  float`` [s], ``stop_prob: float`` (per control step) and ``max_param_norm: float``, and the methods
-  ``validate()`` (ValueError naming the value and what is allowed), ``resolved()`` (validated, every
-  default filled in, e.g. a default budget: what the run records) and ``env_config()`` (the
-  ``nmrl.paper.env.EnvConfig`` of its Half-Cheetah, ``auto_reset=True``; a config that inherits
-  ``nmrl.tasks.EnvFields`` has the environment's fields and this method, declared once); ``config()`` (every field
-  at its default) is valid, and a resolved config has ``chunk_steps`` and a budget set. Field types
-  are written as ``int``, ``float``, ``str``, ``bool`` or ``X | None``, each field declared once with
+* ``config`` -- a frozen dataclass of the learner's own fields and its groups (``nmrl.options.group``),
+  the run's identity: ``config.json`` is ``{"learner": name, **options.flat(config)}`` (every leaf by
+  its flat name, :func:`config_dict`), and :func:`config_from_dict` gives the config back from it; no
+  field may be named ``learner``. Every learner's config holds the group ``environment`` (a
+  ``nmrl.tasks.EnvFields``: ``env``, ``control_dt`` [s], ``stop_prob`` (per control step), ...,
+  and ``env_config()``, the ``nmrl.paper.env.EnvConfig`` of its environment, ``auto_reset=True``)
+  and the group ``budget`` with ``seed: int``, ``num_envs: int``, ``chunk_steps: int`` (control
+  steps per environment in one chunk), ``steps: int | None`` (budget in control steps per
+  environment), ``trials: int | None`` (budget in trials summed over the environments; at most one
+  of the two) and ``max_param_norm: float`` (:data:`COMMON_FIELDS`), and the methods ``validate()``
+  (ValueError naming the value and what is allowed) and ``resolved()`` (validated, every default
+  filled in, e.g. a default budget: what the run records); ``config()`` (every field at its default)
+  is valid, and a resolved config has ``chunk_steps`` and a budget set. Field types are written as
+  ``int``, ``float``, ``str``, ``bool`` or ``X | None``, each field declared once with
   :func:`nmrl.options.option` (help, traced or static, range or choices, option spelling): the
-  command line makes one option of each, and ``help``, ``hyper_fields``, ``hyper`` and the bounds
-  checked before a run come from the declarations (nmrl/options.py).
+  command line makes one option of each leaf, and ``help``, ``hyper_fields``, ``hyper`` and the
+  bounds checked before a run come from the declarations (nmrl/options.py).
 * ``hyper(config)`` -- the traced hyperparameters, a pytree of arrays (e.g. a NamedTuple whose
   ``from_config`` reads the config fields of the same names). ``hyper_fields`` names those config
-  fields: the points of one sweep may differ only in them and in the seed (one compiled program,
+  fields (by flat name): the points of one sweep may differ only in them and in the seed (one compiled program,
   ``jax.vmap``/``lax.map`` over the stacked states), so a point equals the same run alone up to
   float rounding. ``sweep_field``: the one ``nmrl sweep`` varies by default (the actor-critic's l;
   None: seeds only; ``--vary FIELD V...`` picks any of ``hyper_fields``).
 * ``make(config, env=None, *, axis_name=None, num_shards=1) -> Trainer`` -- the pure functions of a
-  run (``env`` default: ``HalfCheetah(config.env_config())``). With ``num_shards`` > 1 ``chunk`` is
+  run (``env`` default: the environment of ``config.environment``). With ``num_shards`` > 1 ``chunk`` is
   written for ``jax.shard_map`` over the environment axis of the state's ``env_fields`` (``psum``
   over ``axis_name``), the other fields replicated; its results equal the unsharded program's up to
   float rounding.
 * ``Trainer`` (:class:`Trainer`): ``config`` (resolved), ``env``, ``init(key, hyper=None) -> state``
-  (``hyper`` None: ``hyper(config)``), ``chunk(state) -> (state, metrics)``: ``config.chunk_steps``
+  (``hyper`` None: ``hyper(config)``), ``chunk(state) -> (state, metrics)``: ``config.budget.chunk_steps``
   control steps of every environment, pure and jittable (one ``lax.scan``), no host callbacks.
 * The state: a pytree dataclass (``flax.struct.dataclass``) with at least ``step`` (int32, control
   steps per environment so far), ``trials`` (int32, trials ended, summed over the environments),
@@ -67,8 +68,8 @@ nothing else; the shape is Stoix's ``LearnerFn: state -> (state, metrics)`` and 
 * ``explorations`` / ``exploration``: the exploration processes of nmrl.explore the learner takes
   and how ``--exploration KIND`` with its parameters in seconds/Hz (one option group for every
   learner, made from the declarations of ``nmrl.explore.ExplorationFields`` and parsed under its
-  field names) sets its config: a config that holds those fields itself (inheriting
-  ``ExplorationFields``, e.g. PPO's) takes them as they are; another maps them onto its own fields
+  field names) sets its config: a config that holds those fields itself (a group whose class
+  derives from ``ExplorationFields``, e.g. PPO's ``noise``) takes them as they are; another maps them onto its own fields
   (``exploration``, e.g. the actor-critic's l and alpha).
 
 A new learner provides these and registers itself at import: ``register(Learner(name="x", ...))``
@@ -86,31 +87,39 @@ import importlib
 import math
 from typing import Any, Callable, NamedTuple, Protocol
 
+from nmrl import options
+
 #: learner name -> module that registers it when imported
 BUILTIN = {"ac": "nmrl.learners.ac_config", "ppo": "nmrl.learners.ppo_config"}
 #: the learner of a run whose config.json or checkpoint names none (every run before there were two)
 DEFAULT = "ac"
 #: the key of ``config.json`` (and of a checkpoint's metadata) that names the learner
 KEY = "learner"
-#: fields every learner's config has (the driver reads them)
-COMMON_FIELDS = ("seed", "num_envs", "chunk_steps", "steps", "trials", "control_dt", "stop_prob", "max_param_norm")
+#: the fields of the group ``budget`` every learner's config has (the driver reads them)
+COMMON_FIELDS = ("seed", "num_envs", "chunk_steps", "steps", "trials", "max_param_norm")
 #: metrics every chunk reports
 METRICS = ("avg_reward", "forward_speed", "trials_in_chunk", "step", "trials", "diverged")
 
 
-class Config(Protocol):
-    """What the driver reads of every learner's config (:data:`COMMON_FIELDS`, checked for each
-    registered learner by :func:`register`): the one meaning of ``Config`` in nmrl.runs. A learner's
-    config is a frozen dataclass declared with ``option(...)`` (nmrl/options.py)."""
+class Budget(Protocol):
+    """The group ``budget`` of every learner's config (:data:`COMMON_FIELDS`)."""
 
     seed: int
     num_envs: int
     chunk_steps: int
     steps: int | None
     trials: int | None
-    control_dt: float
-    stop_prob: float
     max_param_norm: float
+
+
+class Config(Protocol):
+    """What the driver reads of every learner's config (its groups ``environment``, a
+    ``nmrl.tasks.EnvFields``, and ``budget``, checked for each registered learner by :func:`register`):
+    the one meaning of ``Config`` in nmrl.runs. A learner's config is a frozen dataclass declared with
+    ``option(...)`` (nmrl/options.py)."""
+
+    environment: Any
+    budget: Budget
 
     def resolved(self) -> "Config":
         """The config with its derived fields filled in (a preset's step sizes, ...)."""
@@ -195,7 +204,9 @@ _REGISTRY: dict[str, Learner] = {}
 
 def register(learner: Learner) -> Learner:
     """Add ``learner`` under its name (replacing one of the same name and config class)."""
-    missing = [f for f in COMMON_FIELDS if f not in {x.name for x in dataclasses.fields(learner.config)}]
+    groups = options.groups(learner.config)
+    budget = options.leaves(groups["budget"]) if "budget" in groups else {}
+    missing = [f for f in COMMON_FIELDS if f not in budget] + [g for g in ("environment", "budget") if g not in groups]
     if missing:
         raise TypeError(f"learner {learner.name!r}: its config {learner.config.__name__} lacks {missing}")
     old = _REGISTRY.get(learner.name)
@@ -260,8 +271,9 @@ def of(config: Any) -> Learner:
 
 
 def config_dict(config: Any) -> dict:
-    """What ``config.json`` holds: ``{"learner": name, **dataclasses.asdict(config)}``."""
-    return {KEY: of(config).name, **dataclasses.asdict(config)}
+    """What ``config.json`` holds: ``{"learner": name, **options.flat(config)}``, the config's leaves by
+    flat name in leaf order (the identity's view, nmrl/runs/identity.py)."""
+    return {KEY: of(config).name, **options.flat(config)}
 
 
 #: Config fields added after runs were saved without them, with the value those runs had: a saved
@@ -278,22 +290,22 @@ LATER_FIELDS: dict[str, object] = {"actor_opt": "sgd", "critic_opt": "sgd", KEY:
 def saved_fields(cls: type, d: dict) -> dict:
     """A saved config's fields ``d`` for the config class ``cls``, with every field of
     :data:`LATER_FIELDS` that ``cls`` has and ``d`` lacks set to the value runs had before it existed."""
-    names = {f.name for f in dataclasses.fields(cls)}
+    names = options.leaves(cls)
     return {**{k: v for k, v in LATER_FIELDS.items() if k in names and k not in d}, **d}
 
 
 def config_from_dict(d: dict, learner: str | None = None) -> Any:
-    """The config a dict of :func:`config_dict` (or a plain ``asdict`` of the learner ``learner``,
-    default :data:`DEFAULT`) describes, fields it predates as :func:`saved_fields` fills them;
-    ValueError for an unknown learner, TypeError for unknown fields (named)."""
+    """The config a flat dict of :func:`config_dict` (config.json's layout, with or without the key
+    ``learner``; without it of the learner ``learner``, default :data:`DEFAULT`) describes, fields it
+    predates as :func:`saved_fields` fills them; ValueError for an unknown learner, TypeError for
+    unknown fields (named)."""
     d = dict(d)
     name = d.pop(KEY, None) or learner or DEFAULT
     lr = get(name)
-    known = {f.name for f in dataclasses.fields(lr.config)}
-    unknown = sorted(set(d) - known)
+    unknown = sorted(set(d) - set(options.leaves(lr.config)))
     if unknown:
         raise TypeError(f"the config of learner {name!r} has no fields {unknown}")
-    return lr.config(**saved_fields(lr.config, d))
+    return options.build(lr.config, **saved_fields(lr.config, d))
 
 
 def replace_state(state: Any, **fields: Any) -> Any:
@@ -318,4 +330,4 @@ def program_key(config: Any) -> Any:
     the class defaults (two configs with equal keys run as points of one program)."""
     lr = of(config)
     default = lr.config()
-    return dataclasses.replace(config, seed=0, **{k: getattr(default, k) for k in lr.hyper_fields})
+    return options.replace(config, seed=0, **{k: options.value(default, k) for k in lr.hyper_fields})

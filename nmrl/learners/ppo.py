@@ -115,20 +115,20 @@ def _sample_per_env(proc: explore.Process, ns: explore.NoiseState, keys: jax.Arr
 
 def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None, num_shards: int = 1) -> PPOTrainer:
     """Build the pure functions of a PPO run (module docstring; ``env`` as for the actor-critic:
-    ``tasks.make_env(config.env, config.env_config())`` by default). With ``num_shards`` > 1, ``chunk`` is written
-    for ``jax.shard_map`` over the environment axis of ``env`` and ``noise``: every draw is made per
+    ``tasks.make_env(config.environment.env, config.environment.env_config())`` by default). With
+    ``num_shards`` > 1, ``chunk`` is written for ``jax.shard_map`` over the environment axis of ``env`` and ``noise``: every draw is made per
     environment from the shared key, the minibatches take the same unrolls, and the sums behind the
     losses, gradients and statistics are ``psum``-ed over ``axis_name``."""
-    check_shards(config.num_envs, num_shards, axis_name)
+    check_shards(config.budget.num_envs, num_shards, axis_name)
     cfg = config.resolved()
-    env = env or tasks.make_env(cfg.env, cfg.env_config())
+    env = env or tasks.make_env(cfg.environment.env, cfg.environment.env_config())
     OBS, ACT = env.obs_dim, env.act_dim
     SCALE = nn_.action_range(env)
     TERMS = tuple(env.reward_terms)
-    N, NL = cfg.num_envs, cfg.num_envs // num_shards
+    N, NL = cfg.budget.num_envs, cfg.budget.num_envs // num_shards
     T, U, M, E = cfg.unroll_length, cfg.unrolls_per_env, cfg.num_minibatches, cfg.epochs
     UM = U // M  # unrolls of each environment in one minibatch
-    ITERS = cfg.chunk_steps // cfg.iteration_steps
+    ITERS = cfg.budget.chunk_steps // cfg.iteration_steps
     COUNT = float(cfg.batch_size * T)  # samples per minibatch (all shards)
     nets = nn_.make_networks(cfg.policy_layers, cfg.policy_width, cfg.value_layers, cfg.value_width, ACT,
                              cfg.learn_std)
@@ -352,7 +352,7 @@ def make_ppo(config: PPOConfig, env: Any = None, *, axis_name: str | None = None
         (es, ns, acc), data = rollout(st, k_roll)
         params, opt, stats, sums = learn(st, data, k_sgd)
         norms = (global_norm(params["policy"]), global_norm(params["value"]))
-        ok = jnp.all(jnp.isfinite(jnp.stack(norms))) & (jnp.maximum(*norms) < cfg.max_param_norm)
+        ok = jnp.all(jnp.isfinite(jnp.stack(norms))) & (jnp.maximum(*norms) < cfg.budget.max_param_norm)
         take_it = ok & ~st.diverged
         params = tree_where(take_it, params, {"policy": st.policy, "value": st.value})
         opt = tree_where(take_it, opt, st.opt)

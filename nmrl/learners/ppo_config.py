@@ -5,10 +5,12 @@ ones (the step size, the entropy cost, the clip epsilon, the value-loss weight, 
 the discount and GAE factors per control step and the exploration process) are the leaves of
 :class:`Hyper`, so a sweep over any of them is one compiled program (nmrl/learners/ppo.py).
 
-The exploration is an nmrl.explore.ExplorationSpec, its fields flat in the config as
-:class:`nmrl.explore.ExplorationFields` declares them (the config inherits them: the process
-``exploration``, default white, and its parameters in seconds and Hz) with the config's own
-``sigma``; every process of nmrl.explore is allowed.
+The config holds three groups (nmrl/options.py's ``group``): the environment
+(``config.environment``, :class:`nmrl.tasks.EnvFields`), the exploration (``config.noise``,
+:class:`PPONoise`: the fields :class:`nmrl.explore.ExplorationFields` declares, the process
+``exploration``, default white, and its parameters in seconds and Hz, with the noise's ``sigma``;
+:meth:`PPONoise.spec` is its nmrl.explore.ExplorationSpec, every process of nmrl.explore allowed)
+and the budget and layout (``config.budget``, :class:`PPOBudget`).
 
 **Time in seconds.** The discount ``gamma = exp(-control_dt / discount_horizon_s)``, the GAE
 ``lambda = exp(-control_dt / gae_horizon_s)``, the unroll ``unroll_s`` and the noise's correlation
@@ -48,7 +50,7 @@ def _per_step(horizon: str) -> Callable[["PPOConfig"], jax.Array]:
     def factor(c: "PPOConfig") -> jax.Array:
         import jax.numpy as jnp
 
-        return jnp.asarray(math.exp(-c.control_dt / getattr(c, horizon)), jnp.float32)
+        return jnp.asarray(math.exp(-c.environment.control_dt / getattr(c, horizon)), jnp.float32)
 
     return factor
 
@@ -57,16 +59,45 @@ _TIME = Range(0.0, open_lo=True, why="seconds, at least the control step")
 
 
 @dataclasses.dataclass(frozen=True)
-class PPOConfig(explore.ExplorationFields, EnvFields):
-    """A PPO run. Defaults at control_dt = 0.02 s are the Brax baseline's (module docstring). Every
-    field is declared once (nmrl/options.py); ``traced`` ones are :class:`Hyper`'s leaves. The
-    environment's fields (``env``, ``control_dt``, ``physics``, ...) are :class:`nmrl.tasks.EnvFields`'s,
-    the exploration's (``exploration``, ``period_s``, ``beta``, ...) :class:`nmrl.explore.ExplorationFields`'."""
+class PPONoise(explore.ExplorationFields):
+    """PPO's exploration (``config.noise``): the process and its parameters as
+    :class:`nmrl.explore.ExplorationFields` declares them, PPO's default process (white), and the
+    noise's ``sigma``."""
 
-    # exploration: an nmrl.explore.ExplorationSpec, its process and parameters ExplorationFields'
     exploration: str = explore.kind_option("white")
     sigma: float = option(1.0, "marginal std of the noise xi, multiplying the learned std_theta (1: Brax's learned "
                                "std alone)", traced="process", range=SIGMA_RANGE)
+
+    def spec(self) -> explore.ExplorationSpec:
+        """The exploration as an nmrl.explore.ExplorationSpec (parameters None: the kind's defaults)."""
+        return explore.ExplorationSpec(kind=self.exploration, **{k: getattr(self, k) for k in SPEC_FIELDS})
+
+
+@dataclasses.dataclass(frozen=True)
+class PPOBudget:
+    """PPO's budget and layout (``config.budget``): environments in lock-step, the chunk, the budget
+    in steps or trials, the seed and the divergence bound, each declared here once."""
+
+    num_envs: int = option(64, "environments in lock-step (must divide --batch-size)", range=AT_LEAST_ONE)
+    chunk_steps: int | None = option(None, "control steps per environment per chunk, a multiple of one iteration's "
+                                           "(default: one)", range=AT_LEAST_ONE)
+    steps: int | None = run_option("steps", None, "budget in control steps per environment (default: one iteration)")
+    trials: int | None = run_option("trials", None)
+    seed: int = run_option("seed", 0)
+    max_param_norm: float = run_option("max_param_norm", 1e5)
+
+
+@dataclasses.dataclass(frozen=True)
+class PPOConfig:
+    """A PPO run. Defaults at control_dt = 0.02 s are the Brax baseline's (module docstring). Every
+    field is declared once (nmrl/options.py); ``traced`` ones are :class:`Hyper`'s leaves. The
+    environment (``config.environment``: ``env``, ``control_dt``, ``physics``, ...) is a
+    :class:`nmrl.tasks.EnvFields`, the exploration (``config.noise``: ``exploration``, ``period_s``,
+    ``beta``, ..., ``sigma``) a :class:`PPONoise`, the budget and layout (``config.budget``) a
+    :class:`PPOBudget`."""
+
+    environment: EnvFields = options.group(EnvFields)
+    noise: PPONoise = options.group(PPONoise)
     learn_std: bool = option(True, "learn a state-dependent std_theta(s) = softplus + min_std (Brax); false: "
                                    "std_theta = 1")
     min_std: float = option(1e-3, "floor of the learned std (Brax: 0.001)", range=POSITIVE)
@@ -104,27 +135,18 @@ class PPOConfig(explore.ExplorationFields, EnvFields):
     value_layers: int = option(5, "hidden layers of the value net", range=AT_LEAST_ONE)
     value_width: int = option(256, "units per value layer", range=AT_LEAST_ONE)
     # batching, budget (common to every learner)
-    num_envs: int = option(64, "environments in lock-step (must divide --batch-size)", range=AT_LEAST_ONE)
-    chunk_steps: int | None = option(None, "control steps per environment per chunk, a multiple of one iteration's "
-                                           "(default: one)", range=AT_LEAST_ONE)
-    steps: int | None = run_option("steps", None, "budget in control steps per environment (default: one iteration)")
-    trials: int | None = run_option("trials", None)
-    seed: int = run_option("seed", 0)
-    max_param_norm: float = run_option("max_param_norm", 1e5)
+    budget: PPOBudget = options.group(PPOBudget)
 
     # ----------------------------------------------------------------------- derived
-    def spec(self) -> explore.ExplorationSpec:
-        return explore.ExplorationSpec(kind=self.exploration, **{k: getattr(self, k) for k in SPEC_FIELDS})
-
     @property
     def unroll_length(self) -> int:
         """T, control steps per unroll."""
-        return max(1, int(math.floor(self.unroll_s / self.control_dt + 0.5)))
+        return max(1, int(math.floor(self.unroll_s / self.environment.control_dt + 0.5)))
 
     @property
     def unrolls_per_env(self) -> int:
         """U, unrolls of each environment per iteration."""
-        return self.batch_size * self.num_minibatches // self.num_envs
+        return self.batch_size * self.num_minibatches // self.budget.num_envs
 
     @property
     def iteration_steps(self) -> int:
@@ -137,38 +159,38 @@ class PPOConfig(explore.ExplorationFields, EnvFields):
         times of at least one control step, minibatches of whole environments, chunks of whole
         iterations, one budget, the environment's relations (:meth:`nmrl.tasks.EnvFields.check_env`)."""
         options.check(self, limits=False)
-        self.spec().validate(self.control_dt)
-        if self.period_wise and self.exploration != "nm-periods":
+        self.noise.spec().validate(self.environment.control_dt)
+        if self.period_wise and self.noise.exploration != "nm-periods":
             raise options.invalid("period_wise", self.period_wise, "true only with --exploration nm-periods (a process whose "
                                                         "noise restarts at period starts), else false")
-        dt = self.control_dt
+        dt, b = self.environment.control_dt, self.budget
         for name in ("discount_horizon_s", "gae_horizon_s", "unroll_s"):
             if getattr(self, name) < dt * (1 - 1e-9):
                 raise options.invalid(name, getattr(self, name), f"must be a finite time >= the control step {dt:g} s")
-        if self.batch_size % self.num_envs:
-            raise options.invalid("num_envs", self.num_envs, f"must divide batch_size={self.batch_size} (every minibatch "
+        if self.batch_size % b.num_envs:
+            raise options.invalid("num_envs", b.num_envs, f"must divide batch_size={self.batch_size} (every minibatch "
                                                   f"holds batch_size / num_envs unrolls of each environment)")
-        if (self.batch_size // self.num_envs) % self.grad_chunks:
-            raise options.invalid("grad_chunks", self.grad_chunks, f"must divide the {self.batch_size // self.num_envs} "
+        if (self.batch_size // b.num_envs) % self.grad_chunks:
+            raise options.invalid("grad_chunks", self.grad_chunks, f"must divide the {self.batch_size // b.num_envs} "
                                                         f"unrolls of each environment in a minibatch "
                                                         f"(batch_size / num_envs)")
-        if self.chunk_steps is not None and self.chunk_steps % self.iteration_steps:
-            raise options.invalid("chunk_steps", self.chunk_steps, f"must be a multiple of one iteration's "
+        if b.chunk_steps is not None and b.chunk_steps % self.iteration_steps:
+            raise options.invalid("chunk_steps", b.chunk_steps, f"must be a multiple of one iteration's "
                                                         f"{self.iteration_steps} control steps per environment")
-        if self.steps is not None and self.trials is not None:
+        if b.steps is not None and b.trials is not None:
             raise ValueError("give the budget as steps or as trials, not both")
-        self.check_env()
+        self.environment.check_env()
 
     def resolved(self) -> "PPOConfig":
         """Validated, with the exploration's defaults, one iteration per chunk and a budget of
         :data:`DEFAULT_ITERATIONS` iterations filled in where not given."""
         self.validate()
-        spec = self.spec()
-        out = dataclasses.replace(self, **{k: getattr(spec, k) for k in SPEC_FIELDS})
-        if out.chunk_steps is None:
-            out = dataclasses.replace(out, chunk_steps=out.iteration_steps)
-        if out.steps is None and out.trials is None:
-            out = dataclasses.replace(out, steps=DEFAULT_ITERATIONS * out.iteration_steps)
+        spec = self.noise.spec()
+        out = options.replace(self, **{k: getattr(spec, k) for k in SPEC_FIELDS})
+        if out.budget.chunk_steps is None:
+            out = options.replace(out, chunk_steps=out.iteration_steps)
+        if out.budget.steps is None and out.budget.trials is None:
+            out = options.replace(out, steps=DEFAULT_ITERATIONS * out.iteration_steps)
         return out
 
 
@@ -178,7 +200,7 @@ SPEC_FIELDS = ("sigma", *PARAMS)
 #: the derived traced values: the discount and GAE factors per control step (from the config's
 #: seconds) and the noise process
 _DERIVED = {"gamma": _per_step("discount_horizon_s"), "lam": _per_step("gae_horizon_s"),
-            "process": lambda c: c.spec().process(c.control_dt)}
+            "process": lambda c: c.noise.spec().process(c.environment.control_dt)}
 
 
 class Hyper(NamedTuple):
@@ -215,6 +237,6 @@ LEARNER = register(Learner(
     policy=lazy("nmrl.learners.ppo_policy", "policy"),
     doc="PPO (Brax's settings at 0.02 s) with the exact likelihood of any exploration process",
     help=options.helps(PPOConfig),
-    describe=lambda c: {"exploration": c.exploration, "sigma": float(c.sigma)},
+    describe=lambda c: {"exploration": c.noise.exploration, "sigma": float(c.noise.sigma)},
     explorations=KINDS,
 ))

@@ -23,7 +23,7 @@ def policy(cfg: PPOConfig, env: Any) -> Policy:
     cfg = cfg.resolved()
     nets = nn_.make_networks(cfg.policy_layers, cfg.policy_width, cfg.value_layers, cfg.value_width, env.act_dim,
                              cfg.learn_std)
-    proc = cfg.spec().process(cfg.control_dt)
+    proc = cfg.noise.spec().process(cfg.environment.control_dt)
     scale = nn_.action_range(env)
 
     def act(params, obs, xi):

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from nmrl import options
 from nmrl.learners import contract as learners
 from nmrl.learners.contract import Trainer
 from nmrl.runs.driver import train
@@ -34,11 +35,11 @@ def config(learner: str = learners.DEFAULT, **fields: Any) -> Any:
     """The config of ``learner`` with ``fields`` (the command line's option names with ``_``), checked
     as ``nmrl train`` checks it: ValueError naming a bad value, TypeError naming an unknown field."""
     cls = learners.get(learner).config
-    known = {f for f in cls.__dataclass_fields__}
+    known = set(options.leaves(cls))
     unknown = sorted(set(fields) - known)
     if unknown:
         raise TypeError(f"learner {learner!r} has no fields {unknown}; its fields: {', '.join(sorted(known))}")
-    cfg = cls(**fields)
+    cfg = options.build(cls, **fields)
     check_config(cfg)
     return cfg
 

@@ -55,7 +55,6 @@ another run (config or model) the subclass :class:`ForeignCheckpoint`.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 import pathlib
@@ -67,7 +66,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import nmrl
-from nmrl import learners
+from nmrl import learners, options
 from nmrl.paper.env import MODEL_PATH
 from nmrl.runs import io_errors, store
 from nmrl.runs.store import CHECKPOINTS, COMPACT_FILE
@@ -200,7 +199,7 @@ class Checkpointer:
             **({"periods": int(ts.periods)} if hasattr(ts, "periods") else {}),
             "diverged": bool(ts.diverged),
             learners.KEY: learner.name,
-            "config": dataclasses.asdict(config),
+            "config": options.flat(config),
             "versions": _versions(),
             "git_commit": _git_commit(),
             "model_file": str(MODEL_PATH.relative_to(MODEL_PATH.parents[1])),

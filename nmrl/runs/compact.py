@@ -10,7 +10,6 @@ evaluation and cannot be continued.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 import pathlib
@@ -20,7 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nmrl import learners
+from nmrl import learners, options
 from nmrl.paper.env import MODEL_PATH
 from nmrl.runs import store
 from nmrl.runs.store import COMPACT_FILE
@@ -84,7 +83,7 @@ def _write_compact(run_dir: str | os.PathLike, arrays: dict[str, np.ndarray], co
     """``arrays`` and their metadata (learner, config, model hash, versions, digest, ``extra``) as one
     npz, written atomically into ``run_dir`` (created if missing)."""
     meta = {"format": COMPACT_FORMAT, "schema": COMPACT_SCHEMA, **extra, learners.KEY: learners.of(config).name,
-            "config": dataclasses.asdict(config), "model_sha256": _sha256_file(MODEL_PATH), "versions": _versions(),
+            "config": options.flat(config), "model_sha256": _sha256_file(MODEL_PATH), "versions": _versions(),
             "digest": _digest(arrays)}
     arrays = {**arrays, "meta": np.frombuffer(json.dumps(meta).encode(), np.uint8)}
     path = compact_path(run_dir)

@@ -32,7 +32,6 @@ The names other modules reach through the driver are imported here: the exceptio
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import pathlib
 import sys
@@ -41,7 +40,7 @@ from typing import Callable, Sequence
 import jax
 import numpy as np
 
-from nmrl import learners
+from nmrl import learners, options
 from nmrl.learners.contract import Config
 from nmrl.runs import checkpoint, distributed as dist, lock, session, sharding, signals
 from nmrl.runs import points as pts
@@ -100,7 +99,7 @@ def train(cfg: Config, out: str | os.PathLike, *, resume: bool = False, progress
         # creates the directory (removed again if nothing is written, also by a second signal's immediate exit)
         holds.hold(out, on_exit=True)
         fresh_out(out)  # again under the lock: another writer may have finished meanwhile
-        ts = allocate(lambda: jax.jit(trainer.init)(jax.random.PRNGKey(new.seed)), "allocating the state", new)
+        ts = allocate(lambda: jax.jit(trainer.init)(jax.random.PRNGKey(new.budget.seed)), "allocating the state", new)
         return [Point(out.name, out, new, trainer, ts)]
 
     def nothing_to_do(ps: Sequence[Point]) -> str:
@@ -191,12 +190,12 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[C
                               flush=True)
                     tr = learners.of(c).make(c, env=env)
                     env = env or tr.env
-                    ts = jax.jit(tr.init)(jax.random.PRNGKey(c.seed))
+                    ts = jax.jit(tr.init)(jax.random.PRNGKey(c.budget.seed))
                     ps.append(Point(n, d, c, tr, ts))
                     continue
                 # a diverged point stopped saving at its last good step and stays frozen there
                 frozen = any(is_diverged(r) for r in read_metrics(d))
-                cfg, tr, ts, record = load_resume(c, d, dataclasses.asdict(c), None, env=env)
+                cfg, tr, ts, record = load_resume(c, d, options.flat(c), None, env=env)
                 env = env or tr.env
                 ps.append(Point(n, d, cfg, tr, ts, frozen=frozen, record=record))
             pts.check_one_program(names, [p.cfg for p in ps])
@@ -209,7 +208,7 @@ def run_points(out: str | os.PathLike, names: Sequence[str], configs: Sequence[C
         preflight(configs[0], trainers[0], points=P_)
         init = jax.jit(jax.vmap(trainers[0].init))
         # one vmapped call: a PRNGKey per point is ~10 dispatched ops each (minutes for 10,000 points)
-        keys = jax.vmap(jax.random.PRNGKey)(np.array([c.seed for c in configs], np.uint32))
+        keys = jax.vmap(jax.random.PRNGKey)(np.array([c.budget.seed for c in configs], np.uint32))
         signals.stop_setup()
         ts = allocate(lambda: init(keys, pts.stack_trees([learner.hyper(c) for c in configs])),
                       "allocating the states", configs[0])
@@ -274,8 +273,8 @@ def _foreign_points(out: pathlib.Path, names: Sequence[str], dirs: Sequence[path
             own = checkpoint.load_run_config(d)
         except checkpoint.CheckpointError:
             own = None
-        same = own is not None and {k: v for k, v in dataclasses.asdict(own).items() if k not in BUDGET_FIELDS} \
-            == {k: v for k, v in dataclasses.asdict(cfg).items() if k not in BUDGET_FIELDS}
+        same = own is not None and {k: v for k, v in options.flat(own).items() if k not in BUDGET_FIELDS} \
+            == {k: v for k, v in options.flat(cfg).items() if k not in BUDGET_FIELDS}
         if saved or not same:
             raise RunError(f"{d} already holds a run ({', '.join(held)}) that a fresh start would overwrite; "
                            f"continue it with --resume, or move it away or choose another --out")

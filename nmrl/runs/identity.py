@@ -11,14 +11,13 @@ whose identity digests therefore stay what they were before there were other lea
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 import os
 import pathlib
 
 
-from nmrl import learners
+from nmrl import learners, options
 from nmrl.paper.env import MODEL_PATH
 from nmrl.runs import store
 from nmrl.runs.checkpoint_files import Config, _err, _learner_of_meta, _sha256_file
@@ -39,12 +38,12 @@ def _config_from_meta(meta: dict) -> Config:
     path = meta.get("path", "?")
     cfg = meta["config"]
     cls = _learner_of_meta(meta).config
-    known = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(cfg) - known - {learners.KEY})
+    known = options.leaves(cls)
+    unknown = sorted(set(cfg) - set(known) - {learners.KEY})
     if unknown:
         raise CheckpointError(f"{path}: the saved config has fields this nmrl does not know: {unknown}")
     try:
-        return cls(**learners.saved_fields(cls, {k: v for k, v in cfg.items() if k != learners.KEY}))
+        return options.build(cls, **learners.saved_fields(cls, {k: v for k, v in cfg.items() if k != learners.KEY}))
     except TypeError as e:
         raise _err(pathlib.Path(path), "the saved config is invalid", e, CorruptCheckpoint) from e
 
@@ -69,10 +68,10 @@ def _check_config(meta: dict, config: Config) -> None:
         raise ForeignCheckpoint(f"{meta['path']}: checkpoint of the learner {learners.of(saved).name!r}, the "
                                 f"trainer is {learners.of(config).name!r}")
     try:
-        a = dataclasses.asdict(saved.resolved())
+        a = options.flat(saved.resolved())
     except ValueError as e:
         raise _err(pathlib.Path(meta["path"]), "the saved config is invalid", e) from e
-    b = dataclasses.asdict(config.resolved())
+    b = options.flat(config.resolved())
     diff = [f"{k}: checkpoint {a[k]!r} != trainer {b[k]!r}" for k in a if k not in RESUMABLE_FIELDS
             and a[k] != b[k]]
     if diff:
@@ -117,11 +116,11 @@ def load_run_config(run_dir: str | os.PathLike) -> Config | None:
         cls = learners.get(d.get(learners.KEY) or learners.DEFAULT).config
     except ValueError as e:
         raise CheckpointError(f"{path}: {e}") from e
-    known = {f.name for f in dataclasses.fields(cls)} | {learners.KEY}
+    known = set(options.leaves(cls)) | {learners.KEY}
     if set(d) - known:
         raise CheckpointError(f"{path}: not a run config (unknown fields {sorted(set(d) - known)})")
     try:
-        cfg = cls(**learners.saved_fields(cls, {k: v for k, v in d.items() if k != learners.KEY}))
+        cfg = options.build(cls, **learners.saved_fields(cls, {k: v for k, v in d.items() if k != learners.KEY}))
         cfg.resolved()
     except (TypeError, ValueError) as e:
         raise _err(path, "the run's config is invalid", e) from e

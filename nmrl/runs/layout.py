@@ -45,13 +45,13 @@ def _train_devices(cfg: Config, devices: int | None = None) -> list:
         raise RunError(f"devices={devices!r} is invalid: this process has {avail} local device(s)")
     n = avail if devices is None else devices
     if not dist.active():
-        while cfg.num_envs % n:
+        while cfg.budget.num_envs % n:
             n -= 1
         return jax.local_devices()[:n]
     devs = sharding.process_devices(n)
-    if cfg.num_envs % len(devs):
-        raise RunError(f"num_envs={cfg.num_envs} is invalid for {jax.process_count()} processes with {n} device(s) "
-                       f"each: the environments are split over all {len(devs)} devices, so N must be a multiple "
+    if cfg.budget.num_envs % len(devs):
+        raise RunError(f"num_envs={cfg.budget.num_envs} is invalid for {jax.process_count()} processes with {n} "
+                       f"device(s) each: the environments are split over all {len(devs)} devices, so N must be a multiple "
                        f"of {len(devs)}")
     return devs
 
@@ -116,11 +116,11 @@ class OneRun:
         self.program = program
         self.cfg = p.cfg
         #: the chunk as the line giving its compile time names it
-        self.chunk_name = f"the training chunk ({p.cfg.num_envs} environments on {n_dev} device(s))"
+        self.chunk_name = f"the training chunk ({p.cfg.budget.num_envs} environments on {n_dev} device(s))"
 
     def banner(self) -> str:
         """The line saying where the run's environments are."""
-        n, n_dev = self.cfg.num_envs, self.n_dev
+        n, n_dev = self.cfg.budget.num_envs, self.n_dev
         procs = f", {jax.process_count()} processes" if dist.active() else ""
         return (f"train: {n} environments on {n_dev} device(s), {n // n_dev} per device "
                 f"({len(jax.local_devices())} local {jax.local_devices()[0].platform} device(s){procs})")
@@ -158,7 +158,7 @@ class Points:
         self.program = pts.points_program(ps[0].trainer.chunk, n_dev, group, devices=devices)
         self.per_dev = len(self.slots) // n_dev
         self._host = None  # the host copy of the states gathered for this chunk's saves (several processes)
-        self.num_points, self.group, self.num_envs = len(ps), group, ps[0].cfg.num_envs
+        self.num_points, self.group, self.num_envs = len(ps), group, ps[0].cfg.budget.num_envs
         #: the chunk as the line giving its compile time names it
         self.chunk_name = "the sweep chunk"
 

@@ -99,21 +99,21 @@ def metrics_row(cfg: Config, m: dict, wall: float, points: int = 1) -> dict:
     what a Gymnasium user reads as the return; biased while the policy moves within a chunk and when
     a chunk ends few trials."""
     trials = int(m.get("trials_in_chunk", 0))
-    total = float(m["avg_reward"]) * cfg.chunk_steps * cfg.num_envs
-    return {"chunk": m["step"] // cfg.chunk_steps, **m, "total_steps": m["step"] * cfg.num_envs,
-            "wall_s": wall, "steps_per_s": points * cfg.chunk_steps * cfg.num_envs / wall,
+    total = float(m["avg_reward"]) * cfg.budget.chunk_steps * cfg.budget.num_envs
+    return {"chunk": m["step"] // cfg.budget.chunk_steps, **m, "total_steps": m["step"] * cfg.budget.num_envs,
+            "wall_s": wall, "steps_per_s": points * cfg.budget.chunk_steps * cfg.budget.num_envs / wall,
             "return_per_trial": total / trials if trials > 0 else None}
 
 
 def budget_done(cfg: Config, ts_step: int, ts_trials: int) -> bool:
-    if cfg.steps is not None:
-        return ts_step >= cfg.steps
-    return ts_trials >= cfg.trials
+    if cfg.budget.steps is not None:
+        return ts_step >= cfg.budget.steps
+    return ts_trials >= cfg.budget.trials
 
 
 def budget_text(cfg: Config) -> str:
     """The budget :func:`budget_done` checks, as the command line gives it: ``steps=N`` or ``trials=N``."""
-    return f"steps={cfg.steps}" if cfg.steps is not None else f"trials={cfg.trials}"
+    return f"steps={cfg.budget.steps}" if cfg.budget.steps is not None else f"trials={cfg.budget.trials}"
 
 
 def next_save(step: int, chunk_steps: int, every: int, wall_s: float) -> str:
@@ -153,7 +153,7 @@ class Progress:
         if enabled and not sys.stderr.isatty():
             threading.Thread(target=type(self)._tick, args=(weakref.ref(self), self._closed), name="nmrl-progress",
                              daemon=True).start()
-        self.total = cfg.steps if cfg.steps is not None else cfg.trials
+        self.total = cfg.budget.steps if cfg.budget.steps is not None else cfg.budget.trials
         self.frac0 = min(done0 / self.total, 1.0)
         if self.rich:
             from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
@@ -172,15 +172,15 @@ class Progress:
         if not self.enabled:
             return
         cfg = self.cfg
-        done = row["step"] if cfg.steps is not None else row["trials"]
-        of = f" of {cfg.steps:,}" if cfg.steps is not None else ""
+        done = row["step"] if cfg.budget.steps is not None else row["trials"]
+        of = f" of {cfg.budget.steps:,}" if cfg.budget.steps is not None else ""
         per = row.get("return_per_trial")
         ret = f", {per:+.1f}/trial" if per is not None else ""
         text = (f"trials {row['trials']:,}  step {row['step']:,}{of} per env ({row['total_steps']:,} in all, "
                 f"{row['steps_per_s']:,.0f}/s)  reward {row['avg_reward']:+.3f}/step "
-                f"({row['avg_reward'] / cfg.control_dt:+.1f}/s{ret})  speed {row['forward_speed']:+.2f} m/s")
+                f"({row['avg_reward'] / cfg.environment.control_dt:+.1f}/s{ret})  speed {row['forward_speed']:+.2f} m/s")
         if done < self.total and "wall_s" in row:  # the last chunk's save is the end
-            text += f"  {next_save(row['step'], cfg.chunk_steps, self.every, row['wall_s'])}"
+            text += f"  {next_save(row['step'], cfg.budget.chunk_steps, self.every, row['wall_s'])}"
         now = time.time()
         self.last_chunk_s, self.t_chunk, self.t_line = now - self.t_chunk, now, now
         if self.rich:
@@ -233,7 +233,7 @@ def drive(ps: Sequence, layout, *, guard: signals.Guard, stages: list[list[int]]
     (:class:`nmrl.runs.layout.Point`), as ``layout`` holds them; ``guard``: the session's signal
     guard (:func:`guarded`)."""
     writer = dist.is_writer()  # several processes: only process 0 writes (nmrl/runs/distributed.py)
-    ckpts = [checkpoint.Checkpointer(p.dir, keep=keep, every_steps=checkpoint_every * p.cfg.chunk_steps)
+    ckpts = [checkpoint.Checkpointer(p.dir, keep=keep, every_steps=checkpoint_every * p.cfg.budget.chunk_steps)
              if writer else None for p in ps]
     done = np.zeros(len(ps), bool)
     dist.barrier("drive")  # several processes: every one has compiled (counters() may gather)
@@ -288,7 +288,7 @@ def drive(ps: Sequence, layout, *, guard: signals.Guard, stages: list[list[int]]
                                 else "no checkpoint was kept (it diverged in its first chunk)")
                         raise Diverged(
                             f"training diverged at step {row['step']}: an update took a parameter norm past the "
-                            f"limit {p.cfg.max_param_norm:g} (or to a non-finite value) and was rejected, the "
+                            f"limit {p.cfg.budget.max_param_norm:g} (or to a non-finite value) and was rejected, the "
                             f"parameters frozen at their last accepted values ({norms}); {kept}. Try smaller "
                             f"step sizes.")
                     continue

@@ -67,10 +67,12 @@ class OneLineParser(argparse.ArgumentParser):
         self.exit(2)
 
 
-def field_type(cls: type, f: dataclasses.Field) -> type:
-    """The type of the config field ``f`` of ``cls`` (``X`` for ``X | None``)."""
-    hints = typing.get_type_hints(cls)
-    t = hints[f.name]
+def field_type(cls: type, name: str) -> type:
+    """The type of the config field (leaf) ``name`` of ``cls`` (``X`` for ``X | None``)."""
+    from nmrl import options
+
+    owner = options.leaves(cls)[name][1]
+    t = typing.get_type_hints(owner)[options.leaves(cls)[name][0][-1]]
     args = [a for a in typing.get_args(t) if a is not type(None)]
     return args[0] if args else t
 
@@ -84,17 +86,17 @@ def _bool(text: str) -> bool:
 
 
 def add_declared(p, cls: type, name: str, default=None, help: str | None = None, metavar: str | None = None) -> None:
-    """The option ``--<flag>`` of the field ``name`` of the dataclass ``cls``, spelled, typed and explained
+    """The option ``--<flag>`` of the field (leaf) ``name`` of the dataclass ``cls``, spelled, typed and explained
     by its declaration (nmrl/options.py), parsed into ``name`` with ``default`` (None: the field's own is
     applied later, by the config); the field's default is named unless the help names one. A
     ``tuple[X, ...]`` field takes one or more values; a declaration's ``parse`` reads each value.
     ``metavar``: the value's name in the help (default: the option's spelling in capitals)."""
     from nmrl import options
 
-    f = cls.__dataclass_fields__[name]
+    f = options.field(cls, name)
     decl = options.declaration(cls, name)
     many = options.is_sequence(cls, name)
-    t = options.kind(cls, name) if many else field_type(cls, f)
+    t = options.kind(cls, name) if many else field_type(cls, name)
     doc = decl.help if help is None else help
     shown = f.default if f.default is not dataclasses.MISSING else "?"
     shown = " ".join(map(str, shown)) if many and isinstance(shown, tuple) else shown

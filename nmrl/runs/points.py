@@ -13,7 +13,6 @@ earlier stage) is skipped by ``lax.cond``.
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any, Callable, Sequence
 
 import jax
@@ -21,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import PartitionSpec as P
 
-from nmrl import learners
+from nmrl import learners, options
 from nmrl.runs import sharding
 
 
@@ -52,7 +51,7 @@ def check_one_program(names: Sequence[str], configs: Sequence[Any]) -> None:
             raise ValueError(f"point {n!r} is of the learner {learners.of(c).name!r}, {names[0]!r} of {lr.name!r}: "
                              f"one program runs one learner")
         if program_key(c) != key0:
-            diff = [f.name for f in dataclasses.fields(c) if getattr(program_key(c), f.name) != getattr(key0, f.name)]
+            diff = [k for k, v in options.flat(program_key(c)).items() if v != options.value(key0, k)]
             raise ValueError(f"point {n!r} differs from {names[0]!r} in {diff}: one program can only vary "
                              f"{', '.join(lr.hyper_fields)} and the seed")
 

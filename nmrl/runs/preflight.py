@@ -21,7 +21,7 @@ from typing import Callable
 
 import jax
 
-from nmrl import learners, tasks
+from nmrl import learners, options, tasks
 from nmrl.learners.contract import Config
 from nmrl.runs import bounds, distributed as dist, io_errors, lock, memory, store
 from nmrl.runs.errors import OutOfMemory, RunError
@@ -49,19 +49,19 @@ def check_config(cfg: Config) -> None:
         raise ValueError(str(e)) from e
     learner.validate(cfg)
     bounds.check(cfg)  # float32-finite floats, int32 integers, the declared ranges (the seed's: 32 bits)
-    env = getattr(cfg, "env", tasks.PAPER)  # a config without nmrl.tasks.EnvFields runs the paper's robot
+    env = cfg.environment.env
     if env == tasks.PAPER:  # a task checks its own step (nmrl.tasks.check_env)
-        ts = getattr(cfg, "physics_timestep", None) or physics_timestep()
-        n = cfg.control_dt / ts
+        ts = cfg.environment.physics_timestep or physics_timestep()
+        n = cfg.environment.control_dt / ts
         if abs(n - round(n)) > 1e-6 or round(n) < 1:
-            raise ValueError(f"control_dt={cfg.control_dt!r} is invalid: must be a whole multiple of the physics "
-                             f"timestep {ts:g} s (e.g. {ts:g}, {2 * ts:g}, {4 * ts:g}; --physics-timestep sets it)")
-    if getattr(cfg, "physics", "mjx") == "c":  # the model the run steps: the paper's or the task's
+            raise ValueError(f"control_dt={cfg.environment.control_dt!r} is invalid: must be a whole multiple of the "
+                             f"physics timestep {ts:g} s (e.g. {ts:g}, {2 * ts:g}, {4 * ts:g}; --physics-timestep sets it)")
+    if cfg.environment.physics == "c":  # the model the run steps: the paper's or the task's
         from nmrl.physics.mujoco_c import check_supported
 
         check_supported(tasks.mj_model(env))
-    if cfg.trials is not None and cfg.stop_prob == 0:
-        raise ValueError(f"trials={cfg.trials} is invalid with stop_prob=0: no trial would ever end; "
+    if cfg.budget.trials is not None and cfg.environment.stop_prob == 0:
+        raise ValueError(f"trials={cfg.budget.trials} is invalid with stop_prob=0: no trial would ever end; "
                          f"give the budget as --steps")
 
 
@@ -109,8 +109,8 @@ def hold(out: pathlib.Path, create: bool = True) -> "lock.Hold | None":
 
 def _sizes(cfg: Config) -> str:
     """The sizes that set a run's memory, as the command line gives them."""
-    names = [f.name for f in dataclasses.fields(cfg) if f.name == "num_envs" or f.name.startswith("hidden")]
-    return ", ".join(f"{n}={getattr(cfg, n)}" for n in names)
+    names = [n for n in options.leaves(type(cfg)) if n == "num_envs" or n.startswith("hidden")]
+    return ", ".join(f"{n}={options.value(cfg, n)}" for n in names)
 
 
 def preflight(cfg: Config, trainer, points: int = 1) -> None:

@@ -12,14 +12,13 @@ one). Every refusal happens before anything is written: this module only reads.
 
 from __future__ import annotations
 
-import dataclasses
 import pathlib
 import sys
 import time
 
 import jax
 
-from nmrl import learners
+from nmrl import learners, options
 from nmrl.learners.contract import Config
 from nmrl.runs import checkpoint, distributed as dist
 from nmrl.runs.errors import RunError
@@ -42,7 +41,7 @@ def given_changes(ident: Config, given: dict, out: pathlib.Path) -> None:
     """Refuse options given with ``--resume`` that would change the run's identity, naming them all."""
     base = ident.resolved()
     bad = []
-    fields = {f.name for f in dataclasses.fields(ident)}
+    fields = options.leaves(type(ident))
     for k, v in given.items():
         if k in BUDGET_FIELDS:
             continue
@@ -51,18 +50,18 @@ def given_changes(ident: Config, given: dict, out: pathlib.Path) -> None:
                        f"option)")
             continue
         try:
-            new = getattr(dataclasses.replace(ident, **{k: v}).resolved(), k)
+            new = options.value(options.replace(ident, **{k: v}).resolved(), k)
         except (TypeError, ValueError):
             new = v
-        if new != getattr(base, k):
-            bad.append(f"--{k.replace('_', '-')} {v!r} (the run has {getattr(base, k)!r})")
+        if new != options.value(base, k):
+            bad.append(f"--{k.replace('_', '-')} {v!r} (the run has {options.value(base, k)!r})")
     if bad:
         raise RunError(f"--resume continues the run in {out} with its own config; these options would change "
                        f"it: {', '.join(bad)}; only the budget (--steps or --trials) may change")
 
 
 def _budget(cfg: Config) -> dict:
-    return {k: getattr(cfg, k) for k in BUDGET_FIELDS}
+    return {k: getattr(cfg.budget, k) for k in BUDGET_FIELDS}
 
 
 def load_resume(cfg: Config, out: pathlib.Path, given: dict | None, step: int | None, env=None):
@@ -126,7 +125,7 @@ def load_resume(cfg: Config, out: pathlib.Path, given: dict | None, step: int | 
         ts = checkpoint.restore_compact(out, trainer)
         old_budget = _budget(run_cfg)
     elif not steps:  # created, stopped before its first checkpoint: start it again, as it would have run
-        meta, ts = None, jax.jit(trainer.init)(jax.random.PRNGKey(run_cfg.seed))
+        meta, ts = None, jax.jit(trainer.init)(jax.random.PRNGKey(run_cfg.budget.seed))
         old_budget = _budget(run_cfg)
     else:
         start = steps[-1]
@@ -173,7 +172,7 @@ def load_resume(cfg: Config, out: pathlib.Path, given: dict | None, step: int | 
                 hint = ""
             raise RunError(f"{e}{hint}") from e
         old_budget = {k: meta["config"].get(k) for k in BUDGET_FIELDS}
-    new = dataclasses.replace(run_cfg, **(new_budget or old_budget))
+    new = options.replace(run_cfg, **(new_budget or old_budget))
     try:
         check_config(new)
         cfg = new.resolved()

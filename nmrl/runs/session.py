@@ -128,12 +128,13 @@ def run(policy: Policy, read: Callable[[Holds], list[Point]], lay_out: Callable[
             dist.barrier(policy.barrier)  # several processes: all have read the runs before process 0 writes
             guard.stop_setup()
             cfg = ps[0].cfg
-            if one and cfg.steps is not None and cfg.steps % cfg.chunk_steps:
-                end = math.ceil(cfg.steps / cfg.chunk_steps) * cfg.chunk_steps
-                print(f"note: the budget of {cfg.steps} steps is not a whole number of chunks of {cfg.chunk_steps}: "
+            b = cfg.budget
+            if one and b.steps is not None and b.steps % b.chunk_steps:
+                end = math.ceil(b.steps / b.chunk_steps) * b.chunk_steps
+                print(f"note: the budget of {b.steps} steps is not a whole number of chunks of {b.chunk_steps}: "
                       f"the run stops after whole chunks, at step {end}", file=sys.stderr, flush=True)
             at = int(ps[0].ts.step) if one else 0  # the step a stop before the first chunk reports
-            done0 = int(ps[0].ts.step) if cfg.steps is not None else int(ps[0].ts.trials)
+            done0 = int(ps[0].ts.step) if cfg.budget.steps is not None else int(ps[0].ts.trials)
             layout = lay_out(ps)
             for p in ps:
                 p.ts = None  # the layout holds the states now
@@ -141,7 +142,7 @@ def run(policy: Policy, read: Callable[[Holds], list[Point]], lay_out: Callable[
             if progress:
                 print(layout.banner(), file=sys.stderr, flush=True)
             beat_to: list = []  # the progress bar's heartbeat, once it exists (nmrl/learners/heartbeat.py)
-            if one and progress and getattr(cfg, "physics", None) == "c":  # where the program calls the host anyway
+            if one and progress and cfg.environment.physics == "c":  # where the program calls the host anyway
                 cleanup.enter_context(heartbeat.listening(lambda *b: beat_to and beat_to[-1](*b)))
             compile_or_stop(guard, layout, cfg, step=at, chunk=layout.chunk_name if progress else None,
                             stopped=policy.stopped)
@@ -194,7 +195,7 @@ def _display(policy: Policy, ps: Sequence[Point], progress: bool, done0: int, on
             on_chunk()
         if progress and policy.table:
             r = min(new.values(), key=lambda r: r["step"], default=None)  # the point furthest behind
-            due = next_save(r["step"], cfg.chunk_steps, policy.checkpoint_every, r["wall_s"]) if r else ""
+            due = next_save(r["step"], cfg.budget.chunk_steps, policy.checkpoint_every, r["wall_s"]) if r else ""
             print(progress_table(names, last_rows, time.time() - t_start, due), file=sys.stderr, flush=True)
 
     return table_chunk, lambda: None

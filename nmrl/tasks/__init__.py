@@ -8,9 +8,10 @@ robot or one of the tasks, from the learner's ``nmrl.paper.env.EnvConfig``.
 
 :class:`EnvFields` declares a run's environment once (nmrl/options.py): which environment
 (``--env``), its physics engine (``--physics``) and timestep, its control step and its end of a
-trial. Every learner's config has these fields by inheriting it; the command line makes one option
-of each (the group :data:`GROUP`), ``options.check`` validates each by its declaration (the only check
-of a name such as ``--env`` or ``--physics``), and :meth:`EnvFields.check_env` what relates them.
+trial. Every learner's config holds one as its group ``environment`` (``nmrl.options.group``:
+``config.environment.control_dt``); the command line makes one option of each field (the option
+group :data:`GROUP`), ``options.check`` validates each by its declaration (the only check of a name
+such as ``--env`` or ``--physics``), and :meth:`EnvFields.check_env` what relates them.
 The package imports no JAX or MuJoCo until an environment is made: the declarations are read when
 a command line is built.
 """
@@ -39,7 +40,7 @@ GROUP = "environment"
 
 @dataclasses.dataclass(frozen=True)
 class EnvFields:
-    """A run's environment, the fields every learner's config has (it inherits them): each declared
+    """A run's environment, the group ``environment`` every learner's config holds: each field declared
     here once, with its help, its choices or range (a control step of at most 1 s: the robot's joints
     move in tenths of seconds; nmrl/runs/preflight.py checks the multiple of the physics timestep)."""
 

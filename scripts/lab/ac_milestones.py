@@ -62,8 +62,8 @@ def main() -> None:
                 ev = evaluate.evaluate(point, seconds=a.seconds, seed=0, render=False,
                                        out_dir=pathlib.Path(tmp) / "eval" / point.name)
                 det = ev["deterministic"]
-                rows.append({"l": l, "seed": s, "steps_per_env": ev["step"], "num_envs": cfg.num_envs,
-                             "control_steps": ev["step"] * cfg.num_envs, "trials": ev["trials"],
+                rows.append({"l": l, "seed": s, "steps_per_env": ev["step"], "num_envs": cfg.budget.num_envs,
+                             "control_steps": ev["step"] * cfg.budget.num_envs, "trials": ev["trials"],
                              "avg_reward": det["avg_reward"], "forward_speed": det["forward_speed"],
                              "gait": det["gait"], "source": a.git_rev or str(a.src)})
                 hind = det["gait"]["hind_paw"]

@@ -14,6 +14,8 @@ import os
 import statistics
 import time
 
+from nmrl import options
+
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -39,12 +41,12 @@ def main() -> None:
     from nmrl.runs import points
 
     n_dev = len(jax.local_devices())
-    cfgs = [TrainConfig(num_envs=NUM_ENVS, chunk_steps=args.steps, l=l, seed=s, physics="c").resolved()
+    cfgs = [options.build(TrainConfig, num_envs=NUM_ENVS, chunk_steps=args.steps, l=l, seed=s, physics="c").resolved()
             for l in LS for s in range(SEEDS)]
     per_dev = -(-len(cfgs) // n_dev)
-    env_cfg = dataclasses.replace(cfgs[0].env_config(), threads=max(1, cores // n_dev))
+    env_cfg = dataclasses.replace(cfgs[0].environment.env_config(), threads=max(1, cores // n_dev))
     tr = make_train(cfgs[0], HalfCheetah(env_cfg))
-    keys = jnp.stack([jax.random.PRNGKey(c.seed) for c in cfgs])
+    keys = jnp.stack([jax.random.PRNGKey(c.budget.seed) for c in cfgs])
     ts = jax.jit(jax.vmap(tr.init))(keys, points.stack_trees([Hyper.from_config(c) for c in cfgs]))
     call, compile_s = points_call(tr.chunk, ts, len(cfgs), n_dev, per_dev)
     work = len(cfgs) * NUM_ENVS * args.steps

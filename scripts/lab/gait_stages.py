@@ -61,7 +61,7 @@ def measure(arm: str, d: pathlib.Path, iteration: int) -> list[dict]:
                  seed=ENDPOINT.seed)
         det = endpoint.deterministic_endpoint(config, params, **e)
         noisy = endpoint.noisy_endpoint(config, params, 1.0, **e)
-        rows.append({"arm": arm, "point": p.name, "seed": int(config.seed), "iteration": iteration,
+        rows.append({"arm": arm, "point": p.name, "seed": int(config.budget.seed), "iteration": iteration,
                      "step": int(meta["step"]), "train_forward_speed": speed,
                      "det_reward_per_s": det["reward_per_s"], "det_forward_speed": float(np.mean(det["forward_speed"])),
                      "noisy_reward_per_s": noisy["reward_per_s"],

@@ -60,7 +60,7 @@ def noise_scales(out: pathlib.Path) -> list[dict]:
             for k in NOISE_SCALES:
                 e = endpoint.noisy_endpoint(config, params, k, seconds=ENDPOINT.seconds, rollouts=ENDPOINT.rollouts,
                                             start_noise=ENDPOINT.start_noise, seed=ENDPOINT.seed)
-                rows.append({"cell": cell, "point": point.name, "seed": int(config.seed), "step": step,
+                rows.append({"cell": cell, "point": point.name, "seed": int(config.budget.seed), "step": step,
                              "noise_scale": k, "reward_per_s": e["reward_per_s"],
                              "forward_speed": float(np.mean(e["forward_speed"]))})
     store.write_csv(out / NOISE_CSV, COLUMNS, rows)

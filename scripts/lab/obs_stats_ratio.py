@@ -52,7 +52,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"{a.run} is not a PPO run")
     tr = make_ppo(cfg)
     key = jax.random.PRNGKey(a.key)
-    first = statistics_share(tr, tr.init(jax.random.PRNGKey(cfg.seed)), key, float(cfg.clip_eps))
+    first = statistics_share(tr, tr.init(jax.random.PRNGKey(cfg.budget.seed)), key, float(cfg.clip_eps))
     later = statistics_share(tr, checkpoint.restore(a.run, tr), key, float(cfg.clip_eps))
     print(json.dumps({"run": a.run, "first_iteration": first, f"after_step_{int(meta.get('step', -1))}": later}))
     return 0

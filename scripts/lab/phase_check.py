@@ -29,6 +29,8 @@ import pathlib
 import sys
 import time
 
+from nmrl import options
+
 MILESTONES = (2_000, 5_000, 10_000)
 
 
@@ -68,9 +70,9 @@ def main(argv=None) -> int:
     from nmrl.learners.ac_config import Hyper, TrainConfig
     from nmrl.learners.ac_train import make_train
 
-    cfgs = [TrainConfig(l=l, seed=s, num_envs=args.num_envs, chunk_steps=args.chunk_steps,
+    cfgs = [options.build(TrainConfig, l=l, seed=s, num_envs=args.num_envs, chunk_steps=args.chunk_steps,
                         trials=args.trials).resolved() for l in args.ls for s in range(args.seeds)]
-    names = [f"l{c.l}_s{c.seed}" for c in cfgs]
+    names = [f"l{c.l}_s{c.budget.seed}" for c in cfgs]
     P = len(cfgs)
     tr = make_train(cfgs[0])
     n_dev = min(len(jax.local_devices()), P)
@@ -78,7 +80,7 @@ def main(argv=None) -> int:
     hyp = [Hyper.from_config(c) for c in cfgs]
     zero = [h._replace(beta_theta=jnp.zeros_like(h.beta_theta), beta_v=jnp.zeros_like(h.beta_v)) for h in hyp]
     pick = lambda xs: [xs[i if i >= 0 else 0] for i in slots]  # noqa: E731
-    keys = jnp.stack(pick([jax.random.PRNGKey(c.seed) for c in cfgs]))
+    keys = jnp.stack(pick([jax.random.PRNGKey(c.budget.seed) for c in cfgs]))
     ts = jax.jit(jax.vmap(tr.init))(keys, points.stack_trees(pick(zero)))
     ts = points.place_points(ts, n_dev)
     program = points.points_program(tr.chunk, n_dev)

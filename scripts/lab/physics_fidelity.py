@@ -240,7 +240,7 @@ def _rel(x: float, ref: float) -> float:
 def main(argv: list[str] | None = None) -> dict:
     args = parse_args(argv)
     config, theta, _ = checkpoint.restore_policy(args.run_dir)
-    dt = float(config.control_dt)
+    dt = float(config.environment.control_dt)
     actor = networks.make_actor(int(config.hidden_actor), ACT_DIM, getattr(config, "arctan", "xla"))
     n_open, n_stand, n_pol = (max(1, round(s / dt)) for s in (args.open_seconds, args.stand_seconds,
                                                                  args.policy_seconds))

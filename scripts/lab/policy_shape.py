@@ -45,8 +45,8 @@ def shape(point: pathlib.Path, seconds: float = 10.0, rollouts: int = 8, start_n
     nets = nn_.make_networks(cfg.policy_layers, cfg.policy_width, cfg.value_layers, cfg.value_width, env.act_dim,
                              cfg.learn_std)
     scale, _ = nn_.action_range(env)
-    sigma = float(cfg.spec().process(cfg.control_dt).sigma)
-    n_steps = int(round(seconds / cfg.control_dt))
+    sigma = float(cfg.noise.spec().process(cfg.environment.control_dt).sigma)
+    n_steps = int(round(seconds / cfg.environment.control_dt))
 
     def heads(obs):
         return nn_.mean_std(nets, params["policy"], nn_.normalize(params["obs_stats"], obs, cfg.normalize_obs),
@@ -72,7 +72,7 @@ def shape(point: pathlib.Path, seconds: float = 10.0, rollouts: int = 8, start_n
     det, act, std, speed = (np.asarray(x, np.float64) for x in jax.jit(jax.vmap(one))(keys))
     scale_t = std.mean(axis=-1)  # (rollouts, T)
     corr = [np.corrcoef(scale_t[r, :-1], speed[r, 1:])[0, 1] for r in range(rollouts)]
-    return {"point": point.name, "seed": int(cfg.seed), "step": int(meta["step"]), "forward_speed": float(speed.mean()),
+    return {"point": point.name, "seed": int(cfg.budget.seed), "step": int(meta["step"]), "forward_speed": float(speed.mean()),
             "mean_action_sd": float(det.std(axis=1).mean()), "noise_action_sd": float((act - det).std(axis=1).mean()),
             "std_mean": float(std.mean()), "std_cv": float((std.std(axis=1) / std.mean(axis=1)).mean()),
             "std_speed_corr": float(np.nanmean(corr))}

@@ -36,6 +36,7 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
+from nmrl import options
 from nmrl.cli.config_options import add_config_options, get_learner, given_options  # noqa: E402
 from nmrl.cli.exploration_options import add_exploration_options  # noqa: E402
 from nmrl.learners.ppo import make_ppo  # noqa: E402
@@ -71,19 +72,19 @@ def main() -> None:
     add_exploration_options(ap, learner)
     ap.set_defaults(learner="ppo")
     a = ap.parse_args()
-    cfg = PPOConfig(**{**STUDY, **given_options(a)}).resolved()
-    env = HalfCheetah(dataclasses.replace(cfg.env_config(), threads=1))
+    cfg = options.build(PPOConfig, **{**STUDY, **given_options(a)}).resolved()
+    env = HalfCheetah(dataclasses.replace(cfg.environment.env_config(), threads=1))
     tr = make_ppo(cfg, env)
     st = jax.jit(jax.vmap(tr.init))(jax.random.split(jax.random.PRNGKey(0), a.seeds))
     keys = jax.random.split(jax.random.PRNGKey(1), a.seeds)
     roll = jax.jit(jax.vmap(tr.rollout)).lower(st, keys).compile()
     _, data = roll(st, keys)
     learn = jax.jit(jax.vmap(tr.learn)).lower(st, data, keys).compile()
-    n = a.seeds * cfg.num_envs * cfg.iteration_steps
+    n = a.seeds * cfg.budget.num_envs * cfg.iteration_steps
     rw, rc = _best(lambda: roll(st, keys), a.repeats)
     lw, lc = _best(lambda: learn(st, data, keys), a.repeats)
-    print(f"{cfg.spec()}:")
-    print(f"{a.seeds} seeds x {cfg.num_envs} environments, {cfg.iteration_steps} control steps each "
+    print(f"{cfg.noise.spec()}:")
+    print(f"{a.seeds} seeds x {cfg.budget.num_envs} environments, {cfg.iteration_steps} control steps each "
           f"({n:,} environment steps), {cfg.epochs} epochs x {cfg.num_minibatches} minibatches:")
     for name, w, c in (("rollout", rw, rc), ("update", lw, lc)):
         print(f"  {name:8s} {w:7.1f} s wall {c:7.1f} s CPU   {1e6 * w / n:6.2f} us wall, "
@@ -92,7 +93,7 @@ def main() -> None:
         return
 
     c = env.c
-    b = a.seeds * cfg.num_envs
+    b = a.seeds * cfg.budget.num_envs
     steps = a.callback_steps
     bits = mujoco_c.to_bits(np.tile(c.initial_state(), (b, 1)))
     act = np.full((b, c.plant.act_dim), 0.1, np.float32)

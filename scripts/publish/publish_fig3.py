@@ -17,6 +17,7 @@ import os
 import pathlib
 import shutil
 
+from nmrl import options
 from nmrl.analysis import evaluate
 from nmrl.experiments import sweep
 from nmrl.runs import checkpoint, store
@@ -77,7 +78,7 @@ def _spec(src: pathlib.Path) -> dict:
     from nmrl.learners.ac_config import TrainConfig
 
     s = json.loads((src / sweep.SPEC_FILE).read_text())
-    return {"ls": tuple(s["ls"]), "seeds": s["seeds"], "base": TrainConfig(**s["base"])}
+    return {"ls": tuple(s["ls"]), "seeds": s["seeds"], "base": options.build(TrainConfig, **s["base"])}
 
 
 if __name__ == "__main__":

@@ -36,6 +36,7 @@ import pathlib
 
 import numpy as np
 
+from nmrl import options
 from nmrl.analysis import plots, publish_fig3, stats
 from nmrl.analysis.publish_fig3 import MILESTONES, falls_md, progress_md  # noqa: F401
 from nmrl.experiments import sweep
@@ -45,7 +46,7 @@ from nmrl.runs import store
 
 
 def progress(src: pathlib.Path, spec: sweep.SweepSpec) -> dict:
-    budget = spec.base.trials
+    budget = spec.base.budget.trials
     out = {"budget_trials": budget, "milestones": list(MILESTONES), "by_l": {}, "points": {}, "diverged": []}
     # step -> steps_per_s of the points' chunks ending there: of the points still running (the rate
     # now), else of all points (a finished stage's rows lie at higher steps than the running one's)
@@ -74,8 +75,8 @@ def progress(src: pathlib.Path, spec: sweep.SweepSpec) -> dict:
             if budget and div is None and last["trials"] < budget:
                 # control steps per trial so far (all environments); a point without trials yet: the
                 # stop rule's mean trial length, 1/stop_prob
-                per_trial = (last["step"] * spec.base.num_envs / last["trials"] if last["trials"]
-                             else 1 / spec.base.stop_prob)
+                per_trial = (last["step"] * spec.base.budget.num_envs / last["trials"] if last["trials"]
+                             else 1 / spec.base.environment.stop_prob)
                 remaining += (budget - last["trials"]) * per_trial
             for r in rows[-20:]:
                 newest_all.setdefault(r["step"], []).append(r["steps_per_s"])
@@ -188,7 +189,7 @@ def main() -> None:
     if not (src / sweep.SPEC_FILE).is_file():
         raise SystemExit(f"publish_fig3_paper: error: {src / sweep.SPEC_FILE} not found; is {src} a sweep directory?")
     s = json.loads((src / sweep.SPEC_FILE).read_text())
-    spec = sweep.SweepSpec(ls=tuple(s["ls"]), seeds=s["seeds"], base=TrainConfig(**s["base"]),
+    spec = sweep.SweepSpec(ls=tuple(s["ls"]), seeds=s["seeds"], base=options.build(TrainConfig, **s["base"]),
                            first=tuple(s.get("first", ())))
     dest.mkdir(parents=True, exist_ok=True)
     results = sweep.write_results(src, spec)
@@ -203,7 +204,7 @@ def main() -> None:
     p = progress(src, spec)
     plots.fig3_milestones(p["by_l"], MILESTONES, dest / "fig3.png",
                           title="Fig. 3 at the paper's budget and step sizes: reward vs l at each milestone")
-    p["gaits"] = gaits(dest, spec, p, args.gait_trials if args.gait_trials is not None else spec.base.trials)
+    p["gaits"] = gaits(dest, spec, p, args.gait_trials if args.gait_trials is not None else spec.base.budget.trials)
     store.atomic_write_text(dest / "progress.json", json.dumps(p, indent=1) + "\n")
     store.atomic_write_text(dest / "progress.md", progress_md(p))
     print(progress_md(p))

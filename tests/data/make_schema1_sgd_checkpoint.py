@@ -30,7 +30,7 @@ if __name__ == "__main__":
     shutil.rmtree(OUT, ignore_errors=True)
     trainer = make_train(CFG)
     chunk = jax.jit(trainer.chunk)
-    ts = jax.jit(trainer.init)(jax.random.PRNGKey(CFG.seed))
+    ts = jax.jit(trainer.init)(jax.random.PRNGKey(CFG.budget.seed))
     for _ in range(2):
         ts, m = chunk(ts)
         checkpoint.save(OUT, ts, trainer.config, keep=2, extra={"note": "schema-1 layout, no optimizer state"})
