@@ -53,7 +53,7 @@ def _owner(learner, name: str) -> type | None:
     or the exploration's fields for a learner that maps them onto its own (the actor-critic's)."""
     from nmrl.explore import fields
 
-    if name in learner.config.__dataclass_fields__:
+    if name in options.leaves(learner.config):
         return learner.config if options.declaration(learner.config, name).cli else None
     if learner.explorations and name in fields.ExplorationFields.__dataclass_fields__:
         return fields.ExplorationFields

@@ -7,8 +7,8 @@
     print(rows[-1]["avg_reward"])               # the metrics rows of metrics.jsonl
 
     trainer = nmrl.make_train(cfg)              # or drive the pure functions yourself:
-    ts = jax.jit(trainer.init)(jax.random.PRNGKey(cfg.seed))
-    ts, metrics = jax.jit(trainer.chunk)(ts)    # one chunk of cfg.chunk_steps control steps
+    ts = jax.jit(trainer.init)(jax.random.PRNGKey(cfg.budget.seed))
+    ts, metrics = jax.jit(trainer.chunk)(ts)    # one chunk of cfg.budget.chunk_steps control steps
 
 :func:`config` builds a learner's config from its name (``nmrl.learners.names()``) and the same
 fields the command line sets (``--num-envs 64`` is ``num_envs=64``) and checks it as the command does,
