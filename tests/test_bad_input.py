@@ -375,7 +375,7 @@ def test_a_sweeps_seeds_are_held_to_the_one_seed_range(tmp_path, argv, message):
     assert not out.exists() and list(tmp_path.iterdir()) == []
     from nmrl.experiments import sweep
 
-    sweep.SweepSpec(ls=(1,), seeds=1, seed0=4294967295, base=TrainConfig(steps=25)).validate()
+    sweep.SweepSpec(ls=(1,), seeds=1, seed0=4294967295, base=options.build(TrainConfig, steps=25)).validate()
 
 
 def test_bad_out(tmp_path):

@@ -161,11 +161,11 @@ def test_the_grid_follows_the_screen_with_the_preregistered_design():
         assert cfg.environment.env_config().step_stop_prob * 5.0 == pytest.approx(cfg.environment.control_dt)
     # white and the correlated arms at their screened sigma and time constants (the middle values)
     got = {n: _spec(cells[n]).base for n in primary}
-    assert got["grid/dt0.0025/white"].sigma == 0.4 and got["grid/dt0.0025/ou"].noise.corr_time_s == 0.03
+    assert got["grid/dt0.0025/white"].noise.sigma == 0.4 and got["grid/dt0.0025/ou"].noise.corr_time_s == 0.03
     assert got["grid/dt0.0025/colored"].noise.beta == 0.5 and got["grid/dt0.0025/nmp"].noise.period_s == 0.06
     assert got["grid/dt0.0025/nmp"].period_wise and not got["grid/dt0.0025/nms"].period_wise
     # Ws holds sigma^2 dt at W's 20 ms value (eq. (1)): x sqrt(8) at 2.5 ms, x 2 at 5 ms
-    assert got["grid/dt0.0025/ws"].sigma == pytest.approx(0.4 * 8 ** 0.5, rel=1e-5)
+    assert got["grid/dt0.0025/ws"].noise.sigma == pytest.approx(0.4 * 8 ** 0.5, rel=1e-5)
     assert got["grid/dt0.0025/ws"].noise.exploration == "white"
     assert _spec(cells["grid/dt0.005/ws"]).base.noise.sigma == pytest.approx(0.8, rel=1e-5)
     # secondary: the 5 ms column and the sensitivity of W at 2.5 ms, 4 seeds; OU, CN, NMs screened at 20 ms

@@ -11,6 +11,7 @@ import json
 
 import pytest
 
+from nmrl import options
 from nmrl.cli import arguments, config_options
 from nmrl.experiments import kit, kit_cells
 from tests.study_cells import RECORD, RESULTS, commands, every_cell, learner_of, parsed, spec_of
@@ -139,7 +140,7 @@ def test_every_published_cell_is_the_sweep_its_sweep_json_holds():
             if not (root / cell.name / "sweep.json").is_file():
                 continue
             saved, new = sweep.load_spec(root / cell.name), spec_of(s, cell)
-            budget = {k: getattr(saved.base, k) for k in ("steps", "trials")}
-            assert dataclasses.replace(new, base=dataclasses.replace(new.base, **budget)) == saved, (study, name)
+            budget = {k: options.value(saved.base, k) for k in ("steps", "trials")}
+            assert dataclasses.replace(new, base=options.replace(new.base, **budget)) == saved, (study, name)
             n += 1
     assert n == 71
