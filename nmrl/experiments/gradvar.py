@@ -24,14 +24,13 @@ Standard errors come from independent batches (chunks): every batch gives its ow
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Sequence
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nmrl import learners
+from nmrl import learners, options
 from nmrl.learners.ac_config import Hyper, TrainConfig
 from nmrl.analysis.stats import mean_ci95
 from nmrl.runs.points import stack_trees
@@ -82,7 +81,7 @@ def measure(configs: Sequence[TrainConfig], policies: Sequence[tuple], *, batche
         raise ValueError(f"need one policy per config, got {len(policies)} policies for {len(configs)} configs")
     if not (isinstance(batches, int) and batches >= 2):
         raise ValueError(f"batches={batches!r} is invalid: need an integer >= 2 for an interval")
-    cfgs = [dataclasses.replace(c, beta_theta=0.0, beta_v=0.0, grad_stats=True, steps=None, trials=None)
+    cfgs = [options.replace(c, beta_theta=0.0, beta_v=0.0, grad_stats=True, steps=None, trials=None)
             .resolved() for c in configs]
     trainer = learners.get("ac").make(cfgs[0])  # with the run's environment (its --env)
     keys = jnp.stack([jax.random.PRNGKey(seed + i) for i in range(len(cfgs))])

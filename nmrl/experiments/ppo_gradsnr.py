@@ -22,7 +22,6 @@ the SNR of one second of one environment's experience, |E g|^2 / (tr Cov(g) * U 
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any, Sequence
 
 import jax
@@ -31,6 +30,7 @@ import numpy as np
 from jax.flatten_util import ravel_pytree
 
 from nmrl.experiments import gradvar
+from nmrl import options
 from nmrl.learners import ppo_losses as L
 from nmrl.learners import ppo_networks as nn_
 from nmrl.learners.ppo import PPOState, make_ppo
@@ -162,7 +162,7 @@ def measure(cfg: PPOConfig, state: PPOState, *, batches: int, seed: int = 0, war
 
 def initial_state(cfg: PPOConfig, seed: int = 0, env: Any = None) -> PPOState:
     """The state a run of ``cfg`` with ``seed`` starts from (its initial policy)."""
-    cfg = dataclasses.replace(cfg, seed=seed).resolved()
+    cfg = options.replace(cfg, seed=seed).resolved()
     return make_ppo(cfg, env).init(jax.random.PRNGKey(seed))
 
 

@@ -204,7 +204,7 @@ class SweepSpec:
             return [options.replace(self.base, **{k: v for k, v in o.items() if k != "name"})
                     for o in setting_up(self.overrides, len(self.overrides), step="making the configs")]
         if self.field is None:
-            return [dataclasses.replace(self.base, seed=s) for _, s in self.points()]
+            return [options.replace(self.base, seed=s) for _, s in self.points()]
         return [options.replace(self.base, **{self.field: v}, seed=s) for v, s in self.points()]
 
     def columns(self) -> tuple[str, ...]:

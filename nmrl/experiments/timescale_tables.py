@@ -18,7 +18,6 @@ same tables:
 
 from __future__ import annotations
 
-import dataclasses
 import pathlib
 import sys
 import time
@@ -26,7 +25,7 @@ import time
 import jax
 import numpy as np
 
-from nmrl import learners, tasks
+from nmrl import learners, options, tasks
 from nmrl.analysis import stats
 from nmrl.experiments import gradvar as gradvar_stats
 from nmrl.experiments.kit import StudyError
@@ -126,7 +125,7 @@ def fixed_policies(out: pathlib.Path, spec: TimescaleSpec) -> list[tuple[str, ob
     names say which seed, e.g. ``trained_p0.2s_s1``."""
     dt0 = max(spec.dts)
     cfg0 = spec.arm_config(dt0, None)
-    tr = LEARNER.make(dataclasses.replace(cfg0, num_envs=1, steps=1))
+    tr = LEARNER.make(options.replace(cfg0, num_envs=1, steps=1))
     init = tr.init(jax.random.PRNGKey(0))
     pols = [("initial", init.theta, init.v)]
     period_arms = [p for p in spec.periods if p is not None]
@@ -155,7 +154,7 @@ def gradvar(out: pathlib.Path, spec: TimescaleSpec, progress: bool) -> list[dict
         cfgs, policies, labels = [], [], []
         for name, theta, v in pols:
             for p in spec.periods:
-                c = dataclasses.replace(spec.arm_config(dt, p), num_envs=spec.gradvar_envs)
+                c = options.replace(spec.arm_config(dt, p), num_envs=spec.gradvar_envs)
                 cfgs.append(c)
                 policies.append((theta, v))
                 labels.append((name, p, c))
