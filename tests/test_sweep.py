@@ -245,3 +245,13 @@ def test_bad_arguments(tmp_path, capsys, argv, needle):
     assert rc == 2
     assert needle in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_a_sweep_of_seeds_alone_gives_each_point_the_base_config_with_its_seed():
+    base = options.build(TrainConfig, steps=25, num_envs=3, sigma=0.5)
+    spec = sweep.SweepSpec(ls=(None,), seeds=3, seed0=7, base=base, field=None)
+    spec.validate()
+    cfgs = spec.point_configs()
+    assert [c.budget.seed for c in cfgs] == [7, 8, 9]
+    for c in cfgs:  # everything but the seed is the base's
+        assert options.flat(options.replace(c, seed=0)) == options.flat(options.replace(base, seed=0))
