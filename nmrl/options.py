@@ -127,10 +127,11 @@ def option(default: Any = dataclasses.MISSING, help: str = "", **meta: Any) -> A
     return dataclasses.field(default=default, metadata={KEY: Option(help=help, **meta)})
 
 
+#: the seeds a run allows, the range of the run field ``seed`` (a sweep's last seed is held to it too)
+SEED_RANGE = Range(0, SEED_MAX, why="JAX's PRNG seeds are 32-bit; others wrap around to another seed")
 #: the declarations of the run fields every learner's config has (nmrl/learners/contract.py)
 _RUN_OPTIONS: dict[str, dict[str, Any]] = {
-    "seed": dict(help="PRNG seed", range=Range(0, SEED_MAX, why="JAX's PRNG seeds are 32-bit; others wrap around "
-                                                                "to another seed")),
+    "seed": dict(help="PRNG seed", range=SEED_RANGE),
     "steps": dict(help="budget in control steps per environment", range=AT_LEAST_ONE),
     "trials": dict(help="budget in trials, summed over the environments", range=AT_LEAST_ONE),
     "max_param_norm": dict(help="a parameter norm above this (or NaN) marks the run diverged", range=POSITIVE),

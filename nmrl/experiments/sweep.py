@@ -51,7 +51,7 @@ from typing import Sequence
 
 from nmrl import learners, options
 from nmrl.analysis import plots, stats
-from nmrl.options import check_seed
+from nmrl.options import SEED_RANGE, check_seed
 from nmrl.runs import distributed as dist, driver, errors, lock, preflight, store
 from nmrl.runs.resume import existing_step, given_changes
 from nmrl.runs.signals import setting_up, stop_setup
@@ -129,17 +129,14 @@ class SweepSpec:
 
     def _validate_seeds(self) -> None:
         """``seeds`` an integer >= 1, and every seed ``seed0 .. seed0 + seeds - 1`` one the run field
-        ``seed`` allows (nmrl.options.check_seed: the one seed range); ValueError naming the value."""
+        ``seed`` allows (nmrl.options.SEED_RANGE, the one seed range); ValueError naming the value."""
         if not isinstance(self.seeds, int) or isinstance(self.seeds, bool) or self.seeds < 1:
             raise ValueError(f"seeds={self.seeds!r} is invalid: must be an integer >= 1")
         check_seed(self.seed0, "seed0")
         last = self.seed0 + self.seeds - 1
-        try:
-            check_seed(last)
-        except ValueError as e:
-            allowed = str(e).split(" is invalid: ", 1)[1]
-            raise ValueError(f"seeds={self.seeds!r} is invalid: the last seed, seed0 + seeds - 1 = {last}, {allowed}") \
-                from None
+        if not SEED_RANGE.contains(last):
+            raise ValueError(f"seeds={self.seeds!r} is invalid: the last seed, seed0 + seeds - 1 = {last}, must be "
+                             f"{SEED_RANGE.text(int)}")
 
     def _validate_overrides(self) -> None:
         """The listed points: distinct plain names, fields of the config other than the budget, the
