@@ -89,6 +89,22 @@ def test_the_family_is_welch_and_holm_over_both_endpoints():
     assert [r["p_holm"] for r in fam] == pytest.approx(_holm(ps))
     t1 = {r["endpoint"]: r for r in fam if r["contrast"] == "T1"}
     assert t1["auc_reward_per_s"]["decision"] == "behind"  # -40 against 0, SD 10, 8 seeds
+    for r in fam:  # the stratified bootstrap interval beside Welch's (tests/test_prereg_stats.py checks it)
+        assert r["lo"] < r["boot_lo"] < r["estimate"] < r["boot_hi"] < r["hi"]
+
+
+def test_each_cells_summary_is_its_runs_mean_sd_and_iqm():
+    """cells.csv's rows: per complete cell and endpoint the mean, SD and rliable's IQM (the 25%
+    trimmed mean, scipy) of its runs, with the IQM's bootstrap interval around it."""
+    rng = np.random.default_rng(2)
+    rows = _rows(rng, {("stationary", 0.02): (0, 50), ("p0.1s", 0.02): (60, 60)})
+    summary = {(r["cell"], r["endpoint"]): r for r in thesis_ac.cell_summaries(rows)}
+    assert len(summary) == 4
+    for (cell, key), r in summary.items():
+        arm = cell.split("@")[0]
+        x = np.array([float(q[key]) for q in rows if q["point"].rsplit("_s", 1)[0] == arm])
+        assert r["n"] == 8 and r["mean"] == pytest.approx(x.mean()) and r["sd"] == pytest.approx(x.std(ddof=1))
+        assert r["iqm"] == pytest.approx(scipy.stats.trim_mean(x, 0.25)) and r["iqm_lo"] < r["iqm"] < r["iqm_hi"]
 
 
 def test_a_family_with_an_unfinished_cell_is_pending():

@@ -25,6 +25,7 @@ from nmrl.analysis.stats import mean_ci95
 #: runs a cell needs before its IQM and bootstrap interval are reported
 IQM_MIN_RUNS = 4
 BOOTSTRAP_REPS = 50_000
+SUMMARY_COLUMNS = ("n", "mean", "sd", "ci_lo", "ci_hi", "iqm", "iqm_lo", "iqm_hi")  #: :func:`summary`'s keys
 PANELS_PER_ROW = 4
 #: seeds from which a cell's curve gets its t band (fewer: each seed's curve is drawn thin)
 BAND_MIN_SEEDS = 3

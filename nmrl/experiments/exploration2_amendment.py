@@ -105,17 +105,18 @@ CONTRASTS = (
 
 def family(rows: list[dict]) -> list[dict]:
     """A1-A5 on the deterministic endpoint (module docstring: ``prereg_stats.family``, Holm and TOST
-    over the contrasts that run), each with how many runs of each of its cells walk; every decision
+    over the contrasts that run, the stratified bootstrap interval beside Welch's), each with how
+    many runs of each of its cells walk; every decision
     "pending" until each contrast's cells have ended or, for those with NMp(2.5), the rule has left
     it out."""
-    from nmrl.analysis import prereg_stats
+    from nmrl.analysis import cell_curves, prereg_stats
 
     nmp20 = _cell_rows(rows, _name("nmp", 0.02))
     dropped = nmp20 is not None and walking(nmp20) < WALK_RULE  # NMp(2.5) does not run
     contrasts = [(n, w) for n, w in CONTRASTS if not (dropped and _name("nmp", 0.0025) in w)]
     ended = {c: _cell_rows(rows, c) for _, w in contrasts for c in w}
     cells = {c: [float(r["det_reward_per_s"]) for r in rs] for c, rs in ended.items() if rs is not None}
-    out = prereg_stats.family(cells, contrasts, MARGIN)
+    out = prereg_stats.family(cells, contrasts, MARGIN, bootstrap_reps=cell_curves.BOOTSTRAP_REPS)
     for r, (_, weights) in zip(out, contrasts):
         if all(ended[c] is not None for c in weights):
             r.update(walking=" ".join(f"{walking(ended[c])}/{len(ended[c])}" for c in weights), margin=MARGIN)

@@ -159,8 +159,6 @@ CELLS_CSV, CHOICES_CSV, SECONDARY_CSV, ARMS_CSV = "cells.csv", "choices.csv", "s
 SCREEN_FIGURE, GRID_FIGURE = "screen_curves.png", "learning_curves.png"
 ENDPOINT_FIGURE, CONTRAST_FIGURE, SPEED_FIGURE = "endpoints.png", "contrasts.png", "speeds.png"
 ASYMPTOTE_FIGURE, SENSITIVITY_FIGURE = "asymptote_curves.png", "sensitivity.png"
-SUMMARY_COLUMNS = ("n", "mean", "sd", "ci_lo", "ci_hi", "iqm", "iqm_lo", "iqm_hi")  #: cell_curves.summary's
-CELL_COLUMNS = ("cell", "value", *SUMMARY_COLUMNS, "diverged")
 
 
 def _curve(point: pathlib.Path) -> tuple[np.ndarray, np.ndarray]:
@@ -215,7 +213,7 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
         elif r["cell"].startswith("asymptote/"):
             asymptote.setdefault(arm_and_dt(r["cell"])[0], []).append(_curve(point))
     store.write_csv(dest / CHOICES_CSV, CHOICE_COLUMNS, choices(rows))
-    store.write_csv(dest / CELLS_CSV, CELL_COLUMNS,
+    store.write_csv(dest / CELLS_CSV, ("cell", "value", *cell_curves.SUMMARY_COLUMNS, "diverged"),
                    [{"cell": c, "value": v, **cell_curves.summary(x), "diverged": n_diverged[c, v]}
                     for (c, v), x in groups.items()])
     store.write_csv(dest / SECONDARY_CSV, SECONDARY_COLUMNS, secondary_endpoints(rows))
@@ -313,7 +311,7 @@ def _snr_report(dest: pathlib.Path) -> None:
         groups.setdefault((r["arm"], int(r["iteration"]), float(r["control_dt"])), {})[int(r["seed"])] = float(r["snr_per_s"])
     table = [{"arm": a, "iteration": it, "control_dt": dt, **cell_curves.summary(list(x.values()))}
              for (a, it, dt), x in sorted(groups.items())]
-    store.write_csv(dest / SNR_SUMMARY_CSV, ("arm", "iteration", "control_dt", *SUMMARY_COLUMNS), table)
+    store.write_csv(dest / SNR_SUMMARY_CSV, ("arm", "iteration", "control_dt", *cell_curves.SUMMARY_COLUMNS), table)
     arms = sorted({a for a, _, _ in groups}, key=_arm_rank)
     its = sorted({i for _, i, _ in groups})
     fig, axes = plots.plt.subplots(len(arms), len(its), figsize=(3.2 * len(its), 2.8 * len(arms)), squeeze=False,

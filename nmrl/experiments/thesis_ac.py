@@ -73,13 +73,14 @@ def cells(rows: list[dict], key: str) -> dict[str, list[float]]:
 
 def family(rows: list[dict], fine: float) -> list[dict]:
     """T1-T7 at ``fine`` on both co-primary endpoints, decided together (module docstring): the rows
-    of each endpoint with its margin, then Holm over all of them (``prereg_stats.decide``); every
-    decision "pending" while a contrast lacks a complete cell."""
-    from nmrl.analysis import prereg_stats
+    of each endpoint with its margin and its stratified bootstrap interval beside Welch's, then Holm
+    over all of them (``prereg_stats.decide``); every decision "pending" while a contrast lacks a
+    complete cell."""
+    from nmrl.analysis import cell_curves, prereg_stats
 
     out = [{"endpoint": key, **r, "margin": margin}
            for key, margin in ENDPOINTS.items()
-           for r in prereg_stats.contrast_rows(cells(rows, key), contrasts(fine), margin)]
+           for r in prereg_stats.contrast_rows(cells(rows, key), contrasts(fine), margin, cell_curves.BOOTSTRAP_REPS)]
     return prereg_stats.decide(out)
 
 
@@ -150,13 +151,27 @@ def _curve(point: pathlib.Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 LEARNING_FIGURE, ENDPOINT_FIGURE, CONTRAST_FIGURE = "learning_curves.png", "endpoints.png", "contrasts.png"
+CELLS_CSV = "cells.csv"
+
+
+def cell_summaries(rows: list[dict]) -> list[dict]:
+    """Per complete cell (``arm@dt``) and co-primary endpoint: the runs, mean, SD, 95% t interval and
+    the IQM with its stratified bootstrap interval (``cell_curves.summary``: the page's aggregate
+    intervals, reported, deciding nothing)."""
+    from nmrl.analysis import cell_curves
+
+    return [{"cell": k, "endpoint": key, **cell_curves.summary(v)}
+            for key in ENDPOINTS for k, v in cells(rows, key).items()]
 
 
 def report(rows: list[dict], dest: pathlib.Path) -> None:
-    """The learning curves with seed bands (one panel per control step, a line per arm), every ended
-    run's deterministic endpoint with each cell's interval, and the decided contrasts against their
-    margins, from the published points alone."""
+    """``cells.csv`` (:func:`cell_summaries`), the learning curves with seed bands (one panel per
+    control step, a line per arm), every ended run's deterministic endpoint with each cell's
+    interval, and the decided contrasts against their margins, from the published points alone."""
     from nmrl.analysis import cell_curves, contrast_figures
+
+    summaries = cell_summaries(rows)
+    store.write_csv(dest / CELLS_CSV, ["cell", "endpoint", *cell_curves.SUMMARY_COLUMNS], summaries)
 
     curves: dict[str, dict[str, list]] = {}
     for r in rows:
