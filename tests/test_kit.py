@@ -10,6 +10,7 @@ import json
 import pytest
 
 from nmrl.experiments import kit, kit_progress
+from nmrl.runs import store
 
 TINY = {"num_envs": 4, "batch_size": 4, "num_minibatches": 1, "epochs": 1, "value_layers": 1, "value_width": 8,
         "policy_layers": 1, "policy_width": 8, "physics": "c"}
@@ -351,3 +352,25 @@ def test_a_cell_the_rule_adds_runs_where_the_rule_puts_it(tmp_path, monkeypatch)
     kit.run(study, tmp_path)
     assert ran == ["a", "x", "c"]
     assert [c.name for c in kit.all_cells(study, tmp_path)] == ["a", "x", "c"]
+
+
+def test_table_prints_the_published_analysis_as_markdown(tmp_path, capsys):
+    """``table`` reads analysis.csv as written (store.write_csv) and shows each estimate with its Welch
+    and bootstrap intervals to 0.1 and the Holm p to 2 significant digits; without the file it stops
+    with status 2 naming the folder, before printing any table."""
+    from nmrl.experiments import kit_cli, thesis_ac
+
+    rows = [{"family": "primary", "endpoint": "auc_reward_per_s", "contrast": "T1", "n": "8 8",
+             "estimate": 117.0856, "lo": 64.4888, "hi": 169.6824, "boot_lo": 73.04, "boot_hi": 160.96,
+             "p": 4.78e-4, "tost_p": 0.99, "p_holm": 0.0019748, "tost_p_holm": 1.0, "decision": "ahead"},
+            {"family": "secondary", "endpoint": "auc_reward_per_s", "contrast": "T1", "n": "8 0",
+             "decision": "pending"}]
+    store.write_csv(tmp_path / kit.ANALYSIS, list(rows[0]), rows)
+    assert thesis_ac.main(["table", "--dest", str(tmp_path)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "| family | endpoint | contrast | n | estimate | bootstrap | p_holm | tost_p_holm | decision |"
+    assert lines[2] == "| primary | auc_reward_per_s | T1 | 8 8 | 117.1 [64.5, 169.7] | [73.0, 161.0] | 0.002 | 1 | ahead |"
+    assert lines[3] == "| secondary | auc_reward_per_s | T1 | 8 0 |  |  |  |  | pending |"
+    with pytest.raises(SystemExit) as e:
+        thesis_ac.main(["table", "--dest", str(tmp_path / "none")])
+    assert e.value.code == 2 and str(tmp_path / "none") in capsys.readouterr().err
