@@ -168,3 +168,63 @@ def test_the_20_ms_cells_progress_numbers_are_the_published_rows():
     walking = sorted(v for v in speeds if v >= 1.0)
     assert len(walking) == 23
     assert_numbers(doc, [f"{walking[0]:.2f}", f"{walking[-1]:.2f}", f"{min(speeds):.2f}"], window=200)
+
+
+def _published(name: str) -> list[dict]:
+    import csv
+
+    with open(REPO / "results" / "thesis_ac" / name, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def _welch_contrast(samples, weights, margin):
+    """A linear contrast of independent cell means by hand: estimate, Welch-Satterthwaite dof, 95%
+    interval, two-sided p, and the TOST p within ``margin`` (the larger of the two one-sided p's)."""
+    v = [w * w * x.var(ddof=1) / x.size for w, x in zip(weights, samples)]
+    se = np.sqrt(sum(v))
+    dof = sum(v) ** 2 / sum(vi**2 / (x.size - 1) for vi, x in zip(v, samples))
+    d = sum(w * x.mean() for w, x in zip(weights, samples))
+    h = scipy.stats.t.ppf(0.975, dof) * se
+    tost = max(scipy.stats.t.sf((d + margin) / se, dof), scipy.stats.t.cdf((d - margin) / se, dof))
+    return d, d - h, d + h, 2 * scipy.stats.t.sf(abs(d) / se, dof), tost
+
+
+@pytest.mark.record
+def test_the_published_primary_family_is_the_welch_and_holm_of_the_published_rows():
+    """analysis.csv's primary family recomputed from rows.csv alone: each of T1-T7 on both endpoints
+    by hand from the runs' values (the page's contrasts written out again here), Holm over the 14 by
+    hand, and the decisions by the page's words."""
+    fam = [r for r in _published("analysis.csv") if r["family"] == "primary"]
+    if any(r["decision"] == "pending" for r in fam):
+        pytest.skip("the primary family is not decided in the published rows")
+    rows = _published("rows.csv")
+
+    def x(key, arm, dt):
+        return np.array([float(r[key]) for r in rows if r["cell"] == f"grid/dt{dt:g}"
+                         and r["point"].rsplit("_s", 1)[0] == arm])
+
+    s, a, b = "stationary", "p0.1s", "p0.2s"
+    written = {"T1": [(s, .0025, 1), (s, .02, -1)], "T2": [(a, .0025, 1), (s, .0025, -1)],
+               "T3": [(b, .0025, 1), (s, .0025, -1)],
+               "T4": [(a, .0025, 1), (s, .0025, -1), (a, .02, -1), (s, .02, 1)],
+               "T5": [(b, .0025, 1), (s, .0025, -1), (b, .02, -1), (s, .02, 1)],
+               "T6": [(a, .0025, 1), (a, .02, -1)], "T7": [(b, .0025, 1), (b, .02, -1)]}
+    assert sorted({r["contrast"] for r in fam}) == sorted(written) and len(fam) == 14
+    margins = {"auc_reward_per_s": 25.0, "det_reward_per_s": 50.0}  # the page's TOST margins
+    ps, tosts = [], []
+    for r in fam:
+        cells = written[r["contrast"]]
+        samples = [x(r["endpoint"], arm, dt) for arm, dt, _ in cells]
+        assert all(v.size == 8 for v in samples)
+        d, lo, hi, p, tost = _welch_contrast(samples, [w for *_, w in cells], margins[r["endpoint"]])
+        assert float(r["tost_p"]) == pytest.approx(tost, rel=1e-9)
+        tosts.append(tost)
+        assert [float(r[k]) for k in ("estimate", "lo", "hi", "p")] == pytest.approx([d, lo, hi, p], rel=1e-9)
+        if len(cells) == 2:
+            assert p == pytest.approx(scipy.stats.ttest_ind(samples[0], samples[1], equal_var=False).pvalue)
+        ps.append(p)
+    for r, ph, th in zip(fam, _holm(ps), _holm(tosts)):
+        assert float(r["p_holm"]) == pytest.approx(ph, rel=1e-9)
+        assert float(r["tost_p_holm"]) == pytest.approx(th, rel=1e-9)
+        assert r["decision"] == (("ahead" if float(r["estimate"]) > 0 else "behind") if ph <= 0.05
+                                 else "equivalent" if th <= 0.05 else "not detected")
