@@ -228,3 +228,14 @@ def test_the_published_primary_family_is_the_welch_and_holm_of_the_published_row
         assert float(r["tost_p_holm"]) == pytest.approx(th, rel=1e-9)
         assert r["decision"] == (("ahead" if float(r["estimate"]) > 0 else "behind") if ph <= 0.05
                                  else "equivalent" if th <= 0.05 else "not detected")
+
+
+def test_the_report_draws_each_endpoints_contrasts_once_its_family_has_estimates(tmp_path):
+    rng = np.random.default_rng(3)
+    means = {("stationary", 0.02): (0, 50), ("p0.1s", 0.02): (60, 60), ("p0.2s", 0.02): (50, 55)}
+    thesis_ac.report(_rows(rng, means), tmp_path)
+    assert (tmp_path / thesis_ac.CELLS_CSV).is_file() and (tmp_path / thesis_ac.ENDPOINT_FIGURE).is_file()
+    assert not any((tmp_path / f).exists() for f, _ in thesis_ac.CONTRAST_FIGURES.values())  # no 2.5 ms cell
+    means.update({("stationary", 0.0025): (-40, 0), ("p0.1s", 0.0025): (60, 60), ("p0.2s", 0.0025): (55, 50)})
+    thesis_ac.report(_rows(rng, means), tmp_path)
+    assert all((tmp_path / f).stat().st_size > 0 for f, _ in thesis_ac.CONTRAST_FIGURES.values())

@@ -150,7 +150,10 @@ def _curve(point: pathlib.Path) -> tuple[np.ndarray, np.ndarray]:
     return (np.array([r["step"] * cfg["control_dt"] for r in m]), np.array([r["avg_reward"] / DELTA_0 for r in m]))
 
 
-LEARNING_FIGURE, ENDPOINT_FIGURE, CONTRAST_FIGURE = "learning_curves.png", "endpoints.png", "contrasts.png"
+LEARNING_FIGURE, ENDPOINT_FIGURE = "learning_curves.png", "endpoints.png"
+#: the contrasts' figure of each co-primary endpoint: its file and what the endpoint is called there
+CONTRAST_FIGURES = {"auc_reward_per_s": ("contrasts.png", "AUC"),
+                    "det_reward_per_s": ("contrasts_deterministic.png", "deterministic endpoint")}
 CELLS_CSV = "cells.csv"
 
 
@@ -167,7 +170,8 @@ def cell_summaries(rows: list[dict]) -> list[dict]:
 def report(rows: list[dict], dest: pathlib.Path) -> None:
     """``cells.csv`` (:func:`cell_summaries`), the learning curves with seed bands (one panel per
     control step, a line per arm), every ended run's deterministic endpoint with each cell's
-    interval, and the decided contrasts against their margins, from the published points alone."""
+    interval, and the decided contrasts of each co-primary endpoint against its margin
+    (:data:`CONTRAST_FIGURES`), from the published points alone."""
     from nmrl.analysis import cell_curves, contrast_figures
 
     summaries = cell_summaries(rows)
@@ -189,12 +193,13 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
     if det:
         contrast_figures.endpoints(det, dest / ENDPOINT_FIGURE, "deterministic reward per second",
                                    "every ended run, each cell's mean and 95% t interval")
-    table = [r for r in analysis(rows) if r.get("estimate", "") != "" and r["family"] != "check"
-             and r["endpoint"] == "auc_reward_per_s"]
-    if table:
-        contrast_figures.contrasts(table, ENDPOINTS["auc_reward_per_s"], dest / CONTRAST_FIGURE,
-                                   "difference of the AUC, reward per second (95% Welch interval)",
-                                   "the registered contrasts on the AUC (decisions: Holm over both endpoints)")
+    decided = [r for r in analysis(rows) if r.get("estimate", "") != "" and r["family"] != "check"]
+    for key, (path, what) in CONTRAST_FIGURES.items():
+        table = [r for r in decided if r["endpoint"] == key]
+        if table:
+            contrast_figures.contrasts(table, ENDPOINTS[key], dest / path,
+                                       f"difference of the {what}, reward per second (95% Welch interval)",
+                                       f"the registered contrasts on the {what} (decisions: Holm over both endpoints)")
 
 
 STUDY = kit.Study(name="thesis_ac", cells=CELLS, endpoint=ENDPOINT, analysis=analysis, report=report,
