@@ -374,3 +374,14 @@ def test_table_prints_the_published_analysis_as_markdown(tmp_path, capsys):
     with pytest.raises(SystemExit) as e:
         thesis_ac.main(["table", "--dest", str(tmp_path / "none")])
     assert e.value.code == 2 and str(tmp_path / "none") in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("steps, budget, diverged, final", [
+    (156_500, 156_250, False, True),  # the last chunk of 500 steps passes a budget that is no multiple of it
+    ("156500", "156250", "False", True),  # the same row read back from rows.csv
+    (156_000, 156_250, False, False),
+    (1_000, 156_250, "True", True),  # diverged: frozen at its last good policy
+    (1_000, "", "False", False),  # a budget in trials: not known from the row
+])
+def test_a_row_is_final_at_or_past_its_budget_or_diverged(steps, budget, diverged, final):
+    assert kit.ended({"steps": steps, "budget": budget, "diverged": diverged}) is final

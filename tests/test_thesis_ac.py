@@ -239,3 +239,25 @@ def test_the_report_draws_each_endpoints_contrasts_once_its_family_has_estimates
     means.update({("stationary", 0.0025): (-40, 0), ("p0.1s", 0.0025): (60, 60), ("p0.2s", 0.0025): (55, 50)})
     thesis_ac.report(_rows(rng, means), tmp_path)
     assert all((tmp_path / f).stat().st_size > 0 for f, _ in thesis_ac.CONTRAST_FIGURES.values())
+
+
+@pytest.mark.record
+def test_the_published_20_ms_cell_is_complete_though_its_last_chunk_passes_the_budget():
+    """Each point of the 20 ms cell ran 313 chunks of 500 steps (156,500 steps against the budget of
+    156,250: 3125 s per environment is 312.5 chunks of 10 s), and the cell counts as complete."""
+    rows = [r for r in _published("rows.csv") if r["cell"] == "grid/dt0.02"]
+    assert len(rows) == 24 and {(r["steps"], r["budget"]) for r in rows} == {("156500", "156250")}
+    by = thesis_ac.cells(rows, "det_reward_per_s")
+    assert sorted(by) == ["p0.1s@0.02", "p0.2s@0.02", "stationary@0.02"] and {len(v) for v in by.values()} == {8}
+
+
+@pytest.mark.record
+def test_a_points_secondary_measures_are_read_from_its_published_metrics():
+    """The last 10% of a 313-chunk run is its last 31 chunks; the reward per step over 20 ms is the
+    reward per second; the actor's norm is the last chunk's."""
+    point = REPO / "results" / "thesis_ac" / "grid" / "dt0.02" / "points" / "p0.1s_s0"
+    m = [json.loads(line) for line in (point / "metrics.jsonl").read_text().splitlines()]
+    assert len(m) == 313
+    got = thesis_ac.point_secondary(point)
+    assert got["last10_reward_per_s"] == pytest.approx(np.mean([r["avg_reward"] for r in m[-31:]]) / 0.02)
+    assert got["theta_norm"] == m[-1]["theta_norm"]

@@ -69,14 +69,10 @@ CELLS = (family_cell("nmp", 0.02), family_cell("white", 0.02), sigma_cell("white
          family_cell("white", 0.0025))
 
 
-def _ended(r: dict) -> bool:
-    return r["steps"] == r["budget"] or r["diverged"] == "True"
-
-
 def _cell_rows(rows: list[dict], name: str) -> list[dict] | None:
     """The rows of cell ``name`` once every point of it has ended, else None."""
     rs = [r for r in rows if r["cell"] == name]
-    return rs if rs and all(_ended(r) for r in rs) else None
+    return rs if rs and all(kit.ended(r) for r in rs) else None
 
 
 def walking(rs: list[dict]) -> int:

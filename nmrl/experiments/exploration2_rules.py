@@ -38,7 +38,7 @@ def diverged(r: dict) -> bool:
 def ended(r: dict) -> bool:
     """Whether a run's row is final: at its budget, or diverged (frozen at its last good policy),
     and scored."""
-    return (int(r["steps"]) == int(r["budget"]) or diverged(r)) and r["det_reward_per_s"] != ""
+    return kit.ended(r) and r["det_reward_per_s"] != ""
 
 
 def choose(rows: list[dict]) -> tuple[float, bool, list[float]] | None:

@@ -294,6 +294,15 @@ def rows(study: Study, out: pathlib.Path, cells: Sequence[Cell] | None = None) -
     return res
 
 
+def ended(r: dict) -> bool:
+    """Whether a point's row (as :func:`rows` builds it, or read back from ``rows.csv``) is final: its
+    step counter has reached its budget (the last chunk may pass it, where the budget is not a
+    multiple of the chunk), or it diverged and is frozen at its last good policy."""
+    if str(r["diverged"]) == "True":
+        return True
+    return r.get("budget") not in (None, "") and int(r["steps"]) >= int(r["budget"])
+
+
 def write_rows(study: Study, out: pathlib.Path) -> list[dict]:
     r = rows(study, out)
     out.mkdir(parents=True, exist_ok=True)

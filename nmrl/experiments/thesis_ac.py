@@ -51,10 +51,6 @@ def arm_of(point: str) -> str:
     return point.rsplit("_s", 1)[0]
 
 
-def ended(r: dict) -> bool:
-    return r["steps"] == r["budget"] or r["diverged"] == "True"
-
-
 def cells(rows: list[dict], key: str) -> dict[str, list[float]]:
     """Each complete grid or check cell's values of ``key`` by ``arm@dt`` (a cell counts once every
     point of it has ended: at its budget, or diverged and scored by its last good policy)."""
@@ -64,8 +60,8 @@ def cells(rows: list[dict], key: str) -> dict[str, list[float]]:
         if not r["cell"].startswith(("grid/", "check/")):
             continue
         k = _c(arm_of(r["point"]), float(r["control_dt"]))
-        complete[r["cell"]] = complete.get(r["cell"], True) and ended(r)
-        if ended(r) and r.get(key, "") != "":
+        complete[r["cell"]] = complete.get(r["cell"], True) and kit.ended(r)
+        if kit.ended(r) and r.get(key, "") != "":
             by.setdefault(k, []).append(float(r[key]))
     done = {_c(arm_of(r["point"]), float(r["control_dt"])) for r in rows if complete.get(r["cell"])}
     return {k: v for k, v in by.items() if k in done}
@@ -154,7 +150,43 @@ LEARNING_FIGURE, ENDPOINT_FIGURE = "learning_curves.png", "endpoints.png"
 #: the contrasts' figure of each co-primary endpoint: its file and what the endpoint is called there
 CONTRAST_FIGURES = {"auc_reward_per_s": ("contrasts.png", "AUC"),
                     "det_reward_per_s": ("contrasts_deterministic.png", "deterministic endpoint")}
-CELLS_CSV = "cells.csv"
+CELLS_CSV, SECONDARY_CSV = "cells.csv", "secondary.csv"
+#: the page's secondary measures: the exploring reward per second over the last 10% of the run's
+#: chunks, the deterministic forward speed [m/s], and the actor's parameter norm at the end
+SECONDARY = ("last10_reward_per_s", "det_forward_speed", "theta_norm")
+
+
+def point_secondary(point: pathlib.Path) -> dict[str, float]:
+    """A published point's secondary measures from its metrics (a diverged run's by its last finite
+    chunk): the mean exploring reward per second of its last round(n / 10) chunks and the actor's
+    norm at its last chunk."""
+    m = [r for r in store.read_metrics(point) if not r.get("diverged") and np.isfinite(r["theta_norm"])]
+    k = max(1, round(len(m) / 10))
+    return {"last10_reward_per_s": float(np.mean([r["avg_reward"] for r in m[-k:]])) / DELTA_0,
+            "theta_norm": float(m[-1]["theta_norm"])}
+
+
+def secondary(rows: list[dict], dest: pathlib.Path) -> list[dict]:
+    """``secondary.csv``: per complete grid cell and secondary measure its runs' summary
+    (``cell_curves.summary``) and how many diverged, then T1-T7 at 2.5 ms and at 5 ms on each measure
+    with its Welch interval (reported, deciding nothing)."""
+    from nmrl.analysis import cell_curves, prereg_stats
+
+    measured = []
+    for r in rows:
+        point = dest / r["cell"] / "points" / r["point"]
+        if r["cell"].startswith("grid/") and kit.ended(r) and (point / "metrics.jsonl").is_file():
+            measured.append({**r, **point_secondary(point)})
+    out = []
+    for key in SECONDARY:
+        for k, v in cells(measured, key).items():
+            n_div = sum(r["diverged"] == "True" for r in measured if _c(arm_of(r["point"]), float(r["control_dt"])) == k)
+            out.append({"table": "cell", "measure": key, "cell": k, **cell_curves.summary(v), "diverged": n_div})
+        for fine in (0.0025, 0.005):
+            for r in prereg_stats.contrast_rows(cells(measured, key), contrasts(fine), margin=1.0):
+                r.pop("tost_p", None)
+                out.append({"table": f"contrast at {fine * 1000:g} ms", "measure": key, **r})
+    return out
 
 
 def cell_summaries(rows: list[dict]) -> list[dict]:
@@ -168,14 +200,15 @@ def cell_summaries(rows: list[dict]) -> list[dict]:
 
 
 def report(rows: list[dict], dest: pathlib.Path) -> None:
-    """``cells.csv`` (:func:`cell_summaries`), the learning curves with seed bands (one panel per
+    """``cells.csv`` (:func:`cell_summaries`), ``secondary.csv`` (:func:`secondary`), the learning curves with seed bands (one panel per
     control step, a line per arm), every ended run's deterministic endpoint with each cell's
     interval, and the decided contrasts of each co-primary endpoint against its margin
     (:data:`CONTRAST_FIGURES`), from the published points alone."""
     from nmrl.analysis import cell_curves, contrast_figures
 
-    summaries = cell_summaries(rows)
-    store.write_csv(dest / CELLS_CSV, ["cell", "endpoint", *cell_curves.SUMMARY_COLUMNS], summaries)
+    store.write_csv(dest / CELLS_CSV, ["cell", "endpoint", *cell_curves.SUMMARY_COLUMNS], cell_summaries(rows))
+    table = secondary(rows, dest)
+    store.write_csv(dest / SECONDARY_CSV, list(dict.fromkeys(k for r in table for k in r)), table)
 
     curves: dict[str, dict[str, list]] = {}
     for r in rows:
@@ -187,7 +220,7 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
         cell_curves.figure(curves, dest / LEARNING_FIGURE, "exploring reward per second", "the grid")
     det: dict[str, dict[str, list[float]]] = {}
     for r in rows:
-        if r["cell"].startswith("grid/") and ended(r) and r.get("det_reward_per_s", "") != "":
+        if r["cell"].startswith("grid/") and kit.ended(r) and r.get("det_reward_per_s", "") != "":
             det.setdefault(f"control step {float(r['control_dt']) * 1000:g} ms", {}).setdefault(
                 arm_of(r["point"]), []).append(float(r["det_reward_per_s"]))
     if det:
