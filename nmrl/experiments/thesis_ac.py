@@ -80,6 +80,21 @@ def family(rows: list[dict], fine: float) -> list[dict]:
     return prereg_stats.decide(out)
 
 
+def verdict(fam: list[dict]) -> str:
+    """The page's reading of the decided primary family: "holds" when on one co-primary endpoint T1
+    has the stationary policy behind and T4 or T5 has the nm-periods ahead, and T6 and T7 show a loss
+    on neither endpoint; "fails" when on both endpoints T1 does not have the stationary policy behind
+    and neither T4 nor T5 has the nm-periods ahead; else "mixed" (reported contrast by contrast);
+    "pending" while the family is."""
+    if any(r["decision"] == "pending" for r in fam):
+        return "pending"
+    d = {(r["endpoint"], r["contrast"]): r["decision"] for r in fam}
+    loss = any(d[e, t] == "behind" for e in ENDPOINTS for t in ("T6", "T7"))
+    lead = {e: d[e, "T1"] == "behind" and "ahead" in (d[e, "T4"], d[e, "T5"]) for e in ENDPOINTS}
+    none = all(d[e, "T1"] != "behind" and "ahead" not in (d[e, "T4"], d[e, "T5"]) for e in ENDPOINTS)
+    return "holds" if any(lead.values()) and not loss else "fails" if none else "mixed"
+
+
 def check(rows: list[dict]) -> list[dict]:
     """The comparator's step-size check: each scaled stationary cell at 2.5 ms minus the grid's, on
     both endpoints, with its Welch interval (deciding nothing)."""
@@ -102,8 +117,11 @@ def check(rows: list[dict]) -> list[dict]:
 
 
 def analysis(rows: list[dict]) -> list[dict]:
-    """The primary family (2.5 ms), the secondary (5 ms) and the check, as ``analysis.csv``'s rows."""
-    return ([{"family": "primary", **r} for r in family(rows, 0.0025)]
+    """The primary family (2.5 ms) and its :func:`verdict`, the secondary (5 ms) and the check, as
+    ``analysis.csv``'s rows."""
+    primary = family(rows, 0.0025)
+    return ([{"family": "primary", **r} for r in primary]
+            + [{"family": "primary", "contrast": "the thesis", "decision": verdict(primary)}]
             + [{"family": "secondary", **r} for r in family(rows, 0.005)]
             + [{"family": "check", **r} for r in check(rows)])
 
