@@ -110,3 +110,58 @@ def test_the_family_waits_for_its_cells():
     rows = [_row("amendment/dt0.02/white", s, 100.0, 2.0) for s in range(8)]
     assert {r["decision"] for r in am.family(rows)} == {"pending"}
     assert math.isclose(am.WC_CLIP, 0.3 / math.sqrt(8))
+
+
+@pytest.mark.skipif(not (RECORD / "rows.csv").is_file(), reason="no published record of study 2")
+def test_a_run_that_repeats_the_grids_16_iterations_is_found_identical_and_one_that_does_not_is_named(tmp_path):
+    """continuation(): a run whose first 16 metrics rows are the grid's (its wall times aside, and
+    iterations past 16 ignored) is identical; one metric changed at iteration 5 is named with its
+    relative difference."""
+    grid = RECORD / "grid" / "dt0.02" / "nmp" / "points" / "s0"
+    lines = (grid / "metrics.jsonl").read_text().splitlines()
+    rows = [json.loads(line) for line in lines] + [{**json.loads(lines[-1]), "chunk": 17}]
+    for s, change in (("s0", None), ("s1", 1.001)):
+        src = RECORD / "grid" / "dt0.02" / "nmp" / "points" / s
+        mine = [json.loads(line) for line in (src / "metrics.jsonl").read_text().splitlines()] if s != "s0" else rows
+        mine = [{**r, "wall_s": r["wall_s"] + 1.0} for r in mine]
+        if change:
+            mine[4] = {**mine[4], "approx_kl": mine[4]["approx_kl"] * change}
+        d = tmp_path / "amendment" / "dt0.02" / "nmp" / "points" / s
+        d.mkdir(parents=True)
+        (d / "config.json").write_text((src / "config.json").read_text())
+        (d / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in mine))
+    got = {r["point"]: r for r in am.continuation(tmp_path)}
+    assert got["s0"]["identical"] and got["s0"]["max_rel_diff"] == 0.0 and got["s0"]["iterations"] == 16
+    assert not got["s1"]["identical"] and got["s1"]["first_difference"] == "approx_kl at iteration 5"
+    assert got["s1"]["max_rel_diff"] == pytest.approx(0.001 / 1.001)
+
+
+def test_the_gaits_are_the_best_and_worst_2_5_ms_arms_median_runs():
+    """Among W, Wc and NMp at 2.5 ms (NMp only when the rule runs it), the highest and the lowest
+    cell mean; each arm's run is its lower median; nothing until every one of them has ended."""
+    dets = {"white": [10, 40, 20, 30, 50, 60, 70, 80], "wc": [1, 2, 3, 4, 5, 6, 7, 8],
+            "nmp": [100, 300, 200, 400, 500, 600, 700, 800]}
+    rows = [_row(f"amendment/dt0.0025/{a}", s, v, 2.0) for a, vs in dets.items() for s, v in enumerate(vs)]
+    walks = [_row("amendment/dt0.02/nmp", s, 100.0, 1.5) for s in range(8)]
+    stands = [_row("amendment/dt0.02/nmp", s, 100.0, 0.2) for s in range(8)]
+    assert am.gait_picks(rows) is None  # NMp(20) has not ended: whether NMp(2.5) runs is not known
+    best, worst = am.gait_picks(rows + walks)
+    assert (best["arm"], best["point"], best["cell_mean"]) == ("nmp", "s3", 450.0)  # 400: the lower of 400, 500
+    assert (worst["arm"], worst["point"]) == ("wc", "s3")
+    best, worst = am.gait_picks([r for r in rows if "nmp" not in r["cell"]] + stands)
+    assert (best["arm"], best["point"]) == ("white", "s1") and worst["arm"] == "wc"  # 40: the lower of 40, 50
+    assert am.gait_picks([r for r in rows if "/wc" not in r["cell"]] + walks) is None  # Wc(2.5) not run yet
+
+
+def test_the_report_writes_its_tables_and_draws_once_cells_have_ended(tmp_path):
+    rng = np.random.default_rng(4)
+    rows = [_row(c, s, m + 30 * rng.standard_normal(), 2.0) for c, m in
+            (("amendment/dt0.02/white", 100.0), ("amendment/dt0.02/nmp", 60.0)) for s in range(8)]
+    am.report(rows, tmp_path)
+    with open(tmp_path / am.CELLS_CSV, newline="") as fh:
+        cells = {r["cell"]: r for r in csv.DictReader(fh)}
+    white = np.array([float(r["det_reward_per_s"]) for r in rows if r["cell"] == "amendment/dt0.02/white"])
+    assert float(cells["amendment/dt0.02/white"]["mean"]) == pytest.approx(white.mean())
+    assert cells["amendment/dt0.02/white"]["walking"] == "8"
+    assert (tmp_path / am.ENDPOINT_FIGURE).is_file() and (tmp_path / am.CONTRAST_FIGURE).is_file()  # A3 has its estimate
+    assert (tmp_path / am.CONTINUATION_CSV).is_file() and not (tmp_path / am.LEARNING_FIGURE).exists()  # no points

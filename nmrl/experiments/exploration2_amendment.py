@@ -19,13 +19,17 @@ over the same; the sigma check reported with Welch intervals, deciding nothing.
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
+import pathlib
 import sys
 
 import numpy as np
 
-from nmrl.experiments import kit, kit_cli
+from nmrl.experiments import kit, kit_cli, kit_gaits
 from nmrl.experiments.exploration2_cells import ARMS, ENDPOINT, GRID_SEEDS, cell, grid_cell
+from nmrl.paper.control_step import DELTA_0
+from nmrl.runs import store
 
 ITERATIONS = 32  #: twice the grid's 16
 #: each arm's grid settings at each control step (the screen's choices; tests check them against
@@ -145,7 +149,129 @@ def analysis(rows: list[dict]) -> list[dict]:
     return [{"family": "amendment", **r} for r in family(rows)] + [{"family": "check", **r} for r in sigma_check(rows)]
 
 
-STUDY = kit.Study(name="exploration2_amendment", cells=CELLS, endpoint=ENDPOINT, later=later, analysis=analysis)
+#: the first edition's published runs, whose first 16 iterations each family cell's runs repeat
+RECORD = pathlib.Path(__file__).resolve().parents[2] / "results" / "exploration2" / "runs"
+GRID_ITERATIONS = 16
+#: a metrics row's keys that time the run rather than compute it (not compared)
+TIMING = ("wall_s", "steps_per_s")
+FAMILY_CELLS = {_name(arm, dt): (arm, dt) for arm in ("white", "nmp") for dt in (0.02, 0.0025)}
+
+
+def continuation(dest: pathlib.Path, record: pathlib.Path = RECORD) -> list[dict]:
+    """The page's check that each family cell's run repeats the grid's: per published point with at
+    least :data:`GRID_ITERATIONS` iterations, its first 16 metrics rows against the same seed's in
+    the first edition's grid (every key but :data:`TIMING`), whether they are identical, the largest
+    relative difference and the first key that differs."""
+    out = []
+    for name, (arm, dt) in FAMILY_CELLS.items():
+        for point in kit.point_dirs(dest / name):
+            mine = store.read_metrics(point)[:GRID_ITERATIONS]
+            theirs_path = record / "grid" / f"dt{dt:g}" / arm / "points" / point.name
+            if len(mine) < GRID_ITERATIONS or not (theirs_path / "metrics.jsonl").is_file():
+                continue
+            theirs = store.read_metrics(theirs_path)[:GRID_ITERATIONS]
+            worst, first = 0.0, ""
+            for a, b in zip(mine, theirs):
+                for k in sorted(set(a) | set(b)):
+                    if k in TIMING or a.get(k) == b.get(k):
+                        continue
+                    first = first or f"{k} at iteration {a.get('chunk')}"
+                    x, y = a.get(k), b.get(k)
+                    num = isinstance(x, (int, float)) and isinstance(y, (int, float))
+                    worst = max(worst, abs(x - y) / max(abs(x), abs(y)) if num else math.inf)
+            out.append({"cell": name, "point": point.name, "iterations": len(theirs), "identical": first == "",
+                        "max_rel_diff": worst, "first_difference": first})
+    return out
+
+
+def _curve(point: pathlib.Path) -> tuple[np.ndarray, np.ndarray]:
+    cfg = json.loads((point / "config.json").read_text())
+    m = store.read_metrics(point)
+    return (np.array([r["step"] * cfg["control_dt"] for r in m]), np.array([r["avg_reward"] / DELTA_0 for r in m]))
+
+
+CONTINUATION_CSV, CELLS_CSV = "continuation.csv", "cells.csv"
+LEARNING_FIGURE, ENDPOINT_FIGURE, CONTRAST_FIGURE = "learning_curves.png", "endpoints.png", "contrasts.png"
+
+
+def _label(cell_name: str) -> tuple[str, str]:
+    """(panel, line) of an amendment cell: ``amendment/dt0.0025/wc`` -> control step 2.5 ms, wc."""
+    _, dt, arm = cell_name.split("/")
+    return f"control step {float(dt[2:]) * 1000:g} ms", arm
+
+
+def report(rows: list[dict], dest: pathlib.Path) -> None:
+    """``continuation.csv`` (:func:`continuation`); ``cells.csv``: per ended family cell and Wc(2.5),
+    its runs' deterministic endpoint (``cell_curves.summary``) and how many walk; the learning curves
+    over 32 iterations (a panel per control step, a line per arm, seed bands); every ended run's
+    deterministic endpoint with its cell's interval; the family against its margin once it has
+    estimates; all from the published points alone."""
+    from nmrl.analysis import cell_curves, contrast_figures
+
+    store.write_csv(dest / CONTINUATION_CSV, ("cell", "point", "iterations", "identical", "max_rel_diff",
+                                              "first_difference"), continuation(dest))
+    names = [*FAMILY_CELLS, _name("wc", 0.0025)]
+    summaries, curves, det = [], {}, {}
+    for name in names:
+        for p in kit.point_dirs(dest / name):
+            if (p / "metrics.jsonl").is_file():
+                panel, arm = _label(name)
+                curves.setdefault(panel, {}).setdefault(arm, []).append(_curve(p))
+        rs = _cell_rows(rows, name)
+        if rs is not None:
+            x = [float(r["det_reward_per_s"]) for r in rs]
+            summaries.append({"cell": name, **cell_curves.summary(x), "walking": walking(rs)})
+            panel, arm = _label(name)
+            det.setdefault(panel, {})[arm] = x
+    store.write_csv(dest / CELLS_CSV, ("cell", *cell_curves.SUMMARY_COLUMNS, "walking"), summaries)
+    if curves:
+        cell_curves.figure(curves, dest / LEARNING_FIGURE, "exploring reward per second",
+                           f"amendment A: {ITERATIONS} PPO iterations")
+    if det:
+        contrast_figures.endpoints(det, dest / ENDPOINT_FIGURE, "deterministic reward per second",
+                                   "every ended run, each cell's mean and 95% t interval")
+    table = [r for r in family(rows) if r.get("estimate", "") != ""]
+    if table:
+        contrast_figures.contrasts(table, MARGIN, dest / CONTRAST_FIGURE,
+                                   "difference of the deterministic endpoint, reward per second (95% Welch interval)",
+                                   "amendment A's family")
+
+
+GAIT_DT = 0.0025
+
+
+def gait_picks(rows: list[dict]) -> list[dict] | None:
+    """The best and the worst arm at 2.5 ms by their cell's mean deterministic endpoint, among the
+    2.5 ms cells that run (W, Wc and, when the rule runs it, NMp), each its median run
+    (``kit_gaits.median_run``); None until every one of them has ended."""
+    nmp20 = _cell_rows(rows, _name("nmp", 0.02))
+    if nmp20 is None:
+        return None
+    arms = ["white", "wc"] + (["nmp"] if walking(nmp20) >= WALK_RULE else [])
+    ended = {a: _cell_rows(rows, _name(a, GAIT_DT)) for a in arms}
+    if any(rs is None for rs in ended.values()):
+        return None
+    means = {a: float(np.mean([float(r["det_reward_per_s"]) for r in rs])) for a, rs in ended.items()}
+    order = sorted(arms, key=lambda a: means[a])
+    out = []
+    for rank, arm in (("best", order[-1]), ("worst", order[0])):
+        r = kit_gaits.median_run(ended[arm])
+        out.append({"name": f"{rank}_{arm}", "rank": rank, "arm": arm, "cell": _name(arm, GAIT_DT),
+                    "point": r["point"], "seed": int(r["seed"]), "det_reward_per_s": float(r["det_reward_per_s"]),
+                    "cell_mean": means[arm]})
+    return out
+
+
+def gaits(out: pathlib.Path, rows: list[dict]) -> None:
+    """The gaits of :func:`gait_picks` (nmrl/experiments/kit_gaits.py), once they are known."""
+    picks = gait_picks(rows)
+    if picks is not None:
+        kit_gaits.draw(out, picks, lambda c: f"{c['arm']} at 2.5 ms, {ITERATIONS} iterations (the {c['rank']} arm), "
+                                             f"seed {c['seed']}, deterministic policy")
+
+
+STUDY = kit.Study(name="exploration2_amendment", cells=CELLS, endpoint=ENDPOINT, later=later, analysis=analysis,
+                  report=report, measurements=(kit.Measurement(kit_gaits.GAITS, gaits),))
 
 
 def main(argv: list[str] | None = None) -> int:
