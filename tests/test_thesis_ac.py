@@ -285,3 +285,68 @@ def test_the_thesis_waits_for_its_family():
     fam = _decided({}, {})
     fam[3]["decision"] = "pending"
     assert thesis_ac.verdict(fam) == "pending"
+
+
+def _p(x: float) -> str:
+    """A p-value as the page writes it: 1.0 from 0.9995, two significant digits, below 0.001 as a·10⁻ⁿ."""
+    if x >= 0.9995:
+        return "1.0"
+    if x >= 0.001:
+        return f"{x:.2g}"
+    m, e = f"{x:.1e}".split("e")
+    return f"{m}·10" + str(int(e)).translate(str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹"))
+
+
+@pytest.mark.record
+def test_the_pages_primary_table_and_the_readme_are_the_published_rows():
+    """The Results table of the page, every row recomputed from rows.csv by hand (Welch, TOST,
+    Holm over the 14; the bootstrap interval is analysis.csv's, checked against scipy elsewhere),
+    the cells' means and SDs, and the README's numbers."""
+    from tests.doc_numbers import n, table_row
+
+    rows = _published("rows.csv")
+    if len([r for r in rows if r["cell"] == "grid/dt0.0025" and r["det_reward_per_s"]]) < 24:
+        pytest.skip("the 2.5 ms cell is not published in full")
+    fam = {(r["endpoint"], r["contrast"]): r for r in _published("analysis.csv") if r["family"] == "primary"}
+
+    def x(key, arm, dt):
+        return np.array([float(r[key]) for r in rows if r["cell"] == f"grid/dt{dt:g}"
+                         and r["point"].rsplit("_s", 1)[0] == arm])
+
+    s, a, b = "stationary", "p0.1s", "p0.2s"
+    written = {"T1": [(s, .0025, 1), (s, .02, -1)], "T2": [(a, .0025, 1), (s, .0025, -1)],
+               "T3": [(b, .0025, 1), (s, .0025, -1)],
+               "T4": [(a, .0025, 1), (s, .0025, -1), (a, .02, -1), (s, .02, 1)],
+               "T5": [(b, .0025, 1), (s, .0025, -1), (b, .02, -1), (s, .02, 1)],
+               "T6": [(a, .0025, 1), (a, .02, -1)], "T7": [(b, .0025, 1), (b, .02, -1)]}
+    margins = {"auc_reward_per_s": 25.0, "det_reward_per_s": 50.0}
+    keys = [(e, t) for e in margins for t in written]
+    res = {k: _welch_contrast([x(k[0], arm, dt) for arm, dt, _ in written[k[1]]], [w for *_, w in written[k[1]]],
+                              margins[k[0]]) for k in keys}
+    holm = dict(zip(keys, _holm([res[k][3] for k in keys])))
+    tost = dict(zip(keys, _holm([res[k][4] for k in keys])))
+    doc, readme = _doc(), (REPO / "README.md").read_text()
+    for e, t in keys:
+        d, lo, hi, p, tp = res[e, t]
+        cells = table_row(doc, f"{t} ({'AUC' if e == 'auc_reward_per_s' else 'det.'})")
+        boot = fam[e, t]
+        assert cells[2:8] == [f"{n(d, True)} [{n(lo)}, {n(hi)}]",
+                              f"[{n(float(boot['boot_lo']))}, {n(float(boot['boot_hi']))}]",
+                              _p(p), _p(holm[e, t]), f"{_p(tp)} ({_p(tost[e, t])})", boot["decision"]]
+    assert fam["", "the thesis"]["decision"] == "fails"
+    for arm in (s, a, b):
+        for key in margins:
+            for dt in (0.02, 0.0025):
+                v = x(key, arm, dt)
+                assert_numbers(doc, [n(v.mean()), n(v.std(ddof=1))], window=20)
+    d, lo, hi, *_ = res["auc_reward_per_s", "T1"]
+    assert_numbers(readme, [n(d, True), n(lo), n(hi), _p(holm["auc_reward_per_s", "T1"])], label="on the AUC it gains")
+    d, lo, hi, *_ = res["det_reward_per_s", "T1"]
+    assert_numbers(readme, [n(d, True), n(lo), n(hi)], label="deterministic endpoint is not detected")
+    for t in ("T4", "T5"):
+        d, lo, hi, *_ = res["auc_reward_per_s", t]
+        assert_numbers(readme, [n(-d), n(-hi), n(-lo)], label="falls by", window=120)
+    speeds = [float(r["det_forward_speed"]) for r in rows if r["cell"] == "grid/dt0.0025"]
+    assert_numbers(doc, [f"{min(speeds):.2f}", f"{max(speeds):.2f}"], label="Every run at 2.5 ms walks")
+    walking = sum(float(r["det_forward_speed"]) >= 1.0 for r in rows if r["cell"] in ("grid/dt0.02", "grid/dt0.0025"))
+    assert_numbers(readme, [str(walking), "48"], label="10⁵ simulated seconds per run")
