@@ -143,4 +143,4 @@ def test_every_published_cell_is_the_sweep_its_sweep_json_holds():
             budget = {k: options.value(saved.base, k) for k in ("steps", "trials")}
             assert dataclasses.replace(new, base=options.replace(new.base, **budget)) == saved, (study, name)
             n += 1
-    assert n == 71
+    assert n >= 71  # the cells of the finished studies and study 3's first two; each cell a running study starts adds one
