@@ -12,7 +12,7 @@ import pytest
 from scipy import stats
 
 from nmrl.analysis import cell_curves
-from nmrl.experiments import exploration2_analysis
+from nmrl.experiments import exploration2_analysis, kit
 
 
 def test_a_cells_summary_is_the_t_interval_and_rliables_iqm():
@@ -80,7 +80,7 @@ def test_the_report_tabulates_every_cell_at_its_budget_and_draws_the_curves(tmp_
     assert (screen["diverged"], grid["diverged"]) == ("0", "1")
     assert (tmp_path / exploration2_analysis.SCREEN_FIGURE).stat().st_size > 0
     assert (tmp_path / exploration2_analysis.GRID_FIGURE).stat().st_size > 0
-    t, y = exploration2_analysis._curve(tmp_path / "screen/sigma/dt0.02/white/points/sigma0.4_s100")
+    t, y = kit.learning_curve(tmp_path / "screen/sigma/dt0.02/white/points/sigma0.4_s100")
     assert np.allclose(t, [102.4, 204.8]) and np.allclose(y, [-50.0, -25.0])  # per second: r / 0.02 s
 
 

@@ -189,6 +189,22 @@ def _welch_contrast(samples, weights, margin):
     return d, d - h, d + h, 2 * scipy.stats.t.sf(abs(d) / se, dof), tost
 
 
+#: the page's contrasts T1-T7 written out again: (arm, control step, weight) per cell
+_S, _A, _B = "stationary", "p0.1s", "p0.2s"
+_WRITTEN = {"T1": [(_S, .0025, 1), (_S, .02, -1)], "T2": [(_A, .0025, 1), (_S, .0025, -1)],
+            "T3": [(_B, .0025, 1), (_S, .0025, -1)],
+            "T4": [(_A, .0025, 1), (_S, .0025, -1), (_A, .02, -1), (_S, .02, 1)],
+            "T5": [(_B, .0025, 1), (_S, .0025, -1), (_B, .02, -1), (_S, .02, 1)],
+            "T6": [(_A, .0025, 1), (_A, .02, -1)], "T7": [(_B, .0025, 1), (_B, .02, -1)]}
+_MARGINS = {"auc_reward_per_s": 25.0, "det_reward_per_s": 50.0}  #: the page's TOST margins
+
+
+def _runs(rows: list[dict], key: str, arm: str, dt: float) -> np.ndarray:
+    """The values of ``key`` of ``arm``'s runs in the grid cell at ``dt``."""
+    return np.array([float(r[key]) for r in rows if r["cell"] == f"grid/dt{dt:g}"
+                     and r["point"].rsplit("_s", 1)[0] == arm])
+
+
 @pytest.mark.record
 def test_the_published_primary_family_is_the_welch_and_holm_of_the_published_rows():
     """analysis.csv's primary family recomputed from rows.csv alone: each of T1-T7 on both endpoints
@@ -200,17 +216,11 @@ def test_the_published_primary_family_is_the_welch_and_holm_of_the_published_row
     rows = _published("rows.csv")
 
     def x(key, arm, dt):
-        return np.array([float(r[key]) for r in rows if r["cell"] == f"grid/dt{dt:g}"
-                         and r["point"].rsplit("_s", 1)[0] == arm])
+        return _runs(rows, key, arm, dt)
 
-    s, a, b = "stationary", "p0.1s", "p0.2s"
-    written = {"T1": [(s, .0025, 1), (s, .02, -1)], "T2": [(a, .0025, 1), (s, .0025, -1)],
-               "T3": [(b, .0025, 1), (s, .0025, -1)],
-               "T4": [(a, .0025, 1), (s, .0025, -1), (a, .02, -1), (s, .02, 1)],
-               "T5": [(b, .0025, 1), (s, .0025, -1), (b, .02, -1), (s, .02, 1)],
-               "T6": [(a, .0025, 1), (a, .02, -1)], "T7": [(b, .0025, 1), (b, .02, -1)]}
+    written = _WRITTEN
     assert sorted({r["contrast"] for r in fam}) == sorted(written) and len(fam) == 14
-    margins = {"auc_reward_per_s": 25.0, "det_reward_per_s": 50.0}  # the page's TOST margins
+    margins = _MARGINS
     ps, tosts = [], []
     for r in fam:
         cells = written[r["contrast"]]
@@ -310,16 +320,10 @@ def test_the_pages_primary_table_and_the_readme_are_the_published_rows():
     fam = {(r["endpoint"], r["contrast"]): r for r in _published("analysis.csv") if r["family"] == "primary"}
 
     def x(key, arm, dt):
-        return np.array([float(r[key]) for r in rows if r["cell"] == f"grid/dt{dt:g}"
-                         and r["point"].rsplit("_s", 1)[0] == arm])
+        return _runs(rows, key, arm, dt)
 
-    s, a, b = "stationary", "p0.1s", "p0.2s"
-    written = {"T1": [(s, .0025, 1), (s, .02, -1)], "T2": [(a, .0025, 1), (s, .0025, -1)],
-               "T3": [(b, .0025, 1), (s, .0025, -1)],
-               "T4": [(a, .0025, 1), (s, .0025, -1), (a, .02, -1), (s, .02, 1)],
-               "T5": [(b, .0025, 1), (s, .0025, -1), (b, .02, -1), (s, .02, 1)],
-               "T6": [(a, .0025, 1), (a, .02, -1)], "T7": [(b, .0025, 1), (b, .02, -1)]}
-    margins = {"auc_reward_per_s": 25.0, "det_reward_per_s": 50.0}
+    written = _WRITTEN
+    margins = _MARGINS
     keys = [(e, t) for e in margins for t in written]
     res = {k: _welch_contrast([x(k[0], arm, dt) for arm, dt, _ in written[k[1]]], [w for *_, w in written[k[1]]],
                               margins[k[0]]) for k in keys}
@@ -334,7 +338,7 @@ def test_the_pages_primary_table_and_the_readme_are_the_published_rows():
                               f"[{n(float(boot['boot_lo']))}, {n(float(boot['boot_hi']))}]",
                               _p(p), _p(holm[e, t]), f"{_p(tp)} ({_p(tost[e, t])})", boot["decision"]]
     assert fam["", "the thesis"]["decision"] == "fails"
-    for arm in (s, a, b):
+    for arm in (_S, _A, _B):
         for key in margins:
             for dt in (0.02, 0.0025):
                 v = x(key, arm, dt)

@@ -19,7 +19,6 @@ over the same; the sigma check reported with Welch intervals, deciding nothing.
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import pathlib
 import sys
@@ -28,7 +27,6 @@ import numpy as np
 
 from nmrl.experiments import kit, kit_cli, kit_gaits
 from nmrl.experiments.exploration2_cells import ARMS, ENDPOINT, GRID_SEEDS, cell, grid_cell
-from nmrl.paper.control_step import DELTA_0
 from nmrl.runs import store
 
 ITERATIONS = 32  #: twice the grid's 16
@@ -184,10 +182,6 @@ def continuation(dest: pathlib.Path, record: pathlib.Path = RECORD) -> list[dict
     return out
 
 
-def _curve(point: pathlib.Path) -> tuple[np.ndarray, np.ndarray]:
-    cfg = json.loads((point / "config.json").read_text())
-    m = store.read_metrics(point)
-    return (np.array([r["step"] * cfg["control_dt"] for r in m]), np.array([r["avg_reward"] / DELTA_0 for r in m]))
 
 
 CONTINUATION_CSV, CELLS_CSV = "continuation.csv", "cells.csv"
@@ -216,7 +210,7 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
         for p in kit.point_dirs(dest / name):
             if (p / "metrics.jsonl").is_file():
                 panel, arm = _label(name)
-                curves.setdefault(panel, {}).setdefault(arm, []).append(_curve(p))
+                curves.setdefault(panel, {}).setdefault(arm, []).append(kit.learning_curve(p))
         rs = _cell_rows(rows, name)
         if rs is not None:
             x = [float(r["det_reward_per_s"]) for r in rs]

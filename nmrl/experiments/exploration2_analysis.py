@@ -16,13 +16,13 @@ import pathlib
 
 import numpy as np
 
+from nmrl.experiments import kit
 from nmrl.experiments.exploration2_cells import (ARM_COLORS, ARM_ORDER, SNR_CSV, arm_and_dt, asymptote_name,
                                                  grid_name)
 from nmrl.experiments.exploration2_noise import NOISE_CSV
 from nmrl.experiments.exploration2_noise import figure as noise_figure
 from nmrl.experiments.exploration2_rules import (CHOICE_COLUMNS, best_correlated, choices, complete_cells, diverged,
                                                 ended)
-from nmrl.paper.control_step import DELTA_0
 from nmrl.runs import store
 
 MARGIN = 50.0  #: the TOST margin of "no difference" [reward/s]
@@ -161,14 +161,6 @@ ENDPOINT_FIGURE, CONTRAST_FIGURE, SPEED_FIGURE = "endpoints.png", "contrasts.png
 ASYMPTOTE_FIGURE, SENSITIVITY_FIGURE = "asymptote_curves.png", "sensitivity.png"
 
 
-def _curve(point: pathlib.Path) -> tuple[np.ndarray, np.ndarray]:
-    """A point's learning curve: simulated seconds per environment, exploring reward per second."""
-    cfg = json.loads((point / "config.json").read_text())
-    m = store.read_metrics(point)
-    return (np.array([r["step"] * cfg["control_dt"] for r in m]),
-            np.array([r["avg_reward"] / DELTA_0 for r in m]))
-
-
 def report(rows: list[dict], dest: pathlib.Path) -> None:
     """``choices.csv`` (what the screen has decided so far: exploration2_rules.choices),
     ``cells.csv`` (every cell's and screened value's deterministic endpoint over its ended runs, a
@@ -206,12 +198,12 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
         if r["cell"].startswith("screen/"):
             field = r["field"].replace("_", " ")
             screen.setdefault(base_name.removeprefix("screen/"), {}).setdefault(f"{field} {key[1]}", []).append(
-                _curve(point))
+                kit.learning_curve(point))
         elif r["cell"].startswith("grid/"):
             arm, dt = arm_and_dt(r["cell"])
-            grid.setdefault(dt, {}).setdefault(arm, []).append(_curve(point))
+            grid.setdefault(dt, {}).setdefault(arm, []).append(kit.learning_curve(point))
         elif r["cell"].startswith("asymptote/"):
-            asymptote.setdefault(arm_and_dt(r["cell"])[0], []).append(_curve(point))
+            asymptote.setdefault(arm_and_dt(r["cell"])[0], []).append(kit.learning_curve(point))
     store.write_csv(dest / CHOICES_CSV, CHOICE_COLUMNS, choices(rows))
     store.write_csv(dest / CELLS_CSV, ("cell", "value", *cell_curves.SUMMARY_COLUMNS, "diverged"),
                    [{"cell": c, "value": v, **cell_curves.summary(x), "diverged": n_diverged[c, v]}

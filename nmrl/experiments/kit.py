@@ -294,6 +294,16 @@ def rows(study: Study, out: pathlib.Path, cells: Sequence[Cell] | None = None) -
     return res
 
 
+def learning_curve(point: pathlib.Path) -> tuple[Any, Any]:
+    """A point's learning curve from its metrics: simulated seconds per environment, and the
+    exploring reward per second of each chunk."""
+    import numpy as np
+
+    dt = json.loads((point / "config.json").read_text())["control_dt"]
+    m = store.read_metrics(point)
+    return np.array([r["step"] * dt for r in m]), np.array([r["avg_reward"] / DELTA_0 for r in m])
+
+
 def ended(r: dict) -> bool:
     """Whether a point's row (as :func:`rows` builds it, or read back from ``rows.csv``) is final: its
     step counter has reached its budget (the last chunk may pass it, where the budget is not a

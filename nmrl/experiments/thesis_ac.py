@@ -15,7 +15,6 @@ check reported with Welch intervals, deciding nothing.
 
 from __future__ import annotations
 
-import json
 import pathlib
 import sys
 
@@ -157,11 +156,6 @@ def gaits(out: pathlib.Path, rows: list[dict]) -> None:
                                              f" at 2.5 ms, seed {c['seed']}, deterministic policy")
 
 
-def _curve(point: pathlib.Path) -> tuple[np.ndarray, np.ndarray]:
-    """A point's learning curve: simulated seconds per environment, exploring reward per second."""
-    cfg = json.loads((point / "config.json").read_text())
-    m = store.read_metrics(point)
-    return (np.array([r["step"] * cfg["control_dt"] for r in m]), np.array([r["avg_reward"] / DELTA_0 for r in m]))
 
 
 LEARNING_FIGURE, ENDPOINT_FIGURE = "learning_curves.png", "endpoints.png"
@@ -233,7 +227,7 @@ def report(rows: list[dict], dest: pathlib.Path) -> None:
         point = dest / r["cell"] / "points" / r["point"]
         if r["cell"].startswith("grid/") and (point / "metrics.jsonl").is_file():
             panel = f"control step {float(r['control_dt']) * 1000:g} ms"
-            curves.setdefault(panel, {}).setdefault(arm_of(r["point"]), []).append(_curve(point))
+            curves.setdefault(panel, {}).setdefault(arm_of(r["point"]), []).append(kit.learning_curve(point))
     if curves:
         cell_curves.figure(curves, dest / LEARNING_FIGURE, "exploring reward per second", "the grid")
     det: dict[str, dict[str, list[float]]] = {}
