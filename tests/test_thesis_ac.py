@@ -297,6 +297,30 @@ def test_the_thesis_waits_for_its_family():
     assert thesis_ac.verdict(fam) == "pending"
 
 
+def _checked(auc: tuple[float, float], det: tuple[float, float]) -> list[dict]:
+    """Check rows with the given estimates (x3, x1/3) on each endpoint."""
+    return [{"endpoint": e, "contrast": f"step sizes x{f}", "estimate": v, "decision": "reported"}
+            for e, vs in (("auc_reward_per_s", auc), ("det_reward_per_s", det)) for f, v in zip((3, 0.333), vs)]
+
+
+@pytest.mark.parametrize("auc, det, reading", [
+    ((24.9, -80.0), (49.9, 10.0), "unconditional"),  # within both margins (+25 AUC, +50 det.)
+    ((25.1, -80.0), (0.0, 0.0), "conditional"),  # x3 beats by more than the AUC's margin
+    ((0.0, 0.0), (-10.0, 50.5), "conditional"),  # x1/3 beats by more than the deterministic margin
+    ((-90.0, -60.0), (-120.0, -51.0), "unconditional"),  # worse by more than the margin does not count
+])
+def test_the_step_size_check_is_read_as_the_page_words_it(auc, det, reading):
+    assert thesis_ac.step_size_reading(_checked(auc, det)) == reading
+
+
+def test_the_step_size_reading_waits_for_the_check_and_is_a_row_of_the_analysis():
+    rows = _checked((0.0, 0.0), (0.0, 0.0))
+    rows[1] = {**rows[1], "estimate": "", "decision": "pending"}
+    assert thesis_ac.step_size_reading(rows) == "pending"
+    out = thesis_ac.analysis([])
+    assert [r["decision"] for r in out if r["contrast"] == thesis_ac.STEP_SIZE_ROW] == ["pending"]
+
+
 def _p(x: float) -> str:
     """A p-value as the page writes it: 1.0 from 0.9995, two significant digits, below 0.001 as a·10⁻ⁿ."""
     if x >= 0.9995:

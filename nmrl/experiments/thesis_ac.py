@@ -115,14 +115,29 @@ def check(rows: list[dict]) -> list[dict]:
     return out
 
 
+#: the row of ``analysis.csv`` that carries :func:`step_size_reading`
+STEP_SIZE_ROW = "T1-T5 on the paper's step size"
+
+
+def step_size_reading(checked: list[dict]) -> str:
+    """The page's reading of the step-size check: "conditional" (T1-T5 are stated as conditional on
+    the paper's step size) when a scaled cell's estimate lies above the endpoint's margin on either
+    endpoint, the cautious reading of "beats by more than the margin" (4 runs against 8 detect
+    little); "unconditional" when none does; "pending" while a check cell is."""
+    if any(r["decision"] == "pending" for r in checked):
+        return "pending"
+    return "conditional" if any(float(r["estimate"]) > ENDPOINTS[r["endpoint"]] for r in checked) else "unconditional"
+
+
 def analysis(rows: list[dict]) -> list[dict]:
-    """The primary family (2.5 ms) and its :func:`verdict`, the secondary (5 ms) and the check, as
-    ``analysis.csv``'s rows."""
-    primary = family(rows, 0.0025)
+    """The primary family (2.5 ms) and its :func:`verdict`, the secondary (5 ms), the check and its
+    :func:`step_size_reading`, as ``analysis.csv``'s rows."""
+    primary, checked = family(rows, 0.0025), check(rows)
     return ([{"family": "primary", **r} for r in primary]
             + [{"family": "primary", "contrast": "the thesis", "decision": verdict(primary)}]
             + [{"family": "secondary", **r} for r in family(rows, 0.005)]
-            + [{"family": "check", **r} for r in check(rows)])
+            + [{"family": "check", **r} for r in checked]
+            + [{"family": "check", "contrast": STEP_SIZE_ROW, "decision": step_size_reading(checked)}])
 
 
 #: the control step whose gaits are drawn, and the arms it draws: the stationary policy and the
