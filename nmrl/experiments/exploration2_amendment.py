@@ -247,13 +247,8 @@ def gait_picks(rows: list[dict]) -> list[dict] | None:
         return None
     means = {a: float(np.mean([float(r["det_reward_per_s"]) for r in rs])) for a, rs in ended.items()}
     order = sorted(arms, key=lambda a: means[a])
-    out = []
-    for rank, arm in (("best", order[-1]), ("worst", order[0])):
-        r = kit_gaits.median_run(ended[arm])
-        out.append({"name": f"{rank}_{arm}", "rank": rank, "arm": arm, "cell": _name(arm, GAIT_DT),
-                    "point": r["point"], "seed": int(r["seed"]), "det_reward_per_s": float(r["det_reward_per_s"]),
-                    "cell_mean": means[arm]})
-    return out
+    return [kit_gaits.pick(ended[arm], name=f"{rank}_{arm}", rank=rank, arm=arm, cell=_name(arm, GAIT_DT),
+                           cell_mean=means[arm]) for rank, arm in (("best", order[-1]), ("worst", order[0]))]
 
 
 def gaits(out: pathlib.Path, rows: list[dict]) -> None:

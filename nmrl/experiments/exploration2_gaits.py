@@ -35,12 +35,8 @@ def chosen(rows: list[dict]) -> list[dict] | None:
         return None
     means = {arm: float(np.mean(cells[n])) for arm, n in names.items()}
     order = sorted(GAIT_ARMS, key=lambda a: means[a])
-    out = []
-    for rank, arm in (("best", order[-1]), ("worst", order[0])):
-        r = kit_gaits.median_run(r for r in rows if r["cell"] == names[arm])
-        out.append({"rank": rank, "arm": arm, "cell": names[arm], "point": r["point"], "seed": int(r["seed"]),
-                    "det_reward_per_s": float(r["det_reward_per_s"]), "cell_mean": means[arm]})
-    return out
+    return [kit_gaits.pick((r for r in rows if r["cell"] == names[arm]), rank=rank, arm=arm, cell=names[arm],
+                           cell_mean=means[arm]) for rank, arm in (("best", order[-1]), ("worst", order[0]))]
 
 
 def gaits(out: pathlib.Path, rows: list[dict]) -> None:

@@ -37,6 +37,13 @@ def median_run(rows: Iterable[dict]) -> dict:
     return mine[(len(mine) - 1) // 2]
 
 
+def pick(rows: Iterable[dict], **label) -> dict:
+    """The median run of ``rows`` (:func:`median_run`) as a gait's pick: ``label`` (its name, arm,
+    cell, its cell's mean...) with the run's ``point``, ``seed`` and ``det_reward_per_s``."""
+    r = median_run(rows)
+    return {**label, "point": r["point"], "seed": int(r["seed"]), "det_reward_per_s": float(r["det_reward_per_s"])}
+
+
 def draw(out: pathlib.Path, picks: list[dict], title: Callable[[dict], str]) -> None:
     """Each pick (a dict with at least ``name``, the folder under ``out/gaits``, and the run's ``cell``
     and ``point``) rolled out and drawn (module docstring), titled ``title(pick)``; ``gaits.json`` lists

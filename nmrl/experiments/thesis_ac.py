@@ -154,13 +154,10 @@ def gait_picks(rows: list[dict]) -> list[dict] | None:
     if len(means) < len(ARMS):
         return None
     best = max(ARMS[1:], key=lambda a: means[a])
-    out = []
-    for name, arm in (("stationary", "stationary"), (f"best_{best}", best)):
-        r = kit_gaits.median_run(r for r in rows if r["cell"].startswith("grid/") and arm_of(r["point"]) == arm
-                                 and float(r["control_dt"]) == GAIT_DT)
-        out.append({"name": name, "arm": arm, "cell": r["cell"], "point": r["point"], "seed": int(r["seed"]),
-                    "det_reward_per_s": float(r["det_reward_per_s"]), "cell_mean": means[arm]})
-    return out
+    cell = f"grid/dt{GAIT_DT:g}"
+    return [kit_gaits.pick((r for r in rows if r["cell"] == cell and arm_of(r["point"]) == arm), name=name, arm=arm,
+                           cell=cell, cell_mean=means[arm])
+            for name, arm in (("stationary", "stationary"), (f"best_{best}", best))]
 
 
 def gaits(out: pathlib.Path, rows: list[dict]) -> None:
