@@ -358,41 +358,69 @@ def _p(x: float) -> str:
     return f"{m}·10" + str(int(e)).translate(str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹"))
 
 
+def _recomputed(rows: list[dict], fine: float) -> tuple[dict, dict, dict]:
+    """Each of T1-T7 at ``fine`` on both endpoints by hand (:func:`_welch_contrast`) from rows.csv,
+    with the Holm-adjusted p and TOST p over the 14, keyed by (endpoint, contrast)."""
+    keys = [(e, t) for e in _MARGINS for t in _WRITTEN]
+    res = {(e, t): _welch_contrast([_runs(rows, e, arm, fine if dt == 0.0025 else dt) for arm, dt, _ in _WRITTEN[t]],
+                                   [w for *_, w in _WRITTEN[t]], _MARGINS[e]) for e, t in keys}
+    return (res, dict(zip(keys, _holm([res[k][3] for k in keys]))),
+            dict(zip(keys, _holm([res[k][4] for k in keys]))))
+
+
+def _assert_page_table(doc: str, rows: list[dict], fine: float, suffix: str) -> None:
+    """The page's table of the family at ``fine`` (rows labelled "T1 (AUC{suffix})"...): every cell
+    recomputed by hand; the bootstrap interval and the decision are analysis.csv's (checked elsewhere)."""
+    from tests.doc_numbers import n, table_row
+
+    family = "primary" if fine == 0.0025 else "secondary"
+    fam = {(r["endpoint"], r["contrast"]): r for r in _published("analysis.csv") if r["family"] == family}
+    res, holm, tost = _recomputed(rows, fine)
+    for (e, t), (d, lo, hi, p, tp) in res.items():
+        cells = table_row(doc, f"{t} ({'AUC' if e == 'auc_reward_per_s' else 'det.'}{suffix})")
+        boot = fam[e, t]
+        assert cells[2:8] == [f"{n(d, True)} [{n(lo)}, {n(hi)}]",
+                              f"[{n(float(boot['boot_lo']))}, {n(float(boot['boot_hi']))}]",
+                              _p(p), _p(holm[e, t]), f"{_p(tp)} ({_p(tost[e, t])})", boot["decision"]]
+
+
+@pytest.mark.record
+def test_the_pages_secondary_table_and_cells_are_the_published_rows():
+    """The page's table of the secondary family (5 ms) and its 5 ms cells' means and SDs, from
+    rows.csv by hand."""
+    from tests.doc_numbers import n
+
+    rows = _published("rows.csv")
+    if len([r for r in rows if r["cell"] == "grid/dt0.005" and r["det_reward_per_s"]]) < 24:
+        pytest.skip("the 5 ms cell is not published in full")
+    doc = _doc()
+    _assert_page_table(doc, rows, 0.005, ", 5 ms")
+    for arm in (_S, _A, _B):
+        for key in _MARGINS:
+            v = _runs(rows, key, arm, 0.005)
+            assert_numbers(doc, [n(v.mean()), n(v.std(ddof=1))], window=20)
+
+
 @pytest.mark.record
 def test_the_pages_primary_table_and_the_readme_are_the_published_rows():
     """The Results table of the page, every row recomputed from rows.csv by hand (Welch, TOST,
     Holm over the 14; the bootstrap interval is analysis.csv's, checked against scipy elsewhere),
     the cells' means and SDs, and the README's numbers."""
-    from tests.doc_numbers import n, table_row
+    from tests.doc_numbers import n
 
     rows = _published("rows.csv")
     if len([r for r in rows if r["cell"] == "grid/dt0.0025" and r["det_reward_per_s"]]) < 24:
         pytest.skip("the 2.5 ms cell is not published in full")
     fam = {(r["endpoint"], r["contrast"]): r for r in _published("analysis.csv") if r["family"] == "primary"}
 
-    def x(key, arm, dt):
-        return _runs(rows, key, arm, dt)
-
-    written = _WRITTEN
-    margins = _MARGINS
-    keys = [(e, t) for e in margins for t in written]
-    res = {k: _welch_contrast([x(k[0], arm, dt) for arm, dt, _ in written[k[1]]], [w for *_, w in written[k[1]]],
-                              margins[k[0]]) for k in keys}
-    holm = dict(zip(keys, _holm([res[k][3] for k in keys])))
-    tost = dict(zip(keys, _holm([res[k][4] for k in keys])))
+    res, holm, _ = _recomputed(rows, 0.0025)
     doc, readme = _doc(), (REPO / "README.md").read_text()
-    for e, t in keys:
-        d, lo, hi, p, tp = res[e, t]
-        cells = table_row(doc, f"{t} ({'AUC' if e == 'auc_reward_per_s' else 'det.'})")
-        boot = fam[e, t]
-        assert cells[2:8] == [f"{n(d, True)} [{n(lo)}, {n(hi)}]",
-                              f"[{n(float(boot['boot_lo']))}, {n(float(boot['boot_hi']))}]",
-                              _p(p), _p(holm[e, t]), f"{_p(tp)} ({_p(tost[e, t])})", boot["decision"]]
+    _assert_page_table(doc, rows, 0.0025, "")
     assert fam["", "the thesis"]["decision"] == "fails"
     for arm in (_S, _A, _B):
-        for key in margins:
+        for key in _MARGINS:
             for dt in (0.02, 0.0025):
-                v = x(key, arm, dt)
+                v = _runs(rows, key, arm, dt)
                 assert_numbers(doc, [n(v.mean()), n(v.std(ddof=1))], window=20)
     d, lo, hi, *_ = res["auc_reward_per_s", "T1"]
     assert_numbers(readme, [n(d, True), n(lo), n(hi), _p(holm["auc_reward_per_s", "T1"])], label="on the AUC it gains")
