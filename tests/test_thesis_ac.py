@@ -395,6 +395,14 @@ def test_the_pages_secondary_table_and_cells_are_the_published_rows():
         pytest.skip("the 5 ms cell is not published in full")
     doc = _doc()
     _assert_page_table(doc, rows, 0.005, ", 5 ms")
+    fine = [r for r in rows if r["cell"] == "grid/dt0.005"]
+    assert {(r["steps"], r["budget"], r["diverged"]) for r in fine} == {("626000", "625000", "False")}
+    speeds = [float(r["det_forward_speed"]) for r in fine]
+    assert min(speeds) >= 1.0
+    d, lo, hi, *_ = _recomputed(rows, 0.005)[0]["auc_reward_per_s", "T1"]
+    holm = _recomputed(rows, 0.005)[1]["auc_reward_per_s", "T1"]
+    assert_numbers((REPO / "README.md").read_text(), [n(d, True), n(lo), n(hi), f"{holm:.3f}"], label="At 5 ms")
+    assert_numbers(doc, [f"{min(speeds):.2f}", f"{max(speeds):.2f}"], label="every run walks (deterministic forward speed")
     for arm in (_S, _A, _B):
         for key in _MARGINS:
             v = _runs(rows, key, arm, 0.005)
@@ -433,3 +441,41 @@ def test_the_pages_primary_table_and_the_readme_are_the_published_rows():
     assert_numbers(doc, [f"{min(speeds):.2f}", f"{max(speeds):.2f}"], label="Every run at 2.5 ms walks")
     walking = sum(float(r["det_forward_speed"]) >= 1.0 for r in rows if r["cell"] in ("grid/dt0.02", "grid/dt0.0025"))
     assert_numbers(readme, [str(walking), "48"], label="10⁵ simulated seconds per run")
+
+
+def _mean_curve(arm: str, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """The 8 runs' mean exploring reward per second by chunk, read from metrics.jsonl by hand: the
+    reward per step is scaled by δ / 20 ms, so a chunk's reward per second is its mean over 20 ms;
+    its time is the steps over δ."""
+    points = REPO / "results" / "thesis_ac" / "grid" / f"dt{dt:g}" / "points"
+    runs = [[json.loads(line) for line in (points / f"{arm}_s{s}" / "metrics.jsonl").read_text().splitlines()]
+            for s in range(8)]
+    return (np.array([m["step"] * dt for m in runs[0]]),
+            np.mean([[m["avg_reward"] / 0.02 for m in run] for run in runs], axis=0))
+
+
+@pytest.mark.record
+def test_the_pages_learning_curve_description_is_the_published_metrics():
+    """The minima of the mean curves the page describes, and T1's AUC split at 2000 s."""
+    from tests.doc_numbers import n
+
+    if len([r for r in _published("rows.csv") if r["cell"] == "grid/dt0.005" and r["det_reward_per_s"]]) < 24:
+        pytest.skip("the 5 ms cell is not published in full")
+    doc = _doc()
+    for dt in (0.02, 0.005, 0.0025):
+        t, y = _mean_curve(_S, dt)
+        assert_numbers(doc, [n(y.min()), f"{t[y.argmin()]:g}"], label="the minimum of its 8 runs' mean curve", window=400)
+    lows = []
+    for arm in (_A, _B):
+        for dt in (0.02, 0.005, 0.0025):
+            t, y = _mean_curve(arm, dt)
+            assert t[y.argmin()] <= 30.0
+            lows.append(y.min())
+    assert_numbers(doc, [n(min(lows)), n(max(lows))], label="lowest in their first 30 s")
+    t, fine = _mean_curve(_S, 0.0025)
+    _, coarse = _mean_curve(_S, 0.02)
+    d = fine - coarse
+    assert t.size == 313 and t[-1] == pytest.approx(3130.0)
+    early = t <= 2000.0
+    assert_numbers(doc, [n(d.mean(), True), n(d[early].sum() / d.size, True), n(d[~early].sum() / d.size, True)],
+                   label="Of T1's")
