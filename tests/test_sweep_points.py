@@ -52,10 +52,14 @@ def test_a_points_sweep_records_its_points_and_equals_separate_train_runs(listed
         assert checkpoint.load_config(got) == checkpoint.load_config(d)
         a, b = _rows(d), _rows(got)
         assert [r["step"] for r in a] == [r["step"] for r in b] == [25, 50]
+        # Two points batched are another XLA program than one point alone, rounded differently in float32,
+        # and point b's falls amplify it: on an AMD EPYC (Zen 3) its metrics differ by up to 3.1e-4
+        # relative at step 50 (3e-6 at step 25) and its weights by 2.2e-5; one point's run does not depend
+        # on the other points' values at all (the next test).
         for ra, rb in zip(a, b):
             for k in ra:
                 if isinstance(ra[k], float):
-                    np.testing.assert_allclose(ra[k], rb[k], rtol=1e-5, atol=1e-6, err_msg=k)
+                    np.testing.assert_allclose(ra[k], rb[k], rtol=2e-3, atol=1e-5, err_msg=k)
                 else:
                     assert ra[k] == rb[k], k
         import jax
@@ -63,7 +67,19 @@ def test_a_points_sweep_records_its_points_and_equals_separate_train_runs(listed
         ta = jax.tree.leaves(checkpoint.restore(d, make_train(cfg)).theta)
         tb = jax.tree.leaves(checkpoint.restore(got, make_train(cfg)).theta)
         for x, y in zip(ta, tb):
-            np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=1e-4, atol=1e-6)
+            np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=1e-3, atol=2e-4)
+
+
+def test_a_points_run_is_bit_identical_whatever_the_other_points_are(listed, tmp_path):
+    """Point b beside another point with other traced values, other l and another seed, run straight to
+    the budget, is bit for bit point b of the listed sweep (run to 25 steps and resumed to 50): nothing of
+    one point reaches another, and resuming is exact."""
+    f = tmp_path / "points.json"
+    f.write_text(json.dumps([{"name": "c", "l": 2, "beta_theta": 3e-3, "seed": 11}, POINTS[1]]))
+    out = tmp_path / "other"
+    assert cli.main(["sweep", "--points", str(f), *OPTIONS, "--steps", "50", "--out", str(out)]) == 0
+    assert _rows(out / "points" / "b") == _rows(listed / "points" / "b")
+    assert [r["step"] for r in _rows(out / "points" / "b")] == [25, 50]
 
 
 @pytest.mark.parametrize("content,extra,needle", [
