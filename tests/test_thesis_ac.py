@@ -480,3 +480,40 @@ def test_the_pages_learning_curve_description_is_the_published_metrics():
     early = t <= 2000.0
     assert_numbers(doc, [n(d.mean(), True), n(d[early].sum() / d.size, True), n(d[~early].sum() / d.size, True)],
                    label="Of T1's")
+
+
+#: the check's cells as the page labels them: the factor of both step sizes in the point's name
+_CHECK = (("3", "×3"), ("0.333", "×⅓"))
+
+
+@pytest.mark.record
+def test_the_pages_step_size_check_and_the_readme_are_the_published_rows():
+    """The page's table of the step-size check, every row by hand from rows.csv (each scaled
+    stationary cell at 2.5 ms minus the grid's stationary(2.5), Welch), whether each estimate lies
+    above the endpoint's margin and the reading that follows in the page and the README, and the
+    scaled cells' means, SDs, forward speeds and actor's norms (metrics.jsonl's last chunk)."""
+    from tests.doc_numbers import n, table_row
+
+    rows = _published("rows.csv")
+    scaled = {f: [r for r in rows if r["cell"] == "check/dt0.0025" and r["point"].rsplit("_s", 1)[0] == f"stationary_x{f}"]
+              for f, _ in _CHECK}
+    if any(len(v) < 4 or not all(r["det_reward_per_s"] for r in v) for v in scaled.values()):
+        pytest.skip("the step-size check is not published in full")
+    doc, readme = _doc(), (REPO / "README.md").read_text()
+    above = False
+    for f, label in _CHECK:
+        for key, margin in _MARGINS.items():
+            x = np.array([float(r[key]) for r in scaled[f]])
+            d, lo, hi, p, _ = _welch_contrast([x, _runs(rows, key, _S, 0.0025)], [1, -1], margin)
+            cells = table_row(doc, f"{label} ({'AUC' if key == 'auc_reward_per_s' else 'det.'})")
+            assert cells[2:5] == [f"{n(d, True)} [{n(lo)}, {n(hi)}]", _p(p), "yes" if d > margin else "no"]
+            assert_numbers(doc, [n(x.mean()), n(x.std(ddof=1))], label=f"{label}:", window=200)
+            above |= d > margin
+        speeds = [float(r["det_forward_speed"]) for r in scaled[f]]
+        norms = [json.loads((REPO / "results/thesis_ac/check/dt0.0025/points" / r["point"] / "metrics.jsonl")
+                            .read_text().splitlines()[-1])["theta_norm"] for r in scaled[f]]
+        assert_numbers(doc, [f"{min(speeds):.2f}", f"{max(speeds):.2f}", n(min(norms)), n(max(norms))],
+                       label=f"{label}:", window=400)
+    reading = "conditional" if above else "unconditional"
+    assert [r["decision"] for r in _published("analysis.csv") if r["contrast"] == thesis_ac.STEP_SIZE_ROW] == [reading]
+    assert f"reading: {reading}" in doc.replace("*", "") and f"reading: {reading}" in readme.replace("*", "")
