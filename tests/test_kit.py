@@ -101,8 +101,8 @@ def test_a_cell_is_at_its_budget_when_every_point_is_saved_there_or_diverged(tmp
 
 
 def test_progress_reads_each_cells_chunks_and_time_left_from_its_files(tmp_path):
-    """The least advanced point sets a cell's steps; its chunks' mean wall time prices the chunks
-    left (rounded up to whole chunks); a diverged point counts as done; a point before its first
+    """The least advanced point sets a cell's steps; the median wall time of its last 10 chunks prices
+    the chunks left (rounded up to whole chunks); a diverged point counts as done; a point before its first
     saved chunk is at step 0, priced by another point's chunks if one has saved any; a cell without
     points has only its budget."""
     def point(cell, name, walls, chunk=10, diverged_at=None):
@@ -124,8 +124,9 @@ def test_progress_reads_each_cells_chunks_and_time_left_from_its_files(tmp_path)
     point("e", "p0", [4.0, 6.0])
     point("e", "p1", [])  # 0 of 40 steps, priced by p0's chunks: 4 chunks of 5 s
     point("f", "p0", [])
+    point("g", "p0", [100.0, 90.0] + [5.0, 7.0] * 5)  # two loaded chunks, then ten at the recent pace
     cells = tuple(kit.Cell(n, seeds=2, steps=b)
-                  for n, b in (("a", 20), ("b", 45), ("c", 40), ("d", 20), ("e", 40), ("f", 40)))
+                  for n, b in (("a", 20), ("b", 45), ("c", 40), ("d", 20), ("e", 40), ("f", 40), ("g", 150)))
     rows = kit_progress.progress(kit.Study("t", cells, endpoint=None), tmp_path)
     got = {r["cell"]: r for r in rows}
     assert [got["a"][k] for k in ("points", "steps", "budget", "chunks", "s_per_chunk", "remaining_s")] == \
@@ -135,8 +136,10 @@ def test_progress_reads_each_cells_chunks_and_time_left_from_its_files(tmp_path)
     assert got["d"]["budget"] == 20 and all(got["d"][k] == "" for k in ("points", "steps", "remaining_s"))
     assert [got["e"][k] for k in ("points", "steps", "chunks", "s_per_chunk", "remaining_s")] == [2, 0, 0, 5.0, 20]
     assert [got["f"][k] for k in ("points", "steps", "chunks", "s_per_chunk", "remaining_s")] == [1, 0, 0, "", ""]
+    # the median of the last 10 chunks (5 and 7, five each), not the mean of all 12 (19.2)
+    assert [got["g"][k] for k in ("steps", "chunks", "s_per_chunk", "remaining_s")] == [120, 12, 6.0, 18]
     assert kit_progress.progress_text(rows).splitlines()[-1] == (
-        "0.0 h of wall time left in the started cells at their mean chunk times (1 started without a timed "
+        "0.0 h of wall time left in the started cells at their recent chunk times (1 started without a timed "
         "chunk, not counted); 1 cell(s) known but not started")
 
 
