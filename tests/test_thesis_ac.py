@@ -199,6 +199,11 @@ _WRITTEN = {"T1": [(_S, .0025, 1), (_S, .02, -1)], "T2": [(_A, .0025, 1), (_S, .
 _MARGINS = {"auc_reward_per_s": 25.0, "det_reward_per_s": 50.0}  #: the page's TOST margins
 
 
+def _check_rows(rows: list[dict], factor: str) -> list[dict]:
+    """The rows of the check's stationary cell with both step sizes times ``factor`` ("3", "0.333")."""
+    return [r for r in rows if r["cell"] == "check/dt0.0025" and r["point"].rsplit("_s", 1)[0] == f"stationary_x{factor}"]
+
+
 def _runs(rows: list[dict], key: str, arm: str, dt: float) -> np.ndarray:
     """The values of ``key`` of ``arm``'s runs in the grid cell at ``dt``."""
     return np.array([float(r[key]) for r in rows if r["cell"] == f"grid/dt{dt:g}"
@@ -255,8 +260,7 @@ def test_the_published_step_size_check_is_the_welch_of_the_published_rows():
     base = {key: _runs(rows, key, _S, 0.0025) for key in _MARGINS}
     above = False
     for factor in ("3", "0.333"):
-        scaled = {key: np.array([float(r[key]) for r in rows if r["cell"] == "check/dt0.0025"
-                                 and r["point"].rsplit("_s", 1)[0] == f"stationary_x{factor}"]) for key in _MARGINS}
+        scaled = {key: np.array([float(r[key]) for r in _check_rows(rows, factor)]) for key in _MARGINS}
         for key, margin in _MARGINS.items():
             (r,) = [r for r in out if r["endpoint"] == key and r["contrast"] == f"step sizes x{factor}"]
             assert scaled[key].size == 4 and base[key].size == 8
@@ -495,8 +499,7 @@ def test_the_pages_step_size_check_and_the_readme_are_the_published_rows():
     from tests.doc_numbers import n, table_row
 
     rows = _published("rows.csv")
-    scaled = {f: [r for r in rows if r["cell"] == "check/dt0.0025" and r["point"].rsplit("_s", 1)[0] == f"stationary_x{f}"]
-              for f, _ in _CHECK}
+    scaled = {f: _check_rows(rows, f) for f, _ in _CHECK}
     if any(len(v) < 4 or not all(r["det_reward_per_s"] for r in v) for v in scaled.values()):
         pytest.skip("the step-size check is not published in full")
     doc, readme = _doc(), (REPO / "README.md").read_text()
